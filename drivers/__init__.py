@@ -1,0 +1,1 @@
+"""Instrument drivers (transport -> protocol -> device). Not built yet (issue 5)."""

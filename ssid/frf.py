@@ -1,0 +1,193 @@
+"""Frequency-response functions: the measured-data object and synthesis from M, C, K.
+
+Conventions (see ``docs/formats.md``): ``H`` has shape ``(n_freq, n_out, n_in)``; the
+quantity is accelerance, (m/s^2)/N; ``omega = 2 pi freq_hz`` in rad/s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+__all__ = [
+    "FRFData",
+    "receptance",
+    "mobility",
+    "accelerance",
+    "accelerance_from_model",
+    "selection_matrix",
+]
+
+
+@dataclass
+class FRFData:
+    """Measured (or synthesised) accelerance FRFs in the contract's FRF-file layout.
+
+    Attributes
+    ----------
+    freq_hz : (n_freq,) float
+        Frequency lines, strictly increasing, > 0.
+    H : (n_freq, n_out, n_in) complex
+        Acceleration at each output per unit force at each input, (m/s^2)/N.
+    outputs : list of str, (n_out,)
+        DOF label of each accelerometer.
+    inputs : list of str, (n_in,)
+        DOF label of each input force; each is also an output.
+    coherence : (n_freq, n_out, n_in) float or None
+        Ordinary (or multiple) coherence of each value.
+    valid : (n_freq, n_out, n_in) bool or None
+        False marks a blanked value; it takes part in no fit. None means all valid.
+    H_reaction : (n_freq, n_react, n_in) complex or None
+        Interface reaction force on the substructure per unit input force, N/N.
+    reactions : list of str or None
+        DOF label of each reaction; each is also an output.
+    H_var : (n_freq, n_out, n_in) float or None
+        Variance of each H value, E|H - H_true|^2, when known (e.g. from averages).
+    n_avg : int or None
+        Number of averages behind each value, when known.
+    """
+
+    freq_hz: np.ndarray
+    H: np.ndarray
+    outputs: list[str]
+    inputs: list[str]
+    coherence: np.ndarray | None = None
+    valid: np.ndarray | None = None
+    H_reaction: np.ndarray | None = None
+    reactions: list[str] | None = None
+    H_var: np.ndarray | None = None
+    n_avg: int | None = None
+    attrs: dict = field(default_factory=dict)
+
+    @property
+    def omega(self) -> np.ndarray:
+        """Circular frequency of each line, rad/s, (n_freq,)."""
+        return 2.0 * np.pi * np.asarray(self.freq_hz, dtype=float)
+
+    @property
+    def n_freq(self) -> int:
+        return int(self.H.shape[0])
+
+    @property
+    def n_out(self) -> int:
+        return int(self.H.shape[1])
+
+    @property
+    def n_in(self) -> int:
+        return int(self.H.shape[2])
+
+    @property
+    def n_react(self) -> int:
+        return 0 if self.H_reaction is None else int(self.H_reaction.shape[1])
+
+    def valid_mask(self) -> np.ndarray:
+        """Boolean mask (n_freq, n_out, n_in); all True when the file has no ``valid``."""
+        if self.valid is None:
+            return np.ones(self.H.shape, dtype=bool)
+        return np.asarray(self.valid, dtype=bool)
+
+    def input_index(self) -> np.ndarray:
+        """Index of each input's DOF among the outputs, (n_in,)."""
+        return np.array([self.outputs.index(lbl) for lbl in self.inputs], dtype=int)
+
+    def reaction_index(self) -> np.ndarray:
+        """Index of each reaction's DOF among the outputs, (n_react,)."""
+        if not self.reactions:
+            return np.zeros(0, dtype=int)
+        return np.array([self.outputs.index(lbl) for lbl in self.reactions], dtype=int)
+
+    def band(self, f_lo_hz: float, f_hi_hz: float) -> "FRFData":
+        """The lines with ``f_lo_hz <= freq_hz <= f_hi_hz`` as a new FRFData."""
+        sel = (self.freq_hz >= f_lo_hz) & (self.freq_hz <= f_hi_hz)
+
+        def cut(a):
+            return None if a is None else a[sel]
+
+        return replace(
+            self,
+            freq_hz=self.freq_hz[sel],
+            H=self.H[sel],
+            coherence=cut(self.coherence),
+            valid=cut(self.valid),
+            H_reaction=cut(self.H_reaction),
+            H_var=cut(self.H_var),
+        )
+
+
+def selection_matrix(dofs: list[str], labels: list[str]) -> np.ndarray:
+    """0/1 matrix ``S`` (len(dofs), len(labels)) with ``S[i, j] = 1`` where ``dofs[i] == labels[j]``.
+
+    Used as the force distribution matrix D (Eq. 3.1) and as the sensor matrix S.
+    """
+    index = {lbl: i for i, lbl in enumerate(dofs)}
+    S = np.zeros((len(dofs), len(labels)))
+    for j, lbl in enumerate(labels):
+        S[index[lbl], j] = 1.0
+    return S
+
+
+def receptance(
+    M: np.ndarray,
+    C: np.ndarray | None,
+    K: np.ndarray,
+    omega: np.ndarray,
+    D: np.ndarray | None = None,
+    S: np.ndarray | None = None,
+) -> np.ndarray:
+    """Displacement per unit force, ``S (K - omega^2 M + j omega C)^-1 D``.
+
+    Parameters
+    ----------
+    M, C, K : (n, n)
+        Mass, viscous damping (None: undamped) and stiffness matrices.
+    omega : (n_freq,)
+        Circular frequencies, rad/s.
+    D : (n, n_in), optional
+        Force distribution matrix (identity when omitted).
+    S : (n_out, n), optional
+        Sensor selection matrix (identity when omitted).
+
+    Returns
+    -------
+    (n_freq, n_out, n_in) complex, m/N.
+    """
+    M = np.asarray(M, dtype=float)
+    K = np.asarray(K, dtype=float)
+    C = np.zeros_like(M) if C is None else np.asarray(C, dtype=float)
+    n = M.shape[0]
+    D = np.eye(n) if D is None else np.asarray(D, dtype=float)
+    omega = np.asarray(omega, dtype=float)
+    # One batched LU solve per line: (n_freq, n, n) dynamic stiffness against (n, n_in) loads.
+    Z = K[None] - (omega**2)[:, None, None] * M[None] + 1j * omega[:, None, None] * C[None]
+    X = np.linalg.solve(Z, np.broadcast_to(D.astype(complex), (omega.size,) + D.shape))
+    if S is not None:
+        X = np.einsum("oi,kij->koj", S, X)
+    return X
+
+
+def mobility(M, C, K, omega, D=None, S=None) -> np.ndarray:
+    """Velocity per unit force, ``j omega`` times :func:`receptance`, (m/s)/N."""
+    return 1j * np.asarray(omega)[:, None, None] * receptance(M, C, K, omega, D, S)
+
+
+def accelerance(M, C, K, omega, D=None, S=None) -> np.ndarray:
+    """Acceleration per unit force, ``-omega^2`` times :func:`receptance`, (m/s^2)/N."""
+    return -(np.asarray(omega) ** 2)[:, None, None] * receptance(M, C, K, omega, D, S)
+
+
+def accelerance_from_model(
+    M: np.ndarray,
+    C: np.ndarray | None,
+    K: np.ndarray,
+    dofs: list[str],
+    freq_hz: np.ndarray,
+    outputs: list[str],
+    inputs: list[str],
+) -> FRFData:
+    """Synthesise an :class:`FRFData` of accelerances of a model at labelled DOFs."""
+    freq_hz = np.asarray(freq_hz, dtype=float)
+    D = selection_matrix(dofs, inputs)
+    S = selection_matrix(dofs, outputs).T
+    H = accelerance(M, C, K, 2 * np.pi * freq_hz, D, S)
+    return FRFData(freq_hz=freq_hz, H=H, outputs=list(outputs), inputs=list(inputs))

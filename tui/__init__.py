@@ -1,0 +1,1 @@
+"""Textual terminal UI for lab runs. Not built yet (issue 8)."""

@@ -1,0 +1,279 @@
+"""``identify_mck``: the SSID pipeline from an FRF file's data to M, C, K and modal results.
+
+Step 1 (``ssid.step1``) estimates ``M^-1 C, M^-1 K, M^-1 D`` ; step 2 (``ssid.step2``) solves the
+state-space eigenproblem, fits the modal scale factors and rebuilds M, C, K. The default solver
+``"ml"`` is ours (see ``docs/algorithm.md``): a weighted equation-error start followed by a
+maximum-likelihood (output-error) refinement, with weights from the file's variances or
+coherence when it has them and from the fit's own residuals when it does not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import IdentificationError
+from .frf import FRFData
+from .modal import (
+    modal_damping_matrix,
+    modal_phase_collinearity,
+    physical_checks,
+    real_modes,
+    root_frequency_damping,
+)
+from .noise import frf_noise_weights
+from .step1 import (
+    Step1Data,
+    Step1Estimate,
+    estimate_equation_error,
+    predict_accelerance,
+    refine_output_error,
+    refine_sanathanan_koerner,
+    step1_data,
+)
+from .step2 import assemble_mck, modal_scale_factors, state_space_modes
+
+__all__ = ["SSIDResult", "identify_mck", "SOLVERS"]
+
+SOLVERS = ("ml", "ls", "tls", "stls")
+
+
+@dataclass
+class SSIDResult:
+    """Identified substructure model and its modal summary.
+
+    Attributes
+    ----------
+    M, C, K : (n, n)
+        Mass, damping and stiffness over ``dofs`` (the FRF file's outputs, in order).
+    dofs : list of str
+    natural_freq_hz, damping_ratio : (m,)
+        From the oscillatory state-space roots (Eqs. 5.18-5.19), ascending frequency.
+    mpc : (m,)
+        Modal phase collinearity of each mode (Eq. 5.20).
+    mode_shapes : (n, m) complex
+        Displacement partition of the state-space eigenvectors, largest entry 1.
+    undamped_freq_hz : (n,)
+        Square roots of the eigenvalues of (K, M), ascending (NaN if M is not definite).
+    real_mode_shapes : (n, n) or None
+        Mass-normalised real modes of (K, M).
+    real_roots : (q,)
+        Real (non-oscillatory) state-space roots, rad/s; a clean identification has none.
+    """
+
+    M: np.ndarray
+    C: np.ndarray
+    K: np.ndarray
+    dofs: list[str]
+    natural_freq_hz: np.ndarray
+    damping_ratio: np.ndarray
+    mpc: np.ndarray
+    mode_shapes: np.ndarray
+    undamped_freq_hz: np.ndarray
+    real_mode_shapes: np.ndarray | None
+    real_roots: np.ndarray
+    solver: str
+    damping: str
+    band_hz: tuple[float, float]
+    checks: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+
+    def to_json_dict(self) -> dict:
+        """The result as plain JSON types (the contract's keys first)."""
+        return {
+            "natural_freq_hz": [float(v) for v in self.natural_freq_hz],
+            "damping_ratio": [float(v) for v in self.damping_ratio],
+            "dofs": list(self.dofs),
+            "mpc": [float(v) for v in self.mpc],
+            "undamped_freq_hz": [float(v) for v in self.undamped_freq_hz],
+            "real_roots_rad_per_s": [float(v) for v in self.real_roots],
+            "solver": self.solver,
+            "damping_matrix": self.damping,
+            "band_hz": [float(self.band_hz[0]), float(self.band_hz[1])],
+            "checks": self.checks,
+            "warnings": list(self.warnings),
+            "info": self.info,
+        }
+
+
+def _output_error_cost(d: Step1Data, est: Step1Estimate) -> float:
+    Hm, _ = predict_accelerance(d, est)
+    c = float(np.sum((d.weight * np.abs(d.H - Hm)) ** 2))
+    return c if np.isfinite(c) else np.inf
+
+
+def _residual_weights(d: Step1Data, est: Step1Estimate, valid: np.ndarray) -> np.ndarray:
+    """Noise weights ``1/sigma`` re-estimated from the residuals of a converged fit, one per FRF.
+
+    The level is a robust scale of that FRF's residuals (median of |r|^2, which for complex
+    Gaussian noise is ln 2 sigma^2), so that a few lines the model cannot follow do not set it.
+    """
+    Hm, _ = predict_accelerance(d, est)
+    r2 = np.where(valid, np.abs(d.H - Hm) ** 2, np.nan)
+    return _weights_from_levels(np.nanmedian(r2, axis=0) / np.log(2.0), valid)
+
+
+def _roughness_weights(H: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Noise weights ``1/sigma`` of each FRF from its roughness along frequency, with no model.
+
+    With no variance or coherence in the file, the model of the noise is one level per FRF
+    (output i, input j) over the band, as the additive magnitude noise of a measured spectrum
+    has. For independent noise of variance s^2 on each line, the second difference
+    ``H[k-1] - 2 H[k] + H[k+1]`` has variance 6 s^2 while a smooth FRF contributes little;
+    the median over lines keeps the few lines at sharp resonances from setting the level.
+    """
+    d2 = H[:-2] - 2 * H[1:-1] + H[2:]
+    ok = valid[:-2] & valid[1:-1] & valid[2:]
+    r2 = np.where(ok, np.abs(d2) ** 2, np.nan)
+    with np.errstate(all="ignore"):
+        s2 = np.nanmedian(r2, axis=0) / (6 * np.log(2.0))
+    return _weights_from_levels(s2, valid)
+
+
+def _weights_from_levels(s2: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Broadcast per-FRF variances (n, n_in) to weights (L, n, n_in); 0 where blanked."""
+    pos = s2[np.isfinite(s2) & (s2 > 0)]
+    fill = np.median(pos) if pos.size else 1.0
+    s2 = np.where(np.isfinite(s2) & (s2 > 0), s2, fill)
+    s2 = np.maximum(s2, 1e-12 * s2.max())
+    return np.broadcast_to(1.0 / np.sqrt(s2), valid.shape) * valid
+
+
+def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict) -> Step1Estimate:
+    """Our default step 1: best equation-error start, then output-error refinement."""
+    if not know_noise:
+        d.weight = _roughness_weights(d.H, valid)
+    starts = {}
+    for name in ("ls", "tls", "stls"):
+        try:
+            starts[name] = estimate_equation_error(d, name)
+        except (np.linalg.LinAlgError, IdentificationError):
+            continue
+    if not starts:
+        raise IdentificationError("no equation-error start could be computed for step 1")
+    costs = {k: _output_error_cost(d, e) for k, e in starts.items()}
+    best = min(costs, key=costs.get)
+    info["start"] = best
+    est, info["sk"] = refine_sanathanan_koerner(d, starts[best])
+    est, it_info = refine_output_error(d, est)
+    info["refine"] = it_info
+    if not know_noise:
+        d.weight = _residual_weights(d, est, valid)
+        est, it_info = refine_output_error(d, est)
+        info["refine_reweighted"] = it_info
+    return est
+
+
+def identify_mck(
+    frf: FRFData,
+    *,
+    solver: str = "ml",
+    f_min_hz: float | None = None,
+    f_max_hz: float | None = None,
+    damping: str = "identified",
+) -> SSIDResult:
+    """Identify M, C, K of a substructure from accelerance FRFs with SSID.
+
+    Parameters
+    ----------
+    frf : FRFData
+        Accelerances ``H`` (n_freq, n_out, n_in) at all outputs for each input, optionally the
+        interface reactions ``H_reaction`` (substructure on a test stand, section 3.1), a
+        ``valid`` mask (blanked values are not used by any fit), ``H_var`` or ``coherence``.
+    solver : {"ml", "ls", "tls", "stls"}
+        Step-1 solver: ``ml`` (default) maximum-likelihood output-error refinement;
+        ``ls``, ``tls``, ``stls`` the report's least squares, total least squares and scaled
+        TLS on the equation-error form (Eqs. 3.7, 5.5, 5.14, section 5.1.3).
+    f_min_hz, f_max_hz : float, optional
+        Band of lines to use (default: all).
+    damping : {"identified", "modal"}
+        ``identified``: C from the A_s partition (Eq. 3.15); ``modal``: C rebuilt from the
+        identified damping ratios and the real modes of (K, M) (section 6.2.3).
+
+    Returns
+    -------
+    SSIDResult
+
+    Raises
+    ------
+    IdentificationError
+        Too few valid lines, or a degenerate fit.
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
+    if damping not in ("identified", "modal"):
+        raise ValueError(f"unknown damping option {damping!r}; choose identified or modal")
+    lo = float(frf.freq_hz[0]) if f_min_hz is None else float(f_min_hz)
+    hi = float(frf.freq_hz[-1]) if f_max_hz is None else float(f_max_hz)
+    data = frf.band(lo, hi)
+    if data.n_freq == 0:
+        raise IdentificationError(f"no frequency lines between {lo:g} and {hi:g} Hz")
+    valid = data.valid_mask()
+    weights = frf_noise_weights(data)
+    know_noise = weights is not None
+    d = step1_data(data, weights)
+    info: dict = {"n_lines": data.n_freq, "n_values_blanked": int(np.count_nonzero(~valid))}
+    warnings: list[str] = []
+    if not d.col_ok.all():
+        warnings.append(
+            f"{int(np.count_nonzero(~d.col_ok))} (line, input) columns hold a blanked value and "
+            "are left out of the equation-error fits"
+        )
+
+    if solver == "ml":
+        est = _step1_ml(d, valid, know_noise, info)
+    else:
+        est = estimate_equation_error(d, solver)
+
+    modes = state_space_modes(est.C_hat, est.K_hat)
+    u = modal_scale_factors(d, modes)
+    M, C, K, asm = assemble_mck(modes, u)
+    info.update(asm)
+
+    m = modes.n_pairs
+    wn, zeta = root_frequency_damping(modes.lam[:m])
+    shapes = modes.theta_x[:, :m].copy()
+    if m:
+        pivot = shapes[np.argmax(np.abs(shapes), axis=0), np.arange(m)]
+        shapes = shapes / pivot
+    mpc = modal_phase_collinearity(shapes)
+    real_roots = modes.lam[2 * m :].real
+    if real_roots.size:
+        warnings.append(
+            f"{real_roots.size} real (non-oscillatory) root(s): the model has "
+            f"{m} oscillatory modes for {d.n} DOFs (noise or too few modes in the band)"
+        )
+
+    try:
+        wu, phi = real_modes(M, K)
+        undamped = wu / (2 * np.pi)
+    except np.linalg.LinAlgError:
+        undamped, phi = np.full(d.n, np.nan), None
+    if damping == "modal":
+        if phi is None:
+            raise IdentificationError("modal damping needs a positive-definite identified M")
+        C = modal_damping_matrix(M, K, zeta)
+    checks, chk_warn = physical_checks(M, C, K, zeta)
+    checks.update({k: v for k, v in asm.items()})
+    warnings.extend(chk_warn)
+    return SSIDResult(
+        M=M,
+        C=C,
+        K=K,
+        dofs=list(data.outputs),
+        natural_freq_hz=wn / (2 * np.pi),
+        damping_ratio=zeta,
+        mpc=mpc,
+        mode_shapes=shapes,
+        undamped_freq_hz=undamped,
+        real_mode_shapes=phi,
+        real_roots=real_roots,
+        solver=solver,
+        damping=damping,
+        band_hz=(float(data.freq_hz[0]), float(data.freq_hz[-1])),
+        checks=checks,
+        warnings=warnings,
+        info=info,
+    )

@@ -27,6 +27,7 @@ from .step1 import (
     Step1Data,
     Step1Estimate,
     estimate_equation_error,
+    output_error_cost,
     predict_accelerance,
     refine_output_error,
     refine_sanathanan_koerner,
@@ -98,12 +99,6 @@ class SSIDResult:
         }
 
 
-def _output_error_cost(d: Step1Data, est: Step1Estimate) -> float:
-    Hm, _ = predict_accelerance(d, est)
-    c = float(np.sum((d.weight * np.abs(d.H - Hm)) ** 2))
-    return c if np.isfinite(c) else np.inf
-
-
 def _residual_weights(d: Step1Data, est: Step1Estimate, valid: np.ndarray) -> np.ndarray:
     """Noise weights ``1/sigma`` re-estimated from the residuals of a converged fit, one per FRF.
 
@@ -142,9 +137,27 @@ def _weights_from_levels(s2: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict) -> Step1Estimate:
-    """Our default step 1: best equation-error start, then output-error refinement."""
+    """Our default step 1 (see ``docs/algorithm.md``).
+
+    1. Noise levels: from the file (variance or coherence) or, failing that, from the
+       roughness of each FRF; reactions always from their roughness.
+    2. Start: the best (lowest output error) of the report's LS, TLS and scaled TLS.
+    3. Sanathanan-Koerner iterations with the full equation-error covariance, which accounts
+       for noise on measured reactions (errors in variables).
+    4. Without reactions: Gauss-Newton on the weighted output error (maximum likelihood), and
+       when the file gave no noise levels, once more with levels re-estimated from residuals.
+    """
+    rough = _roughness_weights(d.H, valid)
     if not know_noise:
-        d.weight = _roughness_weights(d.H, valid)
+        d.weight = rough
+    else:
+        # File weights may be relative (coherence without n_avg): put them on the absolute
+        # scale of the roughness estimate, so that accelerance and reaction noise compare.
+        ok = (d.weight > 0) & (rough > 0)
+        if np.any(ok):
+            d.weight = d.weight * np.median(rough[ok] / d.weight[ok])
+    if d.n_r:
+        d.weight_r = _roughness_weights(d.Hr, np.ones(d.Hr.shape, dtype=bool))
     starts = {}
     for name in ("ls", "tls", "stls"):
         try:
@@ -153,17 +166,33 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict) -> 
             continue
     if not starts:
         raise IdentificationError("no equation-error start could be computed for step 1")
-    costs = {k: _output_error_cost(d, e) for k, e in starts.items()}
+    costs = {k: output_error_cost(d, e) for k, e in starts.items()}
     best = min(costs, key=costs.get)
     info["start"] = best
+    if d.n_r:
+        est, info["sk"] = refine_sanathanan_koerner(d, starts[best], max_iter=40, rtol=1e-8)
+        return est
     est, info["sk"] = refine_sanathanan_koerner(d, starts[best])
-    est, it_info = refine_output_error(d, est)
-    info["refine"] = it_info
+    est, info["refine"] = refine_output_error(d, est)
     if not know_noise:
         d.weight = _residual_weights(d, est, valid)
-        est, it_info = refine_output_error(d, est)
-        info["refine_reweighted"] = it_info
+        est, info["refine_reweighted"] = refine_output_error(d, est)
     return est
+
+
+def _step2_weights(d: Step1Data, est: Step1Estimate) -> np.ndarray:
+    """Per-value weights for Eq. 3.23: accelerance noise plus reaction noise seen through
+    the model, ``var = sigma_h^2 + sum_m |(A^-1 D^_r)_im|^2 sigma_r,m^2`` (diagonal of the
+    errors-in-variables covariance)."""
+    if d.n_r == 0 or np.all(np.isinf(d.weight_r)):
+        return d.weight
+    _, Ainv = predict_accelerance(d, est, with_inverse=True)
+    G = np.abs(Ainv @ est.Dr_hat) ** 2  # (L, n, n_r)
+    var_r = 1.0 / d.weight_r**2  # (L, n_r, n_in)
+    with np.errstate(divide="ignore"):
+        var_h = np.where(d.weight > 0, 1.0 / d.weight**2, np.inf)
+    var = var_h + G @ var_r
+    return np.where(np.isfinite(var), 1.0 / np.sqrt(var), 0.0)
 
 
 def identify_mck(
@@ -228,6 +257,8 @@ def identify_mck(
         est = estimate_equation_error(d, solver)
 
     modes = state_space_modes(est.C_hat, est.K_hat)
+    if solver == "ml":
+        d.weight = _step2_weights(d, est)
     u = modal_scale_factors(d, modes)
     M, C, K, asm = assemble_mck(modes, u)
     info.update(asm)

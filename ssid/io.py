@@ -239,6 +239,7 @@ def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:
             f"input {inputs[idx[2]]!r}"
         )
 
+    at_output = at(outputs, "output")
     shape = (freq.size, len(outputs), len(inputs))
     origin = "(n_freq, n_out, n_in) from freq_hz, outputs, inputs"
 
@@ -254,7 +255,7 @@ def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:
         src,
         "H",
         H,
-        at(outputs, "output"),
+        at_output,
         nan_ok=None if valid is None else ~valid,
         hint="NaN is allowed only where valid is False",
     )
@@ -263,14 +264,13 @@ def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:
     if frf.coherence is not None:
         coherence = _real(src, "coherence", frf.coherence)
         _require_shape(src, "coherence", coherence, shape, origin)
-        _require_finite(src, "coherence", coherence, at(outputs, "output"))
+        _require_finite(src, "coherence", coherence, at_output)
         outside = (coherence < -COHERENCE_SLACK) | (coherence > 1 + COHERENCE_SLACK)
         if outside.any():
             idx = _first(outside)
             raise _error(
                 src,
-                f"coherence must lie in [0, 1], got {coherence[idx]:g} at "
-                f"{at(outputs, 'output')(idx)}",
+                f"coherence must lie in [0, 1], got {coherence[idx]:g} at {at_output(idx)}",
             )
         coherence = np.clip(coherence, 0.0, 1.0)
 
@@ -278,13 +278,12 @@ def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:
     if frf.H_var is not None:
         H_var = _real(src, "H_var", frf.H_var)
         _require_shape(src, "H_var", H_var, shape, origin)
-        _require_finite(src, "H_var", H_var, at(outputs, "output"))
+        _require_finite(src, "H_var", H_var, at_output)
         if (H_var < 0).any():
             idx = _first(H_var < 0)
             raise _error(
                 src,
-                f"H_var is a variance and must be >= 0, got {H_var[idx]:g} at "
-                f"{at(outputs, 'output')(idx)}",
+                f"H_var is a variance and must be >= 0, got {H_var[idx]:g} at {at_output(idx)}",
             )
 
     # An empty reaction list with no H_reaction is the same as "no reactions".

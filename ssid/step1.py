@@ -37,6 +37,7 @@ __all__ = [
     "refine_output_error",
     "refine_sanathanan_koerner",
     "predict_accelerance",
+    "output_error_cost",
 ]
 
 
@@ -51,6 +52,8 @@ class Step1Data:
     Hr : (L, n_r, n_in) complex reaction FRFs (N/N).
     weight : (L, n, n_in) float
         ``1/sigma`` of each H value up to a common factor; 0 where blanked.
+    weight_r : (L, n_r, n_in) float
+        ``1/sigma`` of each reaction value on the same scale (inf: taken as exact).
     col_ok : (L, n_in) bool
         Column (k, j) usable by the equation-error form: no blanked value in ``H[k, :, j]``.
     in_idx, r_idx : DOF index of each input / reaction among the outputs.
@@ -60,6 +63,7 @@ class Step1Data:
     H: np.ndarray
     Hr: np.ndarray
     weight: np.ndarray
+    weight_r: np.ndarray
     col_ok: np.ndarray
     in_idx: np.ndarray
     r_idx: np.ndarray
@@ -98,8 +102,10 @@ class Step1Estimate:
         return np.hstack([self.C_hat, self.K_hat, self.Df_hat, self.Dr_hat])
 
 
-def step1_data(frf: FRFData, weight: np.ndarray | None = None) -> Step1Data:
-    """Arrange an :class:`FRFData` for step 1; ``weight`` (L, n_out, n_in) is ``1/sigma``."""
+def step1_data(
+    frf: FRFData, weight: np.ndarray | None = None, weight_r: np.ndarray | None = None
+) -> Step1Data:
+    """Arrange an :class:`FRFData` for step 1; ``weight``/``weight_r`` are ``1/sigma``."""
     valid = frf.valid_mask()
     H = np.where(valid, frf.H, 0.0).astype(complex)
     if frf.H_reaction is None:
@@ -113,6 +119,7 @@ def step1_data(frf: FRFData, weight: np.ndarray | None = None) -> Step1Data:
         H=H,
         Hr=Hr,
         weight=w,
+        weight_r=np.full(Hr.shape, np.inf) if weight_r is None else np.asarray(weight_r, float),
         col_ok=valid.all(axis=1),
         in_idx=frf.input_index(),
         r_idx=frf.reaction_index(),
@@ -201,40 +208,83 @@ def predict_accelerance(
     return np.linalg.solve(A, F), None
 
 
-def _weighted_cost(d: Step1Data, Hm: np.ndarray) -> float:
-    return float(np.sum((d.weight * np.abs(d.H - Hm)) ** 2))
+def _equation_weights(d: Step1Data, est: Step1Estimate) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse covariance of the equation error of every column, and the model's inverse A.
+
+    The equation error of column (k, j) is ``e = h + X z = A_k dh - D^_r dr``: the noise of the
+    accelerances seen through ``A_k`` plus the noise of the measured reactions, which enter
+    Eq. 3.6 as inputs (an errors-in-variables problem). Its covariance is
+    ``S_kj = A_k diag(sigma_h^2) A_k^H + D^_r diag(sigma_r^2) D^_r^T`` and the weight is
+    ``S_kj^-1`` (n x n). Without reaction noise this is ``A^-H diag(w^2) A^-1``, and
+    ``e^H S^-1 e`` is exactly the weighted output error. Columns holding a blanked value get
+    weight 0 (their regressor is incomplete).
+
+    Returns ``(W, Ainv)``: (L, n_in, n, n) and (L, n, n).
+    """
+    n = d.n
+    w = d.omega[:, None, None]
+    A = np.eye(n)[None] + est.C_hat[None] / (1j * w) - est.K_hat[None] / w**2
+    Ainv = np.linalg.inv(A)
+    w2 = np.swapaxes(d.weight, 1, 2) ** 2  # (L, n_in, n)
+    if d.n_r == 0 or np.all(np.isinf(d.weight_r)):
+        W = np.einsum("kia,kji,kic->kjac", Ainv.conj(), w2, Ainv)
+    else:
+        var_h = np.where(w2 > 0, 1.0 / np.where(w2 > 0, w2, 1.0), 0.0)
+        var_r = 1.0 / np.swapaxes(d.weight_r, 1, 2) ** 2  # (L, n_in, n_r); 0 if exact
+        S = np.einsum("kia,kja,kca->kjic", A, var_h, A.conj())
+        S += np.einsum("ia,kja,ca->kjic", est.Dr_hat, var_r, est.Dr_hat)
+        W = np.linalg.inv(S)
+        W = (W + np.conj(np.swapaxes(W, -1, -2))) / 2
+    W = W * d.col_ok[:, :, None, None]
+    return W, Ainv
+
+
+def _equation_cost(d: Step1Data, Z: np.ndarray, est: Step1Estimate) -> float:
+    """``sum_kj e^H S_kj^-1 e`` with the weights of the estimate itself (ML-type cost)."""
+    try:
+        W, _ = _equation_weights(d, est)
+    except np.linalg.LinAlgError:
+        return np.inf
+    e = np.swapaxes(d.H, 1, 2) + np.einsum("ab,kjb->kja", est.to_x(), Z)
+    c = float(np.einsum("kja,kjac,kjc->", e.conj(), W, e).real)
+    return c if np.isfinite(c) else np.inf
+
+
+def _output_cost(d: Step1Data, Hm: np.ndarray) -> float:
+    c = float(np.sum((d.weight * np.abs(d.H - Hm)) ** 2))
+    return c if np.isfinite(c) else np.inf
 
 
 def _normal_equations(
-    d: Step1Data, Z: np.ndarray, Ainv: np.ndarray, R: np.ndarray, w2: np.ndarray, chunk: int = 512
+    Z: np.ndarray, W: np.ndarray, V: np.ndarray, chunk: int = 512
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Normal matrix and right-hand side of ``min sum w^2 |R_kj + A_k^-1 X z_kj|^2`` over real X.
+    """Normal matrix and right-hand side of ``min sum_kj (v + X z)^H W (v + X z)`` over real X.
 
-    The map ``X -> A_k^-1 X z_kj`` has the Kronecker form ``J = z_kj^T (x) A_k^-1``, so
-    ``J^T W J = Re sum_kj kron(W_kj, G_kj)`` with ``W_kj = A_k^-H diag(w_kj^2) A_k^-1`` (n x n)
-    and ``G_kj = conj(z_kj) z_kj^T`` (p x p). The sum over (k, j) of the Kronecker products is
-    one matrix product of the flattened factors, chunked so that memory stays
-    O(chunk (n^2 + p^2)) instead of the Jacobian's (lines x outputs x inputs) x (n p).
+    For residuals of the form ``X z_kj`` seen through an (n x n) Hermitian weight ``W_kj``,
+    ``J^T W J = Re sum_kj kron(W_kj, G_kj)`` with ``G_kj = conj(z_kj) z_kj^T`` (p x p). The sum
+    of Kronecker products is one matrix product of the flattened factors, chunked so that
+    memory stays O(chunk (n^2 + p^2)) instead of the Jacobian's
+    (lines x outputs x inputs) x (n p).
 
     Parameters
     ----------
-    Z : (L, n_in, p) regressors; Ainv : (L, n, n); R : (L, n, n_in); w2 : (L, n, n_in).
+    Z : (L, n_in, p) regressors; W : (L, n_in, n, n) weights; V : (L, n_in, n) = ``W v``.
 
     Returns
     -------
-    (N, g): (n p, n p) and (n p,), with ``vec`` row-major in X (index ``a p + b``); the
-    minimiser solves ``N vec(X) = -g``.
+    (N, g): (n p, n p) and (n p,), ``vec`` row-major in X (index ``a p + b``); the minimiser
+    solves ``N vec(X) = -g``.
     """
-    n, p = d.n, d.p
-    U = np.einsum("kia,kij->kja", Ainv.conj(), w2 * R)  # (L, n_in, n)
-    g = np.einsum("kja,kjb->ab", U, Z.conj()).real.reshape(n * p)
-    Wkj = np.einsum("kia,kij,kic->kjac", Ainv.conj(), w2, Ainv).reshape(-1, n * n)
+    n = W.shape[-1]
+    p = Z.shape[-1]
+    g = np.einsum("kja,kjb->ab", V, Z.conj()).real.reshape(n * p)
+    Wf = W.reshape(-1, n * n)
     Zf = Z.reshape(-1, p)
     T = np.zeros((n * n, p * p))
     for s in range(0, Zf.shape[0], chunk):
         z = Zf[s : s + chunk]
         G = (z.conj()[:, :, None] * z[:, None, :]).reshape(-1, p * p)
-        Wc = Wkj[s : s + chunk]
+        Wc = Wf[s : s + chunk]
         T += Wc.real.T @ G.real - Wc.imag.T @ G.imag
     N = T.reshape(n, n, p, p).transpose(0, 2, 1, 3).reshape(n * p, n * p)
     return N, g
@@ -249,41 +299,37 @@ def _solve_scaled(N: np.ndarray, rhs: np.ndarray, mu: float = 0.0) -> np.ndarray
 
 
 def refine_sanathanan_koerner(
-    d: Step1Data, est0: Step1Estimate, max_iter: int = 8
+    d: Step1Data, est0: Step1Estimate, max_iter: int = 8, rtol: float = 1e-6
 ) -> tuple[Step1Estimate, dict]:
-    """Iteratively reweighted equation error (Sanathanan-Koerner, matrix weight ``A_k^-1``).
+    """Iteratively reweighted equation error (Sanathanan-Koerner with a matrix weight).
 
-    Each iteration solves the *linear* problem ``min sum w^2 |A_prev,k^-1 (h_kj + X z_kj)|^2``
-    (``z_kj`` from the measured FRFs): at a fixed point ``A_prev = A`` and the weighted
-    equation error equals the output error ``h - A^-1 F``. It is the robust way into the
-    basin of the output-error minimum; :func:`refine_output_error` then finishes. Columns
-    with a blanked value are left out (their regressor is incomplete).
+    Each iteration solves the *linear* problem ``min sum e^H S_prev^-1 e`` with
+    ``e = h + X z`` (``z`` from the measured FRFs) and ``S_prev`` the equation-error
+    covariance at the previous iterate (:func:`_equation_weights`). At a fixed point this is
+    the errors-in-variables ML-type cost; without reactions it is the weighted output error.
+    It is the robust way into the basin of that minimum from a poor start.
 
-    Returns the iterate with the lowest output-error cost, and ``info``.
+    Returns the iterate with the lowest cost, and ``info``.
     """
     n, n_in = d.n, d.n_in
     Z = _regressors(d, d.H)
-    w2 = d.weight**2 * d.col_ok[:, None, :]
-    best = est0
-    best_cost = cost0 = _weighted_cost(d, predict_accelerance(d, est0)[0])
-    est = est0
+    h = np.swapaxes(d.H, 1, 2)
+    best = est = est0
+    best_cost = cost0 = _equation_cost(d, Z, est0)
     it = 0
     for it in range(1, max_iter + 1):
-        _, Ainv = predict_accelerance(d, est, with_inverse=True)
-        R = Ainv @ d.H
-        N, g = _normal_equations(d, Z, Ainv, R, w2)
         try:
+            W, _ = _equation_weights(d, est)
+            N, g = _normal_equations(Z, W, np.einsum("kjac,kjc->kja", W, h))
             X = -_solve_scaled(N, g).reshape(n, d.p)
         except np.linalg.LinAlgError:
             break
         est = Step1Estimate.from_x(X, n, n_in)
-        cost = _weighted_cost(d, predict_accelerance(d, est)[0])
-        if not np.isfinite(cost):
-            break
+        cost = _equation_cost(d, Z, est)
         if cost < best_cost:
             gain = (best_cost - cost) / best_cost
             best, best_cost = est, cost
-            if gain < 1e-6:
+            if gain < rtol:
                 break
     return best, {"cost_start": cost0, "cost": best_cost, "iterations": it}
 
@@ -296,12 +342,16 @@ def refine_output_error(
 ) -> tuple[Step1Estimate, dict]:
     """Levenberg-Marquardt minimisation of the weighted output error of the step-1 model.
 
+    Minimises ``sum w^2 |h_kj - A_k^-1 (D^_f e_j + D^_r r_kj)|^2``: the maximum-likelihood
+    estimate when the accelerances are noisy and the reactions (if any) exact. With noisy
+    reactions :func:`refine_sanathanan_koerner` and its errors-in-variables weight are used.
+
     Parameters
     ----------
     d : Step1Data
         Data with weights ``1/sigma`` (0 for blanked values).
     est0 : Step1Estimate
-        Starting point (e.g. from :func:`estimate_equation_error`).
+        Starting point (e.g. from :func:`refine_sanathanan_koerner`).
     max_iter : int
         Maximum number of accepted Gauss-Newton steps.
     rtol : float
@@ -312,15 +362,19 @@ def refine_output_error(
     (Step1Estimate, info) with ``info`` holding ``cost_start``, ``cost``, ``iterations``.
     """
     n, n_in = d.n, d.n_in
+    w2 = d.weight**2
+
     X = est0.to_x()
     Hm, Ainv = predict_accelerance(d, est0, with_inverse=True)
-    cost = cost0 = _weighted_cost(d, Hm)
+    cost = cost0 = _output_cost(d, Hm)
     # Start as pure Gauss-Newton: the normal matrix is well posed but spans ~1e11 after
     # diagonal scaling, and any fixed damping would stall the weakly determined directions.
     mu = 0.0
     it = 0
     for it in range(1, max_iter + 1):
-        N, g = _normal_equations(d, _regressors(d, Hm), Ainv, d.H - Hm, d.weight**2)
+        W = np.einsum("kia,kij,kic->kjac", Ainv.conj(), w2, Ainv)
+        V = np.einsum("kia,kij->kja", Ainv.conj(), w2 * (d.H - Hm))
+        N, g = _normal_equations(_regressors(d, Hm), W, V)
         accepted = False
         for _ in range(12):
             try:
@@ -328,20 +382,24 @@ def refine_output_error(
             except np.linalg.LinAlgError:
                 mu = max(10 * mu, 1e-10)
                 continue
-            X_try = X + step.reshape(n, d.p)
-            est_try = Step1Estimate.from_x(X_try, n, n_in)
+            est_try = Step1Estimate.from_x(X + step.reshape(n, d.p), n, n_in)
             Hm_try, Ainv_try = predict_accelerance(d, est_try, with_inverse=True)
-            cost_try = _weighted_cost(d, Hm_try)
-            if np.isfinite(cost_try) and cost_try < cost:
+            cost_try = _output_cost(d, Hm_try)
+            if cost_try < cost:
                 accepted = True
                 break
             mu = max(10 * mu, 1e-10)
         if not accepted:
             break
         gain = (cost - cost_try) / cost
-        X, Hm, Ainv, cost = X_try, Hm_try, Ainv_try, cost_try
+        X, Hm, Ainv, cost = est_try.to_x(), Hm_try, Ainv_try, cost_try
         mu = mu / 100 if mu > 1e-9 else 0.0
         if gain < rtol:
             break
     info = {"cost_start": cost0, "cost": cost, "iterations": it}
     return Step1Estimate.from_x(X, n, n_in), info
+
+
+def output_error_cost(d: Step1Data, est: Step1Estimate) -> float:
+    """Weighted output error ``sum w^2 |H - H_model|^2`` of a step-1 estimate."""
+    return _output_cost(d, predict_accelerance(d, est)[0])

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["chain_model", "example_system"]
+__all__ = ["chain_model", "example_system", "frf_on_test_stand"]
 
 
 def _chain_matrix(n: int, between: np.ndarray, to_ground: np.ndarray) -> np.ndarray:
@@ -70,3 +70,57 @@ def example_system(n: int = 14, seed: int = 1) -> tuple[np.ndarray, np.ndarray, 
     cg[n // 2] = 20.0
     extra = [(1, n // 2, 3e4), (n // 3, n - 2, 1e4)]
     return chain_model(m, kb, kg, cb, cg, extra)
+
+
+def frf_on_test_stand(
+    M: np.ndarray,
+    C: np.ndarray,
+    K: np.ndarray,
+    dofs: list[str],
+    inputs: list[str],
+    reactions: list[str],
+    freq_hz: np.ndarray,
+    stand_mass_kg: float = 20.0,
+    stand_k_n_per_m: float = 2e6,
+    stand_c_n_s_per_m: float = 40.0,
+    ground_k_n_per_m: float = 5e6,
+):
+    """Accelerances and interface reactions of a substructure bolted to a flexible test stand.
+
+    Each reaction DOF of the substructure is tied by a spring-damper (``stand_k``,
+    ``stand_c``) to its own stand mass, which sits on a spring to ground: the stand has
+    dynamics of its own, as in report section 6.6. The substructure's own M, C, K exclude the
+    stand, so SSID with the measured reactions must recover them alone.
+
+    Returns
+    -------
+    FRFData with ``H`` at every substructure DOF, ``H_reaction`` the force the stand exerts
+    on the substructure at each reaction DOF per unit input force (contract sign convention).
+    """
+    from ..frf import FRFData, selection_matrix
+
+    n = M.shape[0]
+    nr = len(reactions)
+    Sr = selection_matrix(dofs, reactions)  # (n, nr)
+    Mc = np.zeros((n + nr, n + nr))
+    Cc = np.zeros_like(Mc)
+    Kc = np.zeros_like(Mc)
+    Mc[:n, :n], Cc[:n, :n], Kc[:n, :n] = M, C, K
+    Mc[n:, n:] = stand_mass_kg * np.eye(nr)
+    # Interface spring-dampers: element matrix [[1, -1], [-1, 1]] between x_r and x_stand.
+    T = np.hstack([Sr.T, -np.eye(nr)])  # (nr, n + nr): relative motion x_r - x_t
+    Kc += stand_k_n_per_m * T.T @ T
+    Cc += stand_c_n_s_per_m * T.T @ T
+    Kc[n:, n:] += ground_k_n_per_m * np.eye(nr)
+    freq_hz = np.asarray(freq_hz, dtype=float)
+    w = 2 * np.pi * freq_hz
+    D = np.vstack([selection_matrix(dofs, inputs), np.zeros((nr, len(inputs)))])
+    Z = Kc[None] - (w**2)[:, None, None] * Mc[None] + 1j * w[:, None, None] * Cc[None]
+    X = np.linalg.solve(Z, np.broadcast_to(D.astype(complex), (w.size,) + D.shape))
+    rel = np.einsum("rq,kqj->krj", T, X)
+    Hr = -(stand_k_n_per_m + 1j * w[:, None, None] * stand_c_n_s_per_m) * rel
+    H = -(w**2)[:, None, None] * X[:, :n]
+    return FRFData(
+        freq_hz=freq_hz, H=H, outputs=list(dofs), inputs=list(inputs),
+        H_reaction=Hr, reactions=list(reactions),
+    )

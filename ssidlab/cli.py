@@ -1,0 +1,292 @@
+"""The ``ssidlab`` command line.
+
+Exit status and error rules (also in ``docs/formats.md``):
+
+* 0 -- success.
+* 2 -- bad input: an unreadable or malformed file, NaN/Inf data, shapes or labels that do not
+  agree, an unknown or missing option, an output path that cannot be written, or an
+  identification that cannot be carried out on the data given. One line on stderr:
+  ``ssidlab <subcommand>: error: <message>``.
+* 1 -- an internal error (a bug): one line ``ssidlab <subcommand>: internal error: <type>:
+  <message>``. With the environment variable ``SSIDLAB_DEBUG=1`` the exception is re-raised
+  so that the traceback can be seen.
+
+Never a traceback otherwise: scripts and acceptance checks read stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ssid.errors import IdentificationError, InputError
+from ssid.io import Model, read_frf, write_model
+from ssidlab import __version__
+
+EXIT_OK = 0
+EXIT_INTERNAL = 1
+EXIT_BAD_INPUT = 2
+
+DEBUG_ENV = "SSIDLAB_DEBUG"
+
+SOLVERS = ("ml", "ls", "tls", "stls")
+DAMPING_CHOICES = ("identified", "modal")
+
+
+# ----------------------------------------------------------------------------------------------
+# Entry point
+# ----------------------------------------------------------------------------------------------
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``ssidlab`` command line and return its exit status.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        Arguments without the program name; ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0 on success, 2 on bad input, 1 on an internal error.
+    """
+    parser, subcommands = _build_parser()
+    try:
+        args, extras = parser.parse_known_args(argv)
+        if extras:
+            # Report stray options against the subcommand they were given to, so the message
+            # reads "ssidlab identify: error: ..." rather than the bare program name.
+            owner = subcommands.get(getattr(args, "command", None), parser)
+            owner.error(f"unrecognized arguments: {' '.join(extras)}")
+    except _UsageError as exc:
+        _say(f"{exc.prog}: error: {exc.message}")
+        return EXIT_BAD_INPUT
+    except SystemExit as exc:  # --help and --version print their text and exit 0
+        return exc.code if isinstance(exc.code, int) else EXIT_OK
+
+    prog = f"ssidlab {args.command}"
+    try:
+        # Library warnings (numpy, scipy) are held back: on success they are shown one line
+        # each, on failure they are dropped, so an error is always exactly one line.
+        with warnings.catch_warnings(record=True) as caught:
+            status = args.run(args)
+        for message in dict.fromkeys(str(w.message) for w in caught):
+            _say(f"warning: {message}")
+        return status
+    except (InputError, IdentificationError) as exc:
+        _say(f"{prog}: error: {exc}")
+        return EXIT_BAD_INPUT
+    except OSError as exc:  # an output path that cannot be written
+        _say(f"{prog}: error: {exc}")
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        _say(f"{prog}: interrupted")
+        return 130
+    except Exception as exc:
+        if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
+            raise
+        _say(f"{prog}: internal error: {type(exc).__name__}: {exc}")
+        return EXIT_INTERNAL
+
+
+# ----------------------------------------------------------------------------------------------
+# Parser
+# ----------------------------------------------------------------------------------------------
+
+
+class _UsageError(Exception):
+    """A command-line usage error, carried up to :func:`main` instead of exiting."""
+
+    def __init__(self, prog: str, message: str) -> None:
+        super().__init__(message)
+        self.prog = prog
+        self.message = message
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line (no usage block) and never exit by themselves."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise _UsageError(self.prog, message)
+
+
+def _build_parser() -> tuple[_Parser, dict[str, _Parser]]:
+    """The top-level parser and the subcommand parsers by name."""
+    parser = _Parser(
+        prog="ssidlab",
+        description="Vibration tests and frequency-domain substructure identification of M, C, K.",
+        allow_abbrev=False,  # abbreviations would silently change meaning as options are added
+    )
+    parser.add_argument("--version", action="version", version=f"ssidlab {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for add in _SUBCOMMANDS:
+        add(sub)
+    return parser, dict(sub.choices)
+
+
+def _add_subcommand(sub: Any, name: str, help_text: str) -> _Parser:
+    return sub.add_parser(
+        name, prog=f"ssidlab {name}", help=help_text, description=help_text, allow_abbrev=False
+    )
+
+
+def _frequency(text: str) -> float:
+    """argparse type for a frequency in Hz: finite and >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite frequency >= 0 Hz, got {text!r}")
+    return value
+
+
+# ----------------------------------------------------------------------------------------------
+# ssidlab identify
+# ----------------------------------------------------------------------------------------------
+
+
+def _add_identify(sub: Any) -> None:
+    p = _add_subcommand(sub, "identify", "Identify M, C, K from a measured FRF file (SSID).")
+    p.add_argument("frf", metavar="FRF.h5", help="measured FRFs (ssidlab-frf file)")
+    p.add_argument(
+        "--out", metavar="MODEL.h5", required=True,
+        help="identified model (ssidlab-model file) over the FRF file's output DOFs",
+    )
+    p.add_argument(
+        "--json", metavar="RESULT.json", required=True,
+        help="natural frequencies, damping ratios and fit details",
+    )
+    p.add_argument(
+        "--solver", choices=SOLVERS, default="ml",
+        help="ml: maximum likelihood, weights each line by its noise (default); "
+        "ls: least squares; tls: total least squares; stls: scaled total least squares",
+    )
+    p.add_argument("--fmin", type=_frequency, metavar="HZ", help="lowest frequency line used")
+    p.add_argument("--fmax", type=_frequency, metavar="HZ", help="highest frequency line used")
+    p.add_argument(
+        "--damping", choices=DAMPING_CHOICES, default="identified",
+        help="identified: C as identified (default); modal: C rebuilt from modal damping ratios",
+    )
+    p.add_argument("--quiet", action="store_true", help="do not print the mode table")
+    p.set_defaults(run=_run_identify)
+
+
+def _run_identify(args: argparse.Namespace) -> int:
+    # Cheap checks first, so a typo does not cost an identification run.
+    if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
+        raise InputError(f"--fmin ({args.fmin:g} Hz) must be below --fmax ({args.fmax:g} Hz)")
+    _check_outputs(args.frf, [args.out, args.json])
+    frf = read_frf(args.frf)
+    _check_band(args.frf, frf, args.fmin, args.fmax)
+
+    # Imported here: the solver stack is heavy, and input errors and --help must work even
+    # when it cannot be imported.
+    from ssid.identify import identify_mck
+
+    result = identify_mck(
+        frf, solver=args.solver, f_min_hz=args.fmin, f_max_hz=args.fmax, damping=args.damping
+    )
+    if list(result.dofs) != frf.outputs:
+        raise RuntimeError(
+            f"identified model DOFs {list(result.dofs)!r} differ from the FRF outputs "
+            f"{frf.outputs!r}"
+        )
+    try:
+        write_model(args.out, Model(M=result.M, K=result.K, C=result.C, dofs=list(result.dofs)))
+    except InputError as exc:
+        # Our own result failing validation is a bug, not bad input: report it as internal.
+        raise RuntimeError(f"identified model failed validation: {exc}") from exc
+    summary = result.to_json_dict()
+    _write_json(args.json, summary)
+
+    for message in result.warnings:
+        _say(f"warning: {message}")
+    if not args.quiet:
+        print(_mode_table(summary))
+    return EXIT_OK
+
+
+def _check_outputs(source: str, paths: list[str]) -> None:
+    """Refuse output paths that cannot be written or would overwrite the input."""
+    src = os.path.realpath(source)
+    seen: set[str] = set()
+    for path in paths:
+        real = os.path.realpath(path)
+        if real == src:
+            raise InputError(f"{path}: output would overwrite the input file")
+        if real in seen:
+            raise InputError(f"{path}: given for two different outputs")
+        seen.add(real)
+        if os.path.isdir(path):
+            raise InputError(f"{path}: is a directory, expected a file name")
+        parent = Path(path).parent
+        if not parent.is_dir():
+            raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")
+
+
+def _check_band(source: str, frf, f_min: float | None, f_max: float | None) -> None:
+    lo = -math.inf if f_min is None else f_min
+    hi = math.inf if f_max is None else f_max
+    in_band = (frf.freq_hz >= lo) & (frf.freq_hz <= hi)
+    covers = f"the file covers {frf.freq_hz[0]:g} to {frf.freq_hz[-1]:g} Hz"
+    if not in_band.any():
+        raise InputError(f"{source}: no frequency lines between --fmin and --fmax ({covers})")
+    if not frf.valid_mask()[in_band].any():
+        raise InputError(f"{source}: every value in the selected band is marked invalid")
+
+
+def _mode_table(summary: dict) -> str:
+    freqs = summary.get("natural_freq_hz", [])
+    zetas = summary.get("damping_ratio", [])
+    lines = [f"{'mode':>4}  {'f_n [Hz]':>12}  {'damping [%]':>11}"]
+    for k, (f_n, zeta) in enumerate(zip(freqs, zetas), start=1):
+        lines.append(f"{k:>4}  {_fmt(f_n, 1.0, '.4f'):>12}  {_fmt(zeta, 100.0, '.3f'):>11}")
+    return "\n".join(lines)
+
+
+def _fmt(value: Any, scale: float, spec: str) -> str:
+    # Undetermined values arrive as None (JSON null) or NaN; show them as a dash.
+    if value is None or not math.isfinite(float(value)):
+        return "-"
+    return format(scale * float(value), spec)
+
+
+# Future subcommands (see the contract): discrepancy, correlate, demo, acquire.
+# Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
+# `run=_run_<name>`; list it here. Errors follow the same rules through main().
+_SUBCOMMANDS = (_add_identify,)
+
+
+# ----------------------------------------------------------------------------------------------
+# Output helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def _say(message: str) -> None:
+    """Write one line to stderr, folding any embedded line breaks."""
+    print(" ".join(str(message).splitlines()), file=sys.stderr)
+
+
+def _write_json(path: str, data: dict) -> None:
+    text = json.dumps(data, indent=2, default=_json_default)
+    Path(path).write_text(text + "\n", encoding="utf-8")
+
+
+def _json_default(value: Any) -> Any:
+    # Results carry numpy arrays and scalars; JSON wants lists and Python numbers.
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")

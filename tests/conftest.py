@@ -1,0 +1,63 @@
+"""Shared fixtures: a small 3-DOF spring-mass chain and FRF data synthesised from it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ssid.frf import FRFData, accelerance_from_model
+from ssid.io import Model
+
+DOFS = ["1+Z", "2+Z", "3+Z"]
+
+
+def chain_model() -> Model:
+    """Grounded 3-mass chain: masses 1, 2, 1.5 kg; springs 1e4 N/m; light viscous damping."""
+    m = np.diag([1.0, 2.0, 1.5])
+    k = 1e4 * np.array([[2.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 1.0]])
+    c = 2e-4 * k + 0.5 * m
+    return Model(M=m, K=k, C=c, dofs=list(DOFS))
+
+
+def chain_frf(inputs: list[str] | None = None, n_freq: int = 64) -> FRFData:
+    """Noise-free accelerances of :func:`chain_model`, outputs at all three DOFs."""
+    model = chain_model()
+    freq = np.linspace(2.0, 60.0, n_freq)
+    return accelerance_from_model(
+        model.M, model.C, model.K, model.dofs, freq, DOFS, inputs or ["1+Z", "3+Z"]
+    )
+
+
+def full_frf() -> FRFData:
+    """FRF data with every optional item filled, including a blanked (NaN) value."""
+    frf = chain_frf()
+    rng = np.random.default_rng(0)
+    shape = frf.H.shape
+    frf.coherence = rng.uniform(0.5, 1.0, shape)
+    frf.valid = np.ones(shape, dtype=bool)
+    frf.valid[5, 1, 0] = False
+    frf.H = frf.H.copy()
+    frf.H[5, 1, 0] = np.nan
+    frf.H_var = rng.uniform(1e-6, 1e-4, shape)
+    frf.reactions = ["1+Z"]
+    frf.H_reaction = rng.normal(size=(frf.n_freq, 1, frf.n_in)) + 1j * rng.normal(
+        size=(frf.n_freq, 1, frf.n_in)
+    )
+    frf.n_avg = 20
+    frf.attrs = {"operator": "test bench", "temperature_c": 21.5}
+    return frf
+
+
+@pytest.fixture
+def model() -> Model:
+    return chain_model()
+
+
+@pytest.fixture
+def frf() -> FRFData:
+    return chain_frf()
+
+
+@pytest.fixture
+def frf_full() -> FRFData:
+    return full_frf()

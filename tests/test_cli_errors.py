@@ -1,0 +1,296 @@
+"""The ``ssidlab`` command line: one-line errors with exit status 2, never a traceback.
+
+Bad-input cases run the real command in a subprocess (``python -m ssidlab``). The plumbing of
+``identify`` around the solver (files written, table, warnings, error classes) is checked
+in-process with a stand-in ``ssid.identify`` module, so it does not depend on the solver.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+import ssidlab
+from ssid.errors import IdentificationError
+from ssid.io import read_model, write_frf
+from ssidlab.cli import main
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO_ROOT), env.get("PYTHONPATH")]))
+    env.pop("SSIDLAB_DEBUG", None)
+    return subprocess.run(
+        [sys.executable, "-m", "ssidlab", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def assert_one_line_error(proc: subprocess.CompletedProcess, prefix: str, fragment: str = ""):
+    lines = proc.stderr.splitlines()
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout
+    assert len(lines) == 1 and lines[0].strip(), proc.stderr
+    assert lines[0].startswith(prefix), lines[0]
+    assert fragment in lines[0], lines[0]
+
+
+@pytest.fixture
+def good_file(tmp_path, frf) -> Path:
+    path = tmp_path / "frf.h5"
+    write_frf(path, frf)
+    return path
+
+
+def corrupted(path: Path, corrupt) -> Path:
+    with h5py.File(path, "r+") as f:
+        corrupt(f)
+    return path
+
+
+def _set_labels(name, labels):
+    def corrupt(f):
+        del f[name]
+        f.create_dataset(name, data=np.array(labels, dtype=object), dtype=h5py.string_dtype())
+
+    return corrupt
+
+
+def _nan_in_h(f):
+    H = f["H"][()]
+    H[4, 1, 0] = np.nan
+    f["H"][...] = H
+
+
+def _repeat_a_line(f):
+    freq = f["freq_hz"][()]
+    freq[20] = freq[19]
+    f["freq_hz"][...] = freq
+
+
+BAD_FILES = [
+    ("missing-H", lambda f: f.__delitem__("H"), "missing dataset /H"),
+    ("nan-in-H", _nan_in_h, "H holds NaN or Inf"),
+    ("input-not-output", _set_labels("inputs", ["1+Z", "8+Z"]), "'8+Z' is not among outputs"),
+    ("freq-not-increasing", _repeat_a_line, "strictly increasing"),
+]
+
+
+@pytest.mark.parametrize(
+    "corrupt, fragment", [c[1:] for c in BAD_FILES], ids=[c[0] for c in BAD_FILES]
+)
+def test_identify_rejects_malformed_frf_file(tmp_path, good_file, corrupt, fragment):
+    corrupted(good_file, corrupt)
+    proc = run_cli(
+        "identify", str(good_file), "--out", "m.h5", "--json", "r.json", cwd=tmp_path
+    )
+    assert_one_line_error(proc, "ssidlab identify: error: ", fragment)
+    assert not (tmp_path / "m.h5").exists() and not (tmp_path / "r.json").exists()
+
+
+def test_identify_rejects_text_file(tmp_path):
+    (tmp_path / "frf.h5").write_text("this is not HDF5\n")
+    proc = run_cli("identify", "frf.h5", "--out", "m.h5", "--json", "r.json", cwd=tmp_path)
+    assert_one_line_error(proc, "ssidlab identify: error: frf.h5: ", "not an HDF5 file")
+
+
+def test_identify_rejects_missing_file(tmp_path):
+    proc = run_cli("identify", "gone.h5", "--out", "m.h5", "--json", "r.json", cwd=tmp_path)
+    assert_one_line_error(proc, "ssidlab identify: error: gone.h5: ", "no such file")
+
+
+OUTS = ["--out", "m.h5", "--json", "r.json"]
+BAD_ARGUMENTS = [
+    ("unknown-option", [*OUTS, "--bogus"], "unrecognized arguments: --bogus"),
+    ("missing-out", ["--json", "r.json"], "the following arguments are required: --out"),
+    ("fmin-equals-fmax", [*OUTS, "--fmin", "30", "--fmax", "30"], "--fmin (30 Hz) must be below"),
+    ("fmin-above-fmax", [*OUTS, "--fmin", "40", "--fmax", "10"], "must be below --fmax (10 Hz)"),
+    ("fmin-not-number", [*OUTS, "--fmin", "abc"], "argument --fmin: not a number"),
+    ("fmax-infinite", [*OUTS, "--fmax", "inf"], "argument --fmax: must be a finite frequency"),
+    ("unknown-solver", [*OUTS, "--solver", "magic"], "argument --solver: invalid choice"),
+    ("band-empty", [*OUTS, "--fmin", "500"], "no frequency lines between --fmin and --fmax"),
+    ("out-dir-missing", ["--out", "no/dir/m.h5", "--json", "r.json"], "does not exist"),
+    ("out-is-input", ["--out", "frf.h5", "--json", "r.json"], "would overwrite the input file"),
+    ("out-twice", ["--out", "m.h5", "--json", "m.h5"], "given for two different outputs"),
+]
+
+
+@pytest.mark.parametrize(
+    "args, fragment", [c[1:] for c in BAD_ARGUMENTS], ids=[c[0] for c in BAD_ARGUMENTS]
+)
+def test_identify_rejects_bad_arguments(tmp_path, good_file, args, fragment):
+    proc = run_cli("identify", good_file.name, *args, cwd=tmp_path)
+    assert_one_line_error(proc, "ssidlab identify: error: ", fragment)
+
+
+@pytest.mark.parametrize(
+    "args, fragment",
+    [([], "required: COMMAND"), (["frobnicate"], "invalid choice: 'frobnicate'")],
+    ids=["no-command", "unknown-command"],
+)
+def test_top_level_usage_errors(tmp_path, args, fragment):
+    proc = run_cli(*args, cwd=tmp_path)
+    assert_one_line_error(proc, "ssidlab: error: ", fragment)
+
+
+def test_version(tmp_path):
+    proc = run_cli("--version", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"ssidlab {ssidlab.__version__}"
+    assert proc.stderr == ""
+
+
+def test_help_exits_0(tmp_path):
+    proc = run_cli("identify", "--help", cwd=tmp_path)
+    assert proc.returncode == 0 and "--solver" in proc.stdout
+
+
+# ----------------------------------------------------------------------------------------------
+# identify around the solver, with a stand-in ssid.identify
+# ----------------------------------------------------------------------------------------------
+
+
+class FakeResult:
+    def __init__(self, model, dofs, warnings):
+        self.M, self.C, self.K = model.M, model.C, model.K
+        self.dofs = dofs
+        self.warnings = warnings
+
+    def to_json_dict(self) -> dict:
+        return {
+            "natural_freq_hz": np.array([5.1, 14.2, 21.9]),
+            "damping_ratio": [np.float64(0.012), 0.02, None],
+            "dofs": self.dofs,
+        }
+
+
+@pytest.fixture
+def fake_identify(monkeypatch, model):
+    """Install a stand-in ``ssid.identify``; ``calls`` records the keyword arguments."""
+    calls: list[dict] = []
+    behaviour = {"raise": None, "dofs": None, "warnings": ["few lines near 60 Hz"]}
+
+    def identify_mck(frf, **kwargs):
+        calls.append(kwargs)
+        if behaviour["raise"] is not None:
+            raise behaviour["raise"]
+        dofs = behaviour["dofs"] or list(frf.outputs)
+        return FakeResult(model, dofs, behaviour["warnings"])
+
+    module = types.ModuleType("ssid.identify")
+    module.identify_mck = identify_mck
+    monkeypatch.setitem(sys.modules, "ssid.identify", module)
+    monkeypatch.delenv("SSIDLAB_DEBUG", raising=False)
+    return types.SimpleNamespace(calls=calls, behaviour=behaviour)
+
+
+def test_identify_writes_model_json_and_table(tmp_path, good_file, fake_identify, model, capsys):
+    out, js = tmp_path / "m.h5", tmp_path / "r.json"
+    rc = main(["identify", str(good_file), "--out", str(out), "--json", str(js),
+               "--solver", "tls", "--fmin", "3", "--fmax", "50", "--damping", "modal"])
+    captured = capsys.readouterr()
+
+    assert rc == 0, captured.err
+    assert fake_identify.calls == [
+        {"solver": "tls", "f_min_hz": 3.0, "f_max_hz": 50.0, "damping": "modal"}
+    ]
+    back = read_model(out)
+    np.testing.assert_array_equal(back.K, model.K)
+    assert back.dofs == ["1+Z", "2+Z", "3+Z"]
+    result = json.loads(js.read_text())
+    assert result["natural_freq_hz"] == [5.1, 14.2, 21.9]
+    assert result["dofs"] == ["1+Z", "2+Z", "3+Z"]
+    assert captured.err == "warning: few lines near 60 Hz\n"
+    table = captured.out.splitlines()
+    assert len(table) == 4 and "f_n [Hz]" in table[0]
+    assert table[1].split() == ["1", "5.1000", "1.200"]
+    assert table[3].split() == ["3", "21.9000", "-"]
+
+
+def test_identify_defaults_and_quiet(tmp_path, good_file, fake_identify, capsys):
+    rc = main(["identify", str(good_file), "--out", str(tmp_path / "m.h5"),
+               "--json", str(tmp_path / "r.json"), "--quiet"])
+    captured = capsys.readouterr()
+    assert rc == 0
+    assert fake_identify.calls == [
+        {"solver": "ml", "f_min_hz": None, "f_max_hz": None, "damping": "identified"}
+    ]
+    assert captured.out == ""
+
+
+def test_identification_error_is_bad_input(tmp_path, good_file, fake_identify, capsys):
+    fake_identify.behaviour["raise"] = IdentificationError("too few valid lines for 18 unknowns")
+    rc = main(["identify", str(good_file), "--out", str(tmp_path / "m.h5"),
+               "--json", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err == "ssidlab identify: error: too few valid lines for 18 unknowns\n"
+
+
+def test_unexpected_exception_is_internal_error(tmp_path, good_file, fake_identify, capsys):
+    fake_identify.behaviour["raise"] = ZeroDivisionError("division by zero")
+    args = ["identify", str(good_file), "--out", str(tmp_path / "m.h5"),
+            "--json", str(tmp_path / "r.json")]
+    rc = main(args)
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert err == "ssidlab identify: internal error: ZeroDivisionError: division by zero\n"
+
+
+def test_debug_env_reraises(tmp_path, good_file, fake_identify, monkeypatch):
+    fake_identify.behaviour["raise"] = ZeroDivisionError("division by zero")
+    monkeypatch.setenv("SSIDLAB_DEBUG", "1")
+    with pytest.raises(ZeroDivisionError):
+        main(["identify", str(good_file), "--out", str(tmp_path / "m.h5"),
+              "--json", str(tmp_path / "r.json")])
+
+
+def test_result_over_wrong_dofs_is_internal_error(tmp_path, good_file, fake_identify, capsys):
+    fake_identify.behaviour["dofs"] = ["3+Z", "2+Z", "1+Z"]
+    rc = main(["identify", str(good_file), "--out", str(tmp_path / "m.h5"),
+               "--json", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert rc == 1 and err.count("\n") == 1 and "differ from the FRF outputs" in err
+
+
+def test_python_warnings_are_one_line(tmp_path, good_file, fake_identify, capsys):
+    def identify_mck(frf, **kwargs):
+        np.log(np.zeros(1))  # numpy RuntimeWarning: divide by zero
+        return FakeResult(types.SimpleNamespace(M=np.eye(3), C=None, K=np.eye(3)),
+                          list(frf.outputs), [])
+
+    sys.modules["ssid.identify"].identify_mck = identify_mck
+    rc = main(["identify", str(good_file), "--out", str(tmp_path / "m.h5"),
+               "--json", str(tmp_path / "r.json"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 0
+    assert err.startswith("warning: divide by zero") and err.count("\n") == 1
+
+
+def test_library_warnings_are_dropped_when_the_command_fails(
+    tmp_path, good_file, fake_identify, capsys
+):
+    def identify_mck(frf, **kwargs):
+        np.mean(np.zeros(0))  # numpy RuntimeWarning: Mean of empty slice
+        raise IdentificationError("no equation-error start could be computed")
+
+    sys.modules["ssid.identify"].identify_mck = identify_mck
+    rc = main(["identify", str(good_file), "--out", str(tmp_path / "m.h5"),
+               "--json", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err == "ssidlab identify: error: no equation-error start could be computed\n"

@@ -29,6 +29,7 @@ from .step1 import (
     estimate_equation_error,
     output_error_cost,
     predict_accelerance,
+    refine_line_weighted,
     refine_output_error,
     refine_sanathanan_koerner,
     step1_data,
@@ -38,6 +39,10 @@ from .step2 import assemble_mck, modal_scale_factors, state_space_modes
 __all__ = ["SSIDResult", "identify_mck", "SOLVERS"]
 
 SOLVERS = ("ml", "ls", "tls", "stls")
+
+#: Largest step-1 unknown count (n * p) for which the matrix-weighted refinements run: their
+#: normal matrix is (n p)^2 and costs O(n^2 p^2) per line to assemble (3000 unknowns: 72 MB).
+ML_MAX_UNKNOWNS = 3000
 
 
 @dataclass
@@ -169,6 +174,13 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict) -> 
     costs = {k: output_error_cost(d, e) for k, e in starts.items()}
     best = min(costs, key=costs.get)
     info["start"] = best
+    if d.n * d.p > ML_MAX_UNKNOWNS:
+        info["ml_skipped"] = (
+            f"{d.n * d.p} step-1 unknowns exceed {ML_MAX_UNKNOWNS}: line-weighted equation error "
+            "used instead of the maximum-likelihood refinement"
+        )
+        est, info["line_weighted"] = refine_line_weighted(d, starts[best])
+        return est
     if d.n_r:
         est, info["sk"] = refine_sanathanan_koerner(d, starts[best], max_iter=40, rtol=1e-8)
         return est
@@ -253,6 +265,8 @@ def identify_mck(
 
     if solver == "ml":
         est = _step1_ml(d, valid, know_noise, info)
+        if "ml_skipped" in info:
+            warnings.append(info["ml_skipped"])
     else:
         est = estimate_equation_error(d, solver)
 

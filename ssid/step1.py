@@ -36,6 +36,7 @@ __all__ = [
     "estimate_equation_error",
     "refine_output_error",
     "refine_sanathanan_koerner",
+    "refine_line_weighted",
     "predict_accelerance",
     "output_error_cost",
 ]
@@ -330,6 +331,40 @@ def refine_sanathanan_koerner(
             gain = (best_cost - cost) / best_cost
             best, best_cost = est, cost
             if gain < rtol:
+                break
+    return best, {"cost_start": cost0, "cost": best_cost, "iterations": it}
+
+
+def refine_line_weighted(
+    d: Step1Data, est0: Step1Estimate, max_iter: int = 6
+) -> tuple[Step1Estimate, dict]:
+    """Iteratively reweighted equation error with one scalar weight per column (k, j).
+
+    The cheap relative of :func:`refine_sanathanan_koerner` for models too large for its
+    (n p)^2 normal matrix: the equation error ``A_k dh`` has covariance ``A_k S_h A_k^H``;
+    a scalar weight can only equalise its size, ``w_kj^2 = n / trace(A_k S_h,kj A_k^H)``,
+    not its shape. Each iteration is one least-squares solve of the step-1 size.
+
+    Returns the iterate with the lowest weighted output error, and ``info``.
+    """
+    best = est = est0
+    best_cost = cost0 = output_error_cost(d, est0)
+    var = np.where(d.weight > 0, 1.0 / np.where(d.weight > 0, d.weight, 1.0) ** 2, 0.0)
+    it = 0
+    for it in range(1, max_iter + 1):
+        w = d.omega[:, None, None]
+        A = np.eye(d.n)[None] + est.C_hat[None] / (1j * w) - est.K_hat[None] / w**2
+        tr = np.einsum("kia,kaj->kj", np.abs(A) ** 2, var)  # trace(A diag(var_j) A^H)
+        lw = np.sqrt(d.n / np.where(tr > 0, tr, np.inf))
+        try:
+            est = estimate_equation_error(d, "ls", line_weight=lw)
+        except (np.linalg.LinAlgError, IdentificationError):
+            break
+        cost = output_error_cost(d, est)
+        if cost < best_cost:
+            gain = (best_cost - cost) / best_cost
+            best, best_cost = est, cost
+            if gain < 1e-4:
                 break
     return best, {"cost_start": cost0, "cost": best_cost, "iterations": it}
 

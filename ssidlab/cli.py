@@ -262,10 +262,30 @@ def _fmt(value: Any, scale: float, spec: str) -> str:
     return format(scale * float(value), spec)
 
 
-# Future subcommands (see the contract): discrepancy, correlate, demo, acquire.
+# ----------------------------------------------------------------------------------------------
+# ssidlab demo
+# ----------------------------------------------------------------------------------------------
+
+
+def _add_demo(sub: Any) -> None:
+    p = _add_subcommand(sub, "demo", "The main job end to end on the embedded default (see README).")
+    p.add_argument("--out", metavar="DIR", required=True, help="directory for all results")
+    p.set_defaults(run=_run_demo)
+
+
+def _run_demo(args: argparse.Namespace) -> int:
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise InputError(f"{args.out}: exists and is not a directory")
+    from ssidlab.demo import run_demo
+
+    run_demo(args.out)
+    return EXIT_OK
+
+
+# Future subcommands (see the contract): discrepancy, correlate, acquire.
 # Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
 # `run=_run_<name>`; list it here. Errors follow the same rules through main().
-_SUBCOMMANDS = (_add_identify,)
+_SUBCOMMANDS = (_add_identify, _add_demo)
 
 
 # ----------------------------------------------------------------------------------------------

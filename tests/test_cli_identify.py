@@ -1,0 +1,52 @@
+"""``ssidlab identify`` and ``ssidlab demo`` run as a user runs them (subprocess, real files)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from ssid.frf import accelerance_from_model
+from ssid.io import read_model, write_frf
+from ssid.modal import complex_modes, root_frequency_damping
+from ssid.models import example_system
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "ssidlab", *args], capture_output=True,
+                          text=True, cwd=cwd, timeout=600)
+
+
+def test_identify_writes_contract_model_and_json(tmp_path):
+    M, C, K, dofs = example_system(6, seed=3)
+    order = [dofs[i] for i in (3, 0, 5, 1, 4, 2)]  # outputs in a non-sorted order
+    frf = accelerance_from_model(M, C, K, dofs, np.linspace(3, 450, 400), order, [dofs[0], dofs[4]])
+    src = tmp_path / "frf.h5"
+    write_frf(str(src), frf)
+    out, js = tmp_path / "model.h5", tmp_path / "result.json"
+    p = run("identify", str(src), "--out", str(out), "--json", str(js))
+    assert p.returncode == 0, p.stderr
+    assert "Traceback" not in p.stderr
+    model = read_model(str(out))
+    assert model.dofs == order
+    perm = [dofs.index(lbl) for lbl in order]
+    assert np.allclose(model.M, M[np.ix_(perm, perm)], rtol=1e-6, atol=1e-8 * np.abs(M).max())
+    assert np.allclose(model.K, K[np.ix_(perm, perm)], rtol=1e-6, atol=1e-8 * np.abs(K).max())
+    res = json.loads(js.read_text())
+    lam, _ = complex_modes(M, C, K)
+    f_true = root_frequency_damping(lam)[0] / (2 * np.pi)
+    assert res["dofs"] == order
+    assert np.all(np.diff(res["natural_freq_hz"]) > 0)
+    assert np.allclose(res["natural_freq_hz"], f_true, rtol=1e-6)
+    assert len(res["damping_ratio"]) == len(res["natural_freq_hz"])
+
+
+def test_demo_end_to_end(tmp_path):
+    p = run("demo", "--out", str(tmp_path / "demo"))
+    assert p.returncode == 0, p.stderr
+    for name in ("frf.h5", "model.h5", "result.json", "frf_overlay.png"):
+        assert (tmp_path / "demo" / name).stat().st_size > 0
+    res = json.loads((tmp_path / "demo" / "result.json").read_text())
+    assert res["demo"]["max_abs_freq_error_percent"] < 1.0

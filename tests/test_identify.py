@@ -1,0 +1,165 @@
+"""SSID identification checked against systems with known M, C, K.
+
+Every case builds a lumped system (``ssid.models``), synthesises its accelerances exactly
+(``ssid.frf``), identifies, and compares with the truth. Tolerances:
+
+* noise-free: frequencies 1e-6 and M, K 1e-5 relative (issue 2). The algebra is exact, so the
+  only error is rounding in solves whose condition numbers are ~1e6-1e8.
+* noisy: the report's noise model (``addnoise``: 2 % magnitude, 2 degree phase, 40 averages,
+  on responses and forces) with fixed seeds; every natural frequency within 1 %.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ssid.frf import FRFData, accelerance, accelerance_from_model
+from ssid.identify import identify_mck
+from ssid.modal import complex_modes, modal_phase_collinearity, real_modes, root_frequency_damping
+from ssid.models import example_system, frf_on_test_stand
+from ssid.noise import report_noise_frf
+
+FREQ_HZ = np.linspace(2.0, 500.0, 1024)
+
+
+def true_frequencies_hz(M, C, K):
+    lam, _ = complex_modes(M, C, K)
+    wn, zeta = root_frequency_damping(lam)
+    return wn / (2 * np.pi), zeta
+
+
+def rel(A, B):
+    return np.linalg.norm(A - B) / np.linalg.norm(B)
+
+
+@pytest.fixture(scope="module")
+def system14():
+    return example_system(14, seed=1)
+
+
+@pytest.fixture(scope="module")
+def frf14(system14):
+    M, C, K, dofs = system14
+    return accelerance_from_model(M, C, K, dofs, FREQ_HZ, dofs, [dofs[0], dofs[6], dofs[12]])
+
+
+def test_example_system_is_non_proportionally_damped(system14):
+    M, C, K, _ = system14
+    _, phi = real_modes(M, K)
+    Cm = phi.T @ C @ phi
+    off = np.abs(Cm - np.diag(np.diag(Cm))).max() / np.abs(np.diag(Cm)).max()
+    assert off > 0.05  # the modes are complex: a test of the general (non-modal) case
+
+
+@pytest.mark.parametrize("solver", ["ml", "ls", "stls", "tls"])
+def test_noise_free_recovers_mck(system14, frf14, solver):
+    M, C, K, dofs = system14
+    f_true, zeta_true = true_frequencies_hz(M, C, K)
+    r = identify_mck(frf14, solver=solver)
+    assert r.dofs == dofs
+    assert r.natural_freq_hz.size == f_true.size
+    assert np.max(np.abs(r.natural_freq_hz - f_true) / f_true) < 1e-6
+    assert np.max(np.abs(r.damping_ratio - zeta_true)) < 1e-6
+    assert rel(r.M, M) < 1e-5
+    assert rel(r.K, K) < 1e-5
+    assert rel(r.C, C) < 1e-4
+    assert r.warnings == []
+    assert np.all(r.mpc > 0.5)
+
+
+def test_noise_free_with_reactions_identifies_substructure_alone():
+    """A substructure on a flexible test stand (section 3.1, 6.6): with the measured
+    interface reactions, SSID returns the substructure's own M, C, K, not the coupled ones."""
+    M, C, K, dofs = example_system(8, seed=2)
+    frf = frf_on_test_stand(M, C, K, dofs, [dofs[2], dofs[5]], [dofs[0], dofs[7]],
+                            np.linspace(2, 500, 800))
+    f_true, _ = true_frequencies_hz(M, C, K)
+    for solver in ("ml", "ls"):
+        r = identify_mck(frf, solver=solver)
+        assert np.max(np.abs(r.natural_freq_hz - f_true) / f_true) < 1e-6
+        assert rel(r.M, M) < 1e-5 and rel(r.K, K) < 1e-5
+    # Ignoring the reactions must fail: the coupled system is not the substructure.
+    no_r = FRFData(freq_hz=frf.freq_hz, H=frf.H, outputs=frf.outputs, inputs=frf.inputs)
+    r = identify_mck(no_r, solver="ls")
+    assert rel(r.K, K) > 1e-2
+
+
+def test_blanked_values_take_no_part(system14, frf14):
+    M, C, K, _ = system14
+    rng = np.random.default_rng(7)
+    valid = rng.random(frf14.H.shape) > 0.05
+    H = np.where(valid, frf14.H, np.nan + 1j * np.nan)  # garbage where blanked
+    frf = FRFData(freq_hz=frf14.freq_hz, H=H, outputs=frf14.outputs, inputs=frf14.inputs,
+                  valid=valid)
+    f_true, _ = true_frequencies_hz(M, C, K)
+    for solver in ("ml", "ls"):
+        r = identify_mck(frf, solver=solver)
+        assert np.max(np.abs(r.natural_freq_hz - f_true) / f_true) < 1e-6
+        assert rel(r.M, M) < 1e-5 and rel(r.K, K) < 1e-5
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_broad_band_noise_default_within_one_percent(frf14, system14, seed):
+    """Issue 2: 14 modes from 10 to 440 Hz in one 2-500 Hz band, report noise model."""
+    M, C, K, _ = system14
+    f_true, zeta_true = true_frequencies_hz(M, C, K)
+    noisy = report_noise_frf(frf14, seed=seed)
+    r = identify_mck(noisy)
+    assert r.natural_freq_hz.size == f_true.size
+    err = np.abs(r.natural_freq_hz - f_true) / f_true
+    assert err.max() < 0.01
+    assert np.all(r.damping_ratio > 0)
+    # The same data defeat the report's plain least squares: the test is not an easy one.
+    r_ls = identify_mck(noisy, solver="ls")
+    n = min(r_ls.natural_freq_hz.size, f_true.size)
+    assert r_ls.natural_freq_hz.size != f_true.size or np.max(
+        np.abs(r_ls.natural_freq_hz[:n] - f_true[:n]) / f_true[:n]) > 0.01
+
+
+def test_band_selection_uses_only_the_band(frf14):
+    r = identify_mck(frf14, solver="ls", f_min_hz=5.0, f_max_hz=450.0)
+    assert r.band_hz[0] >= 5.0 and r.band_hz[1] <= 450.0
+
+
+def test_modal_damping_matrix_option(frf14):
+    r = identify_mck(frf14, solver="ls", damping="modal")
+    wn, phi = real_modes(r.M, r.K)
+    Cm = phi.T @ r.C @ phi
+    assert np.allclose(np.diag(Cm), 2 * r.damping_ratio * wn, rtol=1e-6)
+    assert np.abs(Cm - np.diag(np.diag(Cm))).max() < 1e-8 * np.abs(Cm).max()
+
+
+def test_random_data_is_flagged_not_returned_silently():
+    rng = np.random.default_rng(3)
+    f = np.linspace(5, 200, 200)
+    H = rng.standard_normal((200, 4, 1)) + 1j * rng.standard_normal((200, 4, 1))
+    frf = FRFData(freq_hz=f, H=H, outputs=["1+Z", "2+Z", "3+Z", "4+Z"], inputs=["1+Z"])
+    r = identify_mck(frf, solver="ls")
+    assert r.warnings, "a model fitted to random numbers must carry warnings"
+
+
+def test_mpc_of_real_and_complex_modes():
+    real_mode = np.array([[1.0], [-0.5], [0.3], [0.8]]) * np.exp(1j * 0.7)
+    assert modal_phase_collinearity(real_mode)[0] == pytest.approx(1.0, abs=1e-12)
+    scattered = np.array([[1.0], [1j], [-1.0], [-1j]])
+    assert modal_phase_collinearity(scattered)[0] < 0.05
+
+
+def test_frf_synthesis_matches_modal_sum():
+    """Accelerance by direct solve equals the state-space modal sum of Eq. 3.17."""
+    M, C, K, _ = example_system(5, seed=4)
+    w = 2 * np.pi * np.array([3.0, 40.0, 170.0])
+    H = accelerance(M, C, K, w)
+    n = M.shape[0]
+    As = np.block([[C, M], [M, np.zeros((n, n))]])
+    Bs = np.block([[K, np.zeros((n, n))], [np.zeros((n, n)), -M]])
+    import scipy.linalg as sla
+
+    lam, Th = sla.eig(-Bs, As)
+    a = np.einsum("ir,ij,jr->r", Th, As, Th)
+    Hs = np.zeros_like(H)
+    for k, wk in enumerate(w):
+        R = -(wk**2) / (1j * wk - lam)
+        Hs[k] = (Th[:n] * (R / a)) @ Th[:n].T
+    assert np.allclose(H, Hs, rtol=1e-9, atol=1e-12 * np.abs(H).max())

@@ -29,6 +29,7 @@ from .step1 import (
     estimate_equation_error,
     output_error_cost,
     predict_accelerance,
+    reaction_transfer,
     refine_line_weighted,
     refine_output_error,
     refine_sanathanan_koerner,
@@ -110,7 +111,7 @@ def _residual_weights(d: Step1Data, est: Step1Estimate, valid: np.ndarray) -> np
     The level is a robust scale of that FRF's residuals (median of |r|^2, which for complex
     Gaussian noise is ln 2 sigma^2), so that a few lines the model cannot follow do not set it.
     """
-    Hm, _ = predict_accelerance(d, est)
+    Hm = predict_accelerance(d, est)
     r2 = np.where(valid, np.abs(d.H - Hm) ** 2, np.nan)
     return _weights_from_levels(np.nanmedian(r2, axis=0) / np.log(2.0), valid)
 
@@ -198,8 +199,7 @@ def _step2_weights(d: Step1Data, est: Step1Estimate) -> np.ndarray:
     errors-in-variables covariance)."""
     if d.n_r == 0 or np.all(np.isinf(d.weight_r)):
         return d.weight
-    _, Ainv = predict_accelerance(d, est, with_inverse=True)
-    G = np.abs(Ainv @ est.Dr_hat) ** 2  # (L, n, n_r)
+    G = np.abs(reaction_transfer(d, est)) ** 2  # (L, n, n_r)
     var_r = 1.0 / d.weight_r**2  # (L, n_r, n_in)
     with np.errstate(divide="ignore"):
         var_h = np.where(d.weight > 0, 1.0 / d.weight**2, np.inf)

@@ -38,6 +38,7 @@ __all__ = [
     "refine_sanathanan_koerner",
     "refine_line_weighted",
     "predict_accelerance",
+    "reaction_transfer",
     "output_error_cost",
 ]
 
@@ -127,13 +128,16 @@ def step1_data(
     )
 
 
-def _regressors(d: Step1Data, Hx: np.ndarray) -> np.ndarray:
-    """Regressor ``z_kj`` of every column (k, j), (L, n_in, p) complex, from accelerances ``Hx``."""
+def _regressors(d: Step1Data, Hx: np.ndarray, sl: slice = slice(None)) -> np.ndarray:
+    """Regressor ``z_kj`` of the columns (k, j) of lines ``sl``, (l, n_in, p) complex.
+
+    ``Hx`` holds the accelerances of those lines (measured, or the model's).
+    """
     L, n, n_in = Hx.shape
-    w = d.omega[:, None, None]
-    h = np.swapaxes(Hx, 1, 2)  # (L, n_in, n)
+    w = d.omega[sl][:, None, None]
+    h = np.swapaxes(Hx, 1, 2)  # (l, n_in, n)
     eye = np.broadcast_to(np.eye(n_in), (L, n_in, n_in))
-    r = np.swapaxes(d.Hr, 1, 2)  # (L, n_in, n_r)
+    r = np.swapaxes(d.Hr[sl], 1, 2)  # (l, n_in, n_r)
     return np.concatenate([h / (1j * w), -h / w**2, -eye.astype(complex), -r], axis=2)
 
 
@@ -192,62 +196,83 @@ def estimate_equation_error(
     return Step1Estimate.from_x(XT.T, n, n_in)
 
 
-def predict_accelerance(
-    d: Step1Data, est: Step1Estimate, with_inverse: bool = False
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Accelerance predicted by the step-1 matrices: ``A_k^-1 (D^_f + D^_r Hr_k)``.
-
-    Returns ``(Hm, Ainv)`` with ``Hm`` (L, n, n_in) and, if asked, ``Ainv`` (L, n, n).
-    """
-    n = d.n
-    w = d.omega[:, None, None]
-    A = np.eye(n)[None] + est.C_hat[None] / (1j * w) - est.K_hat[None] / w**2
-    F = est.Df_hat[None].astype(complex) + np.einsum("ir,krj->kij", est.Dr_hat, d.Hr)
-    if with_inverse:
-        Ainv = np.linalg.inv(A)
-        return Ainv @ F, Ainv
-    return np.linalg.solve(A, F), None
+#: Entries (complex numbers) a block of lines may hold in the step-1 refinements' work
+#: arrays; the blocks keep memory bounded whatever the number of lines.
+_BLOCK_ENTRIES = 2_000_000
 
 
-def _equation_weights(d: Step1Data, est: Step1Estimate) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse covariance of the equation error of every column, and the model's inverse A.
+def _line_blocks(d: Step1Data) -> list[slice]:
+    """Slices of lines whose weight and regressor work arrays stay below ``_BLOCK_ENTRIES``."""
+    per_line = d.n_in * (d.n * d.n + d.p * d.p) + d.n * d.n
+    step = max(1, _BLOCK_ENTRIES // per_line)
+    L = d.omega.size
+    return [slice(s, min(s + step, L)) for s in range(0, L, step)]
+
+
+def _dynamic_matrix(d: Step1Data, est: Step1Estimate, sl: slice = slice(None)) -> np.ndarray:
+    """``A_k = I + C^/(j w_k) - K^/w_k^2`` of the lines ``sl``, (l, n, n)."""
+    w = d.omega[sl][:, None, None]
+    return np.eye(d.n)[None] + est.C_hat[None] / (1j * w) - est.K_hat[None] / w**2
+
+
+def _model_force(d: Step1Data, est: Step1Estimate, sl: slice = slice(None)) -> np.ndarray:
+    """``D^_f + D^_r Hr_k`` of the lines ``sl``, (l, n, n_in)."""
+    return est.Df_hat[None].astype(complex) + np.einsum("ir,krj->kij", est.Dr_hat, d.Hr[sl])
+
+
+def predict_accelerance(d: Step1Data, est: Step1Estimate) -> np.ndarray:
+    """Accelerance of the step-1 model, ``A_k^-1 (D^_f + D^_r Hr_k)``, (L, n, n_in)."""
+    Hm = np.empty(d.H.shape, dtype=complex)
+    for sl in _line_blocks(d):
+        Hm[sl] = np.linalg.solve(_dynamic_matrix(d, est, sl), _model_force(d, est, sl))
+    return Hm
+
+
+def reaction_transfer(d: Step1Data, est: Step1Estimate) -> np.ndarray:
+    """``A_k^-1 D^_r``: accelerance per unit reaction force of the step-1 model, (L, n, n_r)."""
+    G = np.empty((d.omega.size, d.n, d.n_r), dtype=complex)
+    for sl in _line_blocks(d):
+        A = _dynamic_matrix(d, est, sl)
+        G[sl] = np.linalg.solve(A, np.broadcast_to(est.Dr_hat.astype(complex), (A.shape[0],) + est.Dr_hat.shape))
+    return G
+
+
+def _equation_weights(d: Step1Data, est: Step1Estimate, sl: slice) -> np.ndarray:
+    """Inverse covariance of the equation error of the columns of lines ``sl``, (l, n_in, n, n).
 
     The equation error of column (k, j) is ``e = h + X z = A_k dh - D^_r dr``: the noise of the
     accelerances seen through ``A_k`` plus the noise of the measured reactions, which enter
     Eq. 3.6 as inputs (an errors-in-variables problem). Its covariance is
     ``S_kj = A_k diag(sigma_h^2) A_k^H + D^_r diag(sigma_r^2) D^_r^T`` and the weight is
-    ``S_kj^-1`` (n x n). Without reaction noise this is ``A^-H diag(w^2) A^-1``, and
-    ``e^H S^-1 e`` is exactly the weighted output error. Columns holding a blanked value get
-    weight 0 (their regressor is incomplete).
-
-    Returns ``(W, Ainv)``: (L, n_in, n, n) and (L, n, n).
+    ``S_kj^-1``. Without reaction noise this is ``A^-H diag(w^2) A^-1``, and ``e^H S^-1 e`` is
+    exactly the weighted output error. Columns holding a blanked value get weight 0 (their
+    regressor is incomplete).
     """
-    n = d.n
-    w = d.omega[:, None, None]
-    A = np.eye(n)[None] + est.C_hat[None] / (1j * w) - est.K_hat[None] / w**2
-    Ainv = np.linalg.inv(A)
-    w2 = np.swapaxes(d.weight, 1, 2) ** 2  # (L, n_in, n)
+    A = _dynamic_matrix(d, est, sl)
+    w2 = np.swapaxes(d.weight[sl], 1, 2) ** 2  # (l, n_in, n)
     if d.n_r == 0 or np.all(np.isinf(d.weight_r)):
+        Ainv = np.linalg.inv(A)
         W = np.einsum("kia,kji,kic->kjac", Ainv.conj(), w2, Ainv)
     else:
         var_h = np.where(w2 > 0, 1.0 / np.where(w2 > 0, w2, 1.0), 0.0)
-        var_r = 1.0 / np.swapaxes(d.weight_r, 1, 2) ** 2  # (L, n_in, n_r); 0 if exact
+        var_r = 1.0 / np.swapaxes(d.weight_r[sl], 1, 2) ** 2  # (l, n_in, n_r); 0 if exact
         S = np.einsum("kia,kja,kca->kjic", A, var_h, A.conj())
         S += np.einsum("ia,kja,ca->kjic", est.Dr_hat, var_r, est.Dr_hat)
         W = np.linalg.inv(S)
         W = (W + np.conj(np.swapaxes(W, -1, -2))) / 2
-    W = W * d.col_ok[:, :, None, None]
-    return W, Ainv
+    return W * d.col_ok[sl][:, :, None, None]
 
 
-def _equation_cost(d: Step1Data, Z: np.ndarray, est: Step1Estimate) -> float:
+def _equation_cost(d: Step1Data, est: Step1Estimate) -> float:
     """``sum_kj e^H S_kj^-1 e`` with the weights of the estimate itself (ML-type cost)."""
+    X = est.to_x()
+    c = 0.0
     try:
-        W, _ = _equation_weights(d, est)
+        for sl in _line_blocks(d):
+            e = np.swapaxes(d.H[sl], 1, 2) + np.einsum("ab,kjb->kja", X, _regressors(d, d.H[sl], sl))
+            c += float(np.einsum("kja,kjac,kjc->", e.conj(), _equation_weights(d, est, sl), e).real)
     except np.linalg.LinAlgError:
         return np.inf
-    e = np.swapaxes(d.H, 1, 2) + np.einsum("ab,kjb->kja", est.to_x(), Z)
-    c = float(np.einsum("kja,kjac,kjc->", e.conj(), W, e).real)
     return c if np.isfinite(c) else np.inf
 
 
@@ -256,39 +281,37 @@ def _output_cost(d: Step1Data, Hm: np.ndarray) -> float:
     return c if np.isfinite(c) else np.inf
 
 
-def _normal_equations(
-    Z: np.ndarray, W: np.ndarray, V: np.ndarray, chunk: int = 512
-) -> tuple[np.ndarray, np.ndarray]:
+class _NormalEquations:
     """Normal matrix and right-hand side of ``min sum_kj (v + X z)^H W (v + X z)`` over real X.
 
-    For residuals of the form ``X z_kj`` seen through an (n x n) Hermitian weight ``W_kj``,
+    For residuals ``X z_kj`` seen through an (n x n) Hermitian weight ``W_kj``,
     ``J^T W J = Re sum_kj kron(W_kj, G_kj)`` with ``G_kj = conj(z_kj) z_kj^T`` (p x p). The sum
-    of Kronecker products is one matrix product of the flattened factors, chunked so that
-    memory stays O(chunk (n^2 + p^2)) instead of the Jacobian's
-    (lines x outputs x inputs) x (n p).
-
-    Parameters
-    ----------
-    Z : (L, n_in, p) regressors; W : (L, n_in, n, n) weights; V : (L, n_in, n) = ``W v``.
-
-    Returns
-    -------
-    (N, g): (n p, n p) and (n p,), ``vec`` row-major in X (index ``a p + b``); the minimiser
-    solves ``N vec(X) = -g``.
+    of Kronecker products is one matrix product of the flattened factors per block of lines,
+    so memory stays bounded instead of holding the Jacobian's
+    (lines x outputs x inputs) x (n p) entries. ``vec`` is row-major in X (index ``a p + b``);
+    the minimiser solves ``N vec(X) = -g``.
     """
-    n = W.shape[-1]
-    p = Z.shape[-1]
-    g = np.einsum("kja,kjb->ab", V, Z.conj()).real.reshape(n * p)
-    Wf = W.reshape(-1, n * n)
-    Zf = Z.reshape(-1, p)
-    T = np.zeros((n * n, p * p))
-    for s in range(0, Zf.shape[0], chunk):
-        z = Zf[s : s + chunk]
+
+    def __init__(self, n: int, p: int) -> None:
+        self.n, self.p = n, p
+        self._T = np.zeros((n * n, p * p))
+        self._g = np.zeros((n, p))
+
+    def add(self, Z: np.ndarray, W: np.ndarray, V: np.ndarray) -> None:
+        """Add columns with regressors ``Z`` (m, n_in, p), weights ``W`` (m, n_in, n, n) and
+        ``V = W v`` (m, n_in, n)."""
+        n, p = self.n, self.p
+        self._g += np.einsum("kja,kjb->ab", V, Z.conj()).real
+        z = Z.reshape(-1, p)
         G = (z.conj()[:, :, None] * z[:, None, :]).reshape(-1, p * p)
-        Wc = Wf[s : s + chunk]
-        T += Wc.real.T @ G.real - Wc.imag.T @ G.imag
-    N = T.reshape(n, n, p, p).transpose(0, 2, 1, 3).reshape(n * p, n * p)
-    return N, g
+        Wf = W.reshape(-1, n * n)
+        self._T += Wf.real.T @ G.real - Wf.imag.T @ G.imag
+
+    def matrix(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(N, g)``: (n p, n p) and (n p,)."""
+        n, p = self.n, self.p
+        N = self._T.reshape(n, n, p, p).transpose(0, 2, 1, 3).reshape(n * p, n * p)
+        return N, self._g.reshape(n * p)
 
 
 def _solve_scaled(N: np.ndarray, rhs: np.ndarray, mu: float = 0.0) -> np.ndarray:
@@ -313,20 +336,22 @@ def refine_sanathanan_koerner(
     Returns the iterate with the lowest cost, and ``info``.
     """
     n, n_in = d.n, d.n_in
-    Z = _regressors(d, d.H)
-    h = np.swapaxes(d.H, 1, 2)
     best = est = est0
-    best_cost = cost0 = _equation_cost(d, Z, est0)
+    best_cost = cost0 = _equation_cost(d, est0)
     it = 0
     for it in range(1, max_iter + 1):
+        ne = _NormalEquations(n, d.p)
         try:
-            W, _ = _equation_weights(d, est)
-            N, g = _normal_equations(Z, W, np.einsum("kjac,kjc->kja", W, h))
+            for sl in _line_blocks(d):
+                W = _equation_weights(d, est, sl)
+                h = np.swapaxes(d.H[sl], 1, 2)
+                ne.add(_regressors(d, d.H[sl], sl), W, np.einsum("kjac,kjc->kja", W, h))
+            N, g = ne.matrix()
             X = -_solve_scaled(N, g).reshape(n, d.p)
         except np.linalg.LinAlgError:
             break
         est = Step1Estimate.from_x(X, n, n_in)
-        cost = _equation_cost(d, Z, est)
+        cost = _equation_cost(d, est)
         if cost < best_cost:
             gain = (best_cost - cost) / best_cost
             best, best_cost = est, cost
@@ -397,19 +422,23 @@ def refine_output_error(
     (Step1Estimate, info) with ``info`` holding ``cost_start``, ``cost``, ``iterations``.
     """
     n, n_in = d.n, d.n_in
-    w2 = d.weight**2
-
     X = est0.to_x()
-    Hm, Ainv = predict_accelerance(d, est0, with_inverse=True)
+    Hm = predict_accelerance(d, est0)
     cost = cost0 = _output_cost(d, Hm)
     # Start as pure Gauss-Newton: the normal matrix is well posed but spans ~1e11 after
     # diagonal scaling, and any fixed damping would stall the weakly determined directions.
     mu = 0.0
     it = 0
+    est = est0
     for it in range(1, max_iter + 1):
-        W = np.einsum("kia,kij,kic->kjac", Ainv.conj(), w2, Ainv)
-        V = np.einsum("kia,kij->kja", Ainv.conj(), w2 * (d.H - Hm))
-        N, g = _normal_equations(_regressors(d, Hm), W, V)
+        ne = _NormalEquations(n, d.p)
+        for sl in _line_blocks(d):
+            Ainv = np.linalg.inv(_dynamic_matrix(d, est, sl))
+            w2 = d.weight[sl] ** 2
+            W = np.einsum("kia,kij,kic->kjac", Ainv.conj(), w2, Ainv)
+            V = np.einsum("kia,kij->kja", Ainv.conj(), w2 * (d.H[sl] - Hm[sl]))
+            ne.add(_regressors(d, Hm[sl], sl), W, V)
+        N, g = ne.matrix()
         accepted = False
         for _ in range(12):
             try:
@@ -418,7 +447,7 @@ def refine_output_error(
                 mu = max(10 * mu, 1e-10)
                 continue
             est_try = Step1Estimate.from_x(X + step.reshape(n, d.p), n, n_in)
-            Hm_try, Ainv_try = predict_accelerance(d, est_try, with_inverse=True)
+            Hm_try = predict_accelerance(d, est_try)
             cost_try = _output_cost(d, Hm_try)
             if cost_try < cost:
                 accepted = True
@@ -427,7 +456,7 @@ def refine_output_error(
         if not accepted:
             break
         gain = (cost - cost_try) / cost
-        X, Hm, Ainv, cost = est_try.to_x(), Hm_try, Ainv_try, cost_try
+        est, X, Hm, cost = est_try, est_try.to_x(), Hm_try, cost_try
         mu = mu / 100 if mu > 1e-9 else 0.0
         if gain < rtol:
             break
@@ -437,4 +466,4 @@ def refine_output_error(
 
 def output_error_cost(d: Step1Data, est: Step1Estimate) -> float:
     """Weighted output error ``sum w^2 |H - H_model|^2`` of a step-1 estimate."""
-    return _output_cost(d, predict_accelerance(d, est)[0])
+    return _output_cost(d, predict_accelerance(d, est))

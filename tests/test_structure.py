@@ -55,12 +55,16 @@ def test_step1_normal_equations_equal_explicit_jacobian(small):
     est = s1.estimate_equation_error(d, "ls")
     est = s1.Step1Estimate.from_x(est.to_x() * (1 + 0.01 * rng.standard_normal(est.to_x().shape)),
                                   d.n, d.n_in)
-    Hm, Ainv = s1.predict_accelerance(d, est, with_inverse=True)
+    Hm = s1.predict_accelerance(d, est)
+    Ainv = np.linalg.inv(s1._dynamic_matrix(d, est))
     Z = s1._regressors(d, Hm)
     w2 = d.weight**2
     W = np.einsum("kia,kij,kic->kjac", Ainv.conj(), w2, Ainv)
     V = np.einsum("kia,kij->kja", Ainv.conj(), w2 * (d.H - Hm))
-    N, g = s1._normal_equations(Z, W, V, chunk=7)
+    ne = s1._NormalEquations(d.n, d.p)
+    for sl in (slice(0, 7), slice(7, None)):  # accumulated over two blocks of lines
+        ne.add(Z[sl], W[sl], V[sl])
+    N, g = ne.matrix()
     # Explicit Jacobian of r + A^-1 dX z, rows (k, i, j), columns vec(dX) row-major.
     n, p = d.n, d.p
     L = d.omega.size

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import IdentificationError
-from .step1 import Step1Data, Step1Estimate
+from .step1 import Step1Data
 
 __all__ = ["StateSpaceModes", "state_space_modes", "modal_scale_factors", "assemble_mck"]
 

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 import ssid.step1 as s1
-from ssid.frf import accelerance_from_model
 from ssid.models import example_system, frf_on_test_stand
 from ssid.solvers import solve_ls, solve_tls
 import ssid.step2 as step2

@@ -88,13 +88,22 @@ class SSIDResult:
     info: dict = field(default_factory=dict)
 
     def to_json_dict(self) -> dict:
-        """The result as plain JSON types (the contract's keys first)."""
-        return {
+        """The result as plain JSON types (the contract's keys first); NaN/Inf become None."""
+        return _jsonable({
             "natural_freq_hz": [float(v) for v in self.natural_freq_hz],
             "damping_ratio": [float(v) for v in self.damping_ratio],
             "dofs": list(self.dofs),
             "mpc": [float(v) for v in self.mpc],
+            "mode_shapes": {
+                "dofs": list(self.dofs),
+                "real": self.mode_shapes.real.tolist(),
+                "imag": self.mode_shapes.imag.tolist(),
+                "note": "complex displacement shapes, one column per mode, largest entry 1",
+            },
             "undamped_freq_hz": [float(v) for v in self.undamped_freq_hz],
+            "real_mode_shapes": None
+            if self.real_mode_shapes is None
+            else self.real_mode_shapes.tolist(),
             "real_roots_rad_per_s": [float(v) for v in self.real_roots],
             "solver": self.solver,
             "damping_matrix": self.damping,
@@ -102,7 +111,24 @@ class SSIDResult:
             "checks": self.checks,
             "warnings": list(self.warnings),
             "info": self.info,
-        }
+        })
+
+
+def _jsonable(obj):
+    """Numpy scalars/arrays to Python types, non-finite floats to None (strict JSON)."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, (np.integer, int)):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if np.isfinite(obj) else None
+    return obj
 
 
 def _residual_weights(d: Step1Data, est: Step1Estimate, valid: np.ndarray) -> np.ndarray:

@@ -163,3 +163,18 @@ def test_frf_synthesis_matches_modal_sum():
         R = -(wk**2) / (1j * wk - lam)
         Hs[k] = (Th[:n] * (R / a)) @ Th[:n].T
     assert np.allclose(H, Hs, rtol=1e-9, atol=1e-12 * np.abs(H).max())
+
+
+def test_json_result_is_strict_json_with_shapes(frf14):
+    import json
+
+    r = identify_mck(frf14, solver="ls")
+    r.undamped_freq_hz[0] = np.nan  # a non-finite number must not leak into the JSON
+    js = r.to_json_dict()
+    text = json.dumps(js, allow_nan=False)
+    back = json.loads(text)
+    assert back["undamped_freq_hz"][0] is None
+    shapes = np.array(back["mode_shapes"]["real"]) + 1j * np.array(back["mode_shapes"]["imag"])
+    assert shapes.shape == (14, len(back["natural_freq_hz"]))
+    assert np.allclose(np.max(np.abs(shapes), axis=0), 1.0)
+    assert np.array(back["real_mode_shapes"]).shape == (14, 14)

@@ -1,0 +1,46 @@
+"""Sensor placement by Effective Independence (Kammer; report Eq. 6.1).
+
+The Fisher information of the target modes at candidate DOFs is ``F = Phi^T Phi`` (Eq. 6.1).
+Effective Independence removes, one at a time, the candidate that contributes least to the
+determinant of F: its contribution is the diagonal of the projector
+``E = Phi (Phi^T Phi)^-1 Phi^T``. (The report calls this the "Effective Interface" method.)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["effective_independence"]
+
+
+def effective_independence(
+    phi: np.ndarray, n_keep: int, candidates: list[str] | None = None
+) -> list:
+    """Keep ``n_keep`` of the candidate DOFs that best observe the target modes.
+
+    Parameters
+    ----------
+    phi : (n_cand, n_modes)
+        Target mode shapes at the candidate DOFs (any scaling: E is scale-invariant per mode).
+    n_keep : int
+        Number of DOFs to keep; at least ``n_modes`` (F must stay invertible).
+    candidates : list, optional
+        Labels of the candidate rows (default: row indices).
+
+    Returns
+    -------
+    The kept labels (or indices), in the candidates' original order.
+    """
+    phi = np.asarray(phi, dtype=float)
+    n_cand, n_modes = phi.shape
+    if not n_modes <= n_keep <= n_cand:
+        raise ValueError(f"n_keep must lie between the number of modes ({n_modes}) and of "
+                         f"candidates ({n_cand}), got {n_keep}")
+    labels = list(range(n_cand)) if candidates is None else list(candidates)
+    keep = np.arange(n_cand)
+    while keep.size > n_keep:
+        # Diagonal of the projector by QR: E_ii = |Q_i|^2, stable even when F is ill-conditioned.
+        q, _ = np.linalg.qr(phi[keep])
+        e = np.sum(q * q, axis=1)
+        keep = np.delete(keep, int(np.argmin(e)))
+    return [labels[i] for i in keep]

@@ -24,11 +24,12 @@ all its modes. For each case and solver ("ls", "ml") the table gives:
   true complex eigenvalues (``|lambda| / 2 pi``); ``[m/n]`` flags a different mode count.
 
 Each case runs in its own worker process, so a case that exceeds ``--timeout`` seconds is
-killed and reported as "skipped (too slow)" instead of hanging the run; cases whose time,
-extrapolated from a smaller measured case on the same path, is far beyond the limit are not
-started at all.
+killed and reported as "skipped (too slow)" instead of hanging the run; a full-ML case whose
+time, extrapolated from a smaller measured full-ML case, exceeds 1.5 timeouts is not started
+(the estimate is printed).
 
-Run:  python bench/identify_speed.py [--quick] [--timeout 60] [--solvers ls,ml]
+Run:  python bench/identify_speed.py [--quick] [--threads N] [--timeout 60] [--solvers ls,ml]
+      [--profile]
 """
 
 from __future__ import annotations
@@ -60,6 +61,10 @@ SWEEP_TITLE = {
 }
 SVD_REPS = 5
 ID_REPS = 3
+#: Time allowed to a worker for its setup (imports, test system, FRFs) and first SVD.
+SETUP_S = 120.0
+#: A full-ML case whose extrapolated time exceeds this many timeouts is not started.
+PRE_SKIP = 1.5
 #: Stop repeating an identification once the repetitions so far took this long (s).
 REP_BUDGET_S = 4.0
 
@@ -148,16 +153,21 @@ def worker(n: int, n_in: int, lines: int, solvers: list[str]) -> None:
     ok = d.col_ok
     Zc = Z[ok] * np.ones(ok.shape)[ok][:, None]
     A = np.vstack([Zc.real, Zc.imag])
-    del Z, Zc
-    times = []
-    for _ in range(SVD_REPS):
-        t0 = time.perf_counter()
-        np.linalg.svd(A, full_matrices=False)
-        times.append(time.perf_counter() - t0)
-        if sum(times) > 2.0:
-            break
-    _emit(stage="svd", shape=list(A.shape), svd_s=min(times))
-    del A, d
+
+    def svd_baseline() -> None:
+        times = []
+        for _ in range(SVD_REPS):
+            t0 = time.perf_counter()
+            np.linalg.svd(A, full_matrices=False)
+            times.append(time.perf_counter() - t0)
+            if sum(times) > 2.0:
+                break
+        _emit(stage="svd", shape=list(A.shape), svd_s=min(times))
+
+    # The baseline is measured before and after every identification; the parent keeps the
+    # best, so a burst of load from elsewhere spoils neither number alone.
+    del Z, Zc, d
+    svd_baseline()
 
     for solver in solvers:
         times, traced_time, peak, res = [], None, None, None
@@ -196,25 +206,33 @@ def worker(n: int, n_in: int, lines: int, solvers: list[str]) -> None:
             err=err,
             modes=[int(f_id.size), int(f_true.size)],
         )
+        svd_baseline()
 
 
 # ----------------------------------------------------------------------------------------------
 # Parent: run workers with a time limit, print tables
 
 
-def run_case(case: tuple[int, int, int], solvers: list[str], timeout: float) -> dict:
+THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def run_case(case: tuple[int, int, int], solvers: list[str], timeout: float,
+             threads: int | None = None) -> dict:
     """Run one case's worker; kill it if a stage exceeds ``timeout``. Returns parsed results."""
     n, n_in, lines = case
     cmd = [sys.executable, os.path.abspath(__file__), "--worker", str(n), str(n_in), str(lines),
            "--solvers", ",".join(solvers)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    env = dict(os.environ)
+    if threads:
+        env.update({k: str(threads) for k in THREAD_VARS})
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     sel = selectors.DefaultSelector()
     sel.register(proc.stdout, selectors.EVENT_READ)
     out: dict = {"id": {}, "timed_out": None, "error": None}
     pending = list(solvers)
     # Stage limit: the data/SVD stage gets ``timeout``; each solver's first run gets ``timeout``
     # and its few extra repetitions (bounded by REP_BUDGET_S in the worker) a little more.
-    deadline = time.monotonic() + timeout
+    deadline = time.monotonic() + max(timeout, SETUP_S)  # imports, system, FRFs, first SVD
     while True:
         left = deadline - time.monotonic()
         if left <= 0 or not sel.select(timeout=left):
@@ -227,7 +245,8 @@ def run_case(case: tuple[int, int, int], solvers: list[str], timeout: float) -> 
             break
         rec = json.loads(line)
         if rec["stage"] == "svd":
-            out["svd"] = rec
+            if "svd" not in out or rec["svd_s"] < out["svd"]["svd_s"]:
+                out["svd"] = rec
             deadline = time.monotonic() + timeout
         elif rec["stage"] == "progress":
             deadline = time.monotonic() + REP_BUDGET_S + rec["first_s"] + 10.0
@@ -274,25 +293,58 @@ def machine_header() -> str:
         f"cpus {os.cpu_count()} (usable {len(os.sched_getaffinity(0))})"
         if hasattr(os, "sched_getaffinity") else f"cpus {os.cpu_count()}",
     ]
-    try:
-        blas = np.__config__.CONFIG["Build Dependencies"]["blas"]
+    blas = getattr(np.__config__, "CONFIG", {}).get("Build Dependencies", {}).get("blas", {})
+    if blas:
         parts.append(f"BLAS {blas.get('name')} {blas.get('version')}")
-    except Exception:  # noqa: BLE001 - numpy's config layout is not an API
-        pass
     try:
         from threadpoolctl import threadpool_info
 
         for p in threadpool_info():
             parts.append(f"{p.get('internal_api')} threads={p.get('num_threads')}")
     except ImportError:
-        env = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
-                                          "MKL_NUM_THREADS") if k in os.environ}
+        env = {k: os.environ[k] for k in THREAD_VARS if k in os.environ}
         parts.append("threadpoolctl not installed; thread env: " + (str(env) if env else "unset"))
+    parts.append(load_avg())
+    return "# " + " | ".join(parts) + "\n# ssid source: " + source_version()
+
+
+def load_avg() -> str:
     try:
-        parts.append("load avg %.2f %.2f %.2f" % os.getloadavg())
-    except OSError:
-        pass
-    return "# " + " | ".join(parts)
+        return "load avg {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
+    except (OSError, AttributeError):
+        return "load avg n/a"
+
+
+def source_version() -> str:
+    """Git commit of the checkout and whether ssid/ has uncommitted changes (timings move with
+    the library, so a table is only comparable with another of the same source)."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    try:
+        head = subprocess.run(["git", "-C", root, "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True, timeout=10, check=False).stdout.strip()
+        dirty = subprocess.run(["git", "-C", root, "status", "--porcelain", "--", "ssid"],
+                               capture_output=True, text=True, timeout=10,
+                               check=False).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown (no git)"
+    return f"{head or 'unknown'}{' + uncommitted changes in ssid/' if dirty else ''}"
+
+
+def cpu_busy(dt: float = 1.0) -> float | None:
+    """Fraction of all cores busy over ``dt`` seconds, from /proc/stat (None elsewhere)."""
+
+    def sample():
+        with open("/proc/stat") as fh:
+            v = [int(x) for x in fh.readline().split()[1:]]
+        return sum(v), v[3] + v[4]  # total, idle + iowait
+
+    try:
+        t0, i0 = sample()
+        time.sleep(dt)
+        t1, i1 = sample()
+    except (OSError, ValueError, IndexError):
+        return None
+    return 1.0 - (i1 - i0) / max(t1 - t0, 1)
 
 
 COLS = (f"{'value':>6} {'solver':>6} {'path':>4} {'A rows x cols':>14} {'svd_s':>8} {'id_s':>8} "
@@ -313,18 +365,50 @@ def fmt_row(value, solver, svd, rec, note=None) -> str:
            f"{rec['lnis_mb']:9.1f} {err}"
 
 
+def profile_base(solvers: list[str], top: int = 12) -> None:
+    """cProfile of one identification per solver in the base case (after a warm-up run)."""
+    import cProfile
+    import io
+    import pstats
+
+    from ssid.identify import identify_mck
+
+    frf, _ = bench_case(BASE["n"], BASE["n_in"], BASE["lines"])
+    for solver in solvers:
+        identify_mck(frf, solver=solver)
+        prof = cProfile.Profile()
+        prof.enable()
+        identify_mck(frf, solver=solver)
+        prof.disable()
+        buf = io.StringIO()
+        pstats.Stats(prof, stream=buf).sort_stats("tottime").print_stats(top)
+        body = [ln for ln in buf.getvalue().splitlines() if ln.strip()]
+        print()
+        print(f"== profile: solver {solver!r}, base case, top {top} functions by own time")
+        print("\n".join(ln for ln in body if not ln.lstrip().startswith(("Ordered", "List"))))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="smaller sweep (a minute or so)")
     ap.add_argument("--timeout", type=float, default=60.0,
                     help="seconds one identification may take before it is skipped (default 60)")
     ap.add_argument("--solvers", default="ls,ml", help="comma-separated (default ls,ml)")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="BLAS threads in the workers (sets OPENBLAS/OMP/MKL_NUM_THREADS); "
+                         "default: as the environment says. 1 is steadier on a shared machine")
+    ap.add_argument("--profile", action="store_true",
+                    help="also print where the time goes (cProfile, top functions) in the base case")
+    ap.add_argument("--profile-worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--worker", nargs=3, type=int, metavar=("N", "N_IN", "LINES"),
                     help=argparse.SUPPRESS)
     args = ap.parse_args()
     solvers = [s for s in args.solvers.split(",") if s]
     if args.worker:
         worker(*args.worker, solvers)
+        return
+    if args.profile_worker:
+        profile_base(solvers)
         return
 
     import numpy as np  # noqa: F401 - version for the header
@@ -333,14 +417,20 @@ def main() -> None:
 
     sweeps = QUICK if args.quick else FULL
     print(machine_header())
+    if args.threads:
+        print(f"# workers run with {', '.join(THREAD_VARS)} = {args.threads}")
     print(f"# sweep: {'quick' if args.quick else 'full'}; base case {BASE['n']} DOF, "
           f"{BASE['n_in']} inputs, {BASE['lines']} lines; timeout {args.timeout:g} s per "
           f"identification; ML_MAX_UNKNOWNS = {ML_MAX_UNKNOWNS}")
-    if hasattr(os, "getloadavg") and os.getloadavg()[0] > 0.5:
-        print(f"# WARNING: load average {os.getloadavg()[0]:.2f} before start: other processes "
-              "compete for the cores; multi-threaded BLAS timings will be inflated and noisy")
-    print("# times: best of up to %d runs (first run under tracemalloc; '*' = that run only, "
-          "case too slow to repeat)" % (ID_REPS + 1))
+    busy = cpu_busy()
+    if busy is not None:
+        print(f"# CPU busy before start (1 s sample, all cores): {100 * busy:.0f} %")
+        if busy > 0.2:
+            print("# WARNING: other processes compete for the cores; timings will be inflated and "
+                  + ("noisy" if args.threads == 1 else
+                     "noisy, multi-threaded BLAS worst (try --threads 1, see bench/README.md)"))
+    print(f"# times: best of up to {ID_REPS + 1} runs (first run under tracemalloc; '*' = that "
+          "run only, case too slow to repeat)")
     t_start = time.perf_counter()
     results: dict = {}  # case -> run_case output
     ml_measured: dict = {}  # case -> ml record, for extrapolation
@@ -355,11 +445,11 @@ def main() -> None:
                 run_solvers, pre_skip = list(solvers), {}
                 if "ml" in run_solvers and c[0] * (2 * c[0] + c[1]) <= ML_MAX_UNKNOWNS:
                     pred = predict_ml_full(c, ml_measured)
-                    if pred and pred[0] > 3 * args.timeout:
+                    if pred and pred[0] > PRE_SKIP * args.timeout:
                         run_solvers.remove("ml")
                         pre_skip["ml"] = (f"skipped (too slow): est. {pred[0]:.0f} s from "
                                           f"{pred[1][0]} DOF/{pred[1][1]} in/{pred[1][2]} lines")
-                res = run_case(c, run_solvers, args.timeout) if run_solvers else {
+                res = run_case(c, run_solvers, args.timeout, args.threads) if run_solvers else {
                     "id": {}, "timed_out": None, "error": None}
                 res["pre_skip"] = pre_skip
                 for s, rec in res["id"].items():
@@ -374,14 +464,23 @@ def main() -> None:
                     print(fmt_row(v, s, svd, res["id"][s]))
                 elif s in res["pre_skip"]:
                     print(fmt_row(v, s, svd, None, res["pre_skip"][s]))
+                elif res["timed_out"] == "svd":
+                    print(fmt_row(v, s, svd, None, "failed: setup and SVD did not finish in "
+                                                   f"{max(args.timeout, SETUP_S):g} s"))
                 elif res["timed_out"] == s or (res["timed_out"] and s not in res["id"]):
                     print(fmt_row(v, s, svd, None, f"skipped (too slow): > {args.timeout:g} s"))
                 else:
                     print(fmt_row(v, s, svd, None, f"failed: {res['error']}"))
             sys.stdout.flush()
+    if args.profile:
+        env = dict(os.environ)
+        if args.threads:
+            env.update({k: str(args.threads) for k in THREAD_VARS})
+        sys.stdout.flush()
+        subprocess.run([sys.executable, os.path.abspath(__file__), "--profile-worker",
+                        "--solvers", ",".join(solvers)], env=env, check=False)
     print()
-    load = "load avg %.2f %.2f %.2f" % os.getloadavg() if hasattr(os, "getloadavg") else ""
-    print(f"# total bench wall time {time.perf_counter() - t_start:.0f} s; {load}")
+    print(f"# total bench wall time {time.perf_counter() - t_start:.0f} s; at end: {load_avg()}")
 
 
 if __name__ == "__main__":

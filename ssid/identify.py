@@ -37,7 +37,7 @@ from .step1 import (
 )
 from .step2 import assemble_mck, modal_scale_factors, state_space_modes
 
-__all__ = ["SSIDResult", "identify_mck", "SOLVERS"]
+__all__ = ["SSIDResult", "identify_mck", "identify_step1", "SOLVERS"]
 
 SOLVERS = ("ml", "ls", "tls", "stls")
 
@@ -233,6 +233,35 @@ def _step2_weights(d: Step1Data, est: Step1Estimate) -> np.ndarray:
     return np.where(np.isfinite(var), 1.0 / np.sqrt(var), 0.0)
 
 
+def identify_step1(frf: FRFData, solver: str = "ml") -> tuple[Step1Estimate, Step1Data, dict]:
+    """Step 1 of SSID on all lines of ``frf``: ``M^-1 C, M^-1 K, M^-1 D`` (Eqs. 3.6-3.9).
+
+    Returns the estimate, the arranged data with the noise weights the solver used (step 2
+    and band processing reuse them), and ``info`` (with a ``warnings`` list).
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
+    valid = frf.valid_mask()
+    weights = frf_noise_weights(frf)
+    know_noise = weights is not None
+    d = step1_data(frf, weights)
+    info: dict = {"n_lines": frf.n_freq, "n_values_blanked": int(np.count_nonzero(~valid))}
+    warnings: list[str] = []
+    if not d.col_ok.all():
+        warnings.append(
+            f"{int(np.count_nonzero(~d.col_ok))} (line, input) columns hold a blanked value and "
+            "are left out of the equation-error fits"
+        )
+    if solver == "ml":
+        est = _step1_ml(d, valid, know_noise, info)
+        if "ml_skipped" in info:
+            warnings.append(info["ml_skipped"])
+    else:
+        est = estimate_equation_error(d, solver)
+    info["warnings"] = warnings
+    return est, d, info
+
+
 def identify_mck(
     frf: FRFData,
     *,
@@ -277,24 +306,8 @@ def identify_mck(
     data = frf.band(lo, hi)
     if data.n_freq == 0:
         raise IdentificationError(f"no frequency lines between {lo:g} and {hi:g} Hz")
-    valid = data.valid_mask()
-    weights = frf_noise_weights(data)
-    know_noise = weights is not None
-    d = step1_data(data, weights)
-    info: dict = {"n_lines": data.n_freq, "n_values_blanked": int(np.count_nonzero(~valid))}
-    warnings: list[str] = []
-    if not d.col_ok.all():
-        warnings.append(
-            f"{int(np.count_nonzero(~d.col_ok))} (line, input) columns hold a blanked value and "
-            "are left out of the equation-error fits"
-        )
-
-    if solver == "ml":
-        est = _step1_ml(d, valid, know_noise, info)
-        if "ml_skipped" in info:
-            warnings.append(info["ml_skipped"])
-    else:
-        est = estimate_equation_error(d, solver)
+    est, d, info = identify_step1(data, solver=solver)
+    warnings = list(info.pop("warnings"))
 
     modes = state_space_modes(est.C_hat, est.K_hat)
     if solver == "ml":

@@ -31,6 +31,7 @@ __all__ = [
     "modal_damping",
     "rayleigh_damping",
     "attach_test_stand",
+    "target_modes",
 ]
 
 IN = 0.0254  # metres per inch
@@ -89,7 +90,7 @@ def payload_simulator(
     PayloadModel with 52 DOFs, ordered node by node (Z, RX, RY), slaves' Z removed.
     """
     rail = box_section(2.0 * IN, 2.0 * IN, 0.125 * IN)
-    cross = box_section(1.5 * IN, 1.5 * IN, 0.125 * IN)
+    cross = box_section(1.0 * IN, 1.0 * IN, 0.0625 * IN)
     xy = {nd: (x * IN, y * IN) for nd, (x, y) in _NODES_IN.items()}
     elements = [(a, b, rail) for a, b in _RAILS] + [(a, b, cross) for a, b in _INNER + _OUTER]
     K, M, labels = assemble_grillage(xy, elements)
@@ -198,3 +199,21 @@ def attach_test_stand(
         K += coupling_k_n_per_m * np.outer(e, e)
         T_rel[c] = e
     return (M + M.T) / 2, (K + K.T) / 2, dofs, T_rel
+
+
+def target_modes(model: PayloadModel, n_modes: int, z_fraction_min: float = 0.3) -> np.ndarray:
+    """Indices (ascending frequency) of the first ``n_modes`` modes dominated by Z motion.
+
+    The report's "target modes" are global modes dominated by Z translations (Table 6.1,
+    asterisks). A mode qualifies when at least ``z_fraction_min`` of its kinetic energy
+    (``phi_i (M phi)_i`` summed over the Z DOFs, mass-normalised) is in Z translations.
+    """
+    import scipy.linalg as sla
+
+    _, phi = sla.eigh(model.K, model.M)
+    iz = model.index(Z_DOFS)
+    zfrac = (phi * (model.M @ phi))[iz].sum(axis=0)
+    idx = np.flatnonzero(zfrac >= z_fraction_min)
+    if idx.size < n_modes:
+        raise ValueError(f"only {idx.size} Z-dominated modes, {n_modes} asked")
+    return idx[:n_modes]

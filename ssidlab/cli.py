@@ -282,10 +282,16 @@ def _run_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-# Future subcommands (see the contract): discrepancy, correlate, acquire.
+def _add_correlate(sub: Any) -> None:
+    from ssidlab.cli_correlate import add_correlate_subcommand
+
+    add_correlate_subcommand(sub)
+
+
+# Future subcommands (see the contract): discrepancy, acquire.
 # Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
 # `run=_run_<name>`; list it here. Errors follow the same rules through main().
-_SUBCOMMANDS = (_add_identify, _add_demo)
+_SUBCOMMANDS = (_add_identify, _add_demo, _add_correlate)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,0 +1,210 @@
+"""Mode-shape correlation: MAC, orthogonality, cross-orthogonality, pairing, frequency errors.
+
+Criteria (report section 2.x and 6.5; NASA-STD-5002 practice): test modes normalised to unit
+modal mass with the TAM mass should be orthogonal, off-diagonal terms of
+``Phi_test^T M_tam Phi_test`` below 0.1; in cross-orthogonality ``Phi_test^T M_tam Phi_fem``
+the paired (diagonal) terms should be above 0.9 in magnitude and the others below 0.1.
+MAC is scale-free and needs no mass matrix, but it is "not a true orthogonality check"
+(section 6.2.3): two modes may be mass-orthogonal and still have a large MAC.
+
+Modes are columns; ``(n, m)`` arrays, real or complex.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+__all__ = [
+    "CROSS_ORTHOGONALITY_DIAG_MIN",
+    "ORTHOGONALITY_OFFDIAG_MAX",
+    "ModePair",
+    "OrthogonalityCheck",
+    "auto_mac",
+    "check_orthogonality",
+    "cross_orthogonality",
+    "frequency_error_percent",
+    "modal_assurance",
+    "normalize_modal_mass",
+    "orthogonality",
+    "pair_modes_by_mac",
+    "real_mode_from_complex",
+]
+
+#: Largest acceptable magnitude of an off-diagonal (orthogonality or cross-orthogonality) term.
+ORTHOGONALITY_OFFDIAG_MAX = 0.1
+#: Smallest acceptable magnitude of a paired (diagonal) cross-orthogonality term.
+CROSS_ORTHOGONALITY_DIAG_MIN = 0.9
+
+
+def modal_assurance(phi_a: np.ndarray, phi_b: np.ndarray) -> np.ndarray:
+    """Modal assurance criterion between two sets of shapes.
+
+    ``MAC_jk = |phi_a,j^H phi_b,k|^2 / ((phi_a,j^H phi_a,j) (phi_b,k^H phi_b,k))``
+
+    Parameters
+    ----------
+    phi_a : (n, m_a), phi_b : (n, m_b)
+        Shapes over the same DOFs, real or complex, any scaling.
+
+    Returns
+    -------
+    (m_a, m_b) float in [0, 1]; unchanged when any shape is multiplied by any nonzero
+    (complex) number. A zero shape gives a zero row or column.
+    """
+    a = np.atleast_2d(np.asarray(phi_a))
+    b = np.atleast_2d(np.asarray(phi_b))
+    if a.shape[0] != b.shape[0]:
+        raise ValueError(f"shapes have {a.shape[0]} and {b.shape[0]} DOFs")
+    num = np.abs(a.conj().T @ b) ** 2
+    na = np.real(np.einsum("ij,ij->j", a.conj(), a))
+    nb = np.real(np.einsum("ij,ij->j", b.conj(), b))
+    den = np.outer(na, nb)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mac = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+    return np.clip(mac, 0.0, 1.0)
+
+
+def auto_mac(phi: np.ndarray) -> np.ndarray:
+    """MAC of a set of shapes with itself, (m, m): off-diagonal terms show spatial aliasing
+    (too few or badly placed sensors make distinct modes look alike)."""
+    return modal_assurance(phi, phi)
+
+
+def real_mode_from_complex(phi: np.ndarray) -> np.ndarray:
+    """Real shapes closest to complex ones, (n, m).
+
+    Each column is rotated in the complex plane so that its real part carries the most
+    energy (the principal direction of the points ``(Re, Im)``), then the real part is kept.
+    For a normal mode (MPC = 1) this is exact up to scale.
+    """
+    phi = np.atleast_2d(np.asarray(phi))
+    if not np.iscomplexobj(phi):
+        return phi.astype(float)
+    # The angle maximising sum(Re(e^{-j a} phi)^2) is half the angle of sum(phi^2).
+    ang = 0.5 * np.angle(np.sum(phi**2, axis=0))
+    return np.real(phi * np.exp(-1j * ang))
+
+
+def normalize_modal_mass(phi: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """Shapes scaled to unit modal mass ``phi^T M phi = 1`` (real shapes), (n, m).
+
+    A shape with zero or negative modal mass (M not definite on it) is returned unscaled.
+    """
+    phi = np.asarray(phi, dtype=float)
+    m = np.einsum("ij,ik,kj->j", phi, np.asarray(M, dtype=float), phi)
+    scale = np.where(m > 0, 1.0 / np.sqrt(np.where(m > 0, m, 1.0)), 1.0)
+    return phi * scale
+
+
+def orthogonality(phi: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """Test-mode orthogonality ``Phi^T M Phi`` with unit-modal-mass shapes, (m, m).
+
+    Parameters
+    ----------
+    phi : (n, m)
+        Real shapes (test modes) at the TAM's DOFs, any scaling.
+    M : (n, n)
+        TAM mass matrix.
+
+    Returns
+    -------
+    Diagonal 1; for well-measured modes and a good TAM the off-diagonal terms are < 0.1.
+    """
+    p = normalize_modal_mass(phi, M)
+    O = p.T @ np.asarray(M, dtype=float) @ p
+    return (O + O.T) / 2
+
+
+def cross_orthogonality(phi_test: np.ndarray, phi_analysis: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """Cross-orthogonality ``Phi_test^T M Phi_analysis``, both at unit modal mass in ``M``.
+
+    Parameters
+    ----------
+    phi_test : (n, m_t), phi_analysis : (n, m_a)
+        Real shapes at the TAM's DOFs, any scaling.
+    M : (n, n)
+        TAM mass matrix.
+
+    Returns
+    -------
+    (m_t, m_a)
+        Signed; a model's modes against themselves give the identity.
+    """
+    M = np.asarray(M, dtype=float)
+    return normalize_modal_mass(phi_test, M).T @ M @ normalize_modal_mass(phi_analysis, M)
+
+
+@dataclass
+class OrthogonalityCheck:
+    """Summary of an orthogonality or cross-orthogonality matrix against the criteria."""
+
+    min_diag: float
+    max_offdiag: float
+    worst_offdiag: tuple[int, int]
+    passed: bool
+
+    def to_dict(self) -> dict:
+        return {
+            "min_abs_diag": self.min_diag,
+            "max_abs_offdiag": self.max_offdiag,
+            "worst_offdiag": [int(self.worst_offdiag[0]) + 1, int(self.worst_offdiag[1]) + 1],
+            "pass": bool(self.passed),
+        }
+
+
+def check_orthogonality(
+    O: np.ndarray,
+    diag_min: float = CROSS_ORTHOGONALITY_DIAG_MIN,
+    offdiag_max: float = ORTHOGONALITY_OFFDIAG_MAX,
+) -> OrthogonalityCheck:
+    """Check a square (paired) orthogonality matrix: ``|diag| >= diag_min``,
+    ``|offdiag| < offdiag_max``. ``worst_offdiag`` is 0-based (row, column)."""
+    A = np.abs(np.asarray(O, dtype=float))
+    m = min(A.shape)
+    d = np.diagonal(A)[:m]
+    off = A.copy()
+    off[np.arange(m), np.arange(m)] = 0.0
+    worst = np.unravel_index(np.argmax(off), off.shape) if off.size else (0, 0)
+    max_off = float(off.max()) if off.size else 0.0
+    min_d = float(d.min()) if d.size else 1.0
+    return OrthogonalityCheck(min_d, max_off, (int(worst[0]), int(worst[1])),
+                              bool(min_d >= diag_min and max_off < offdiag_max))
+
+
+@dataclass
+class ModePair:
+    """A test mode paired with an analysis mode (0-based indices)."""
+
+    test: int
+    analysis: int
+    mac: float
+
+
+def pair_modes_by_mac(mac: np.ndarray, min_mac: float = 0.5) -> list[ModePair]:
+    """One-to-one pairing of test modes (rows) with analysis modes (columns) by MAC.
+
+    The assignment maximising the sum of MAC (Hungarian algorithm) rather than each row's
+    largest MAC, so that two test modes never claim the same analysis mode. Pairs whose MAC
+    is below ``min_mac`` are dropped (that test mode has no counterpart).
+
+    Returns
+    -------
+    list of ModePair, in ascending test-mode order.
+    """
+    mac = np.asarray(mac, dtype=float)
+    if mac.size == 0:
+        return []
+    rows, cols = linear_sum_assignment(mac, maximize=True)
+    pairs = [ModePair(int(i), int(j), float(mac[i, j])) for i, j in zip(rows, cols)]
+    return sorted((p for p in pairs if p.mac >= min_mac), key=lambda p: p.test)
+
+
+def frequency_error_percent(f_test_hz: np.ndarray, f_ref_hz: np.ndarray) -> np.ndarray:
+    """``100 (f_test - f_ref) / f_ref``, element-wise (signed: positive = test above)."""
+    f_test = np.asarray(f_test_hz, dtype=float)
+    f_ref = np.asarray(f_ref_hz, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(f_ref != 0, 100.0 * (f_test - f_ref) / np.where(f_ref != 0, f_ref, 1.0), np.nan)

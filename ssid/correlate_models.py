@@ -1,0 +1,323 @@
+"""Test-analysis correlation studies: a test model or measured FRFs against an analysis model.
+
+:func:`correlate_models` compares an identified (test) model with an analytical one, reducing
+the analytical model to the test DOFs with a TAM; :func:`correlate_with_frf` compares an
+analytical model with measured FRFs. Both return a :class:`CorrelationStudy` whose ``summary``
+is the JSON of ``ssidlab correlate`` (keys in ``docs/correlation.md``) and whose other fields
+feed the plots.
+
+Roles: "test" is the identified model or the measured FRFs, "analysis" the analytical model
+(full size). Analysis modes are the full model's modes partitioned to the test DOFs (what a
+TAM is for: the FEM's shapes, compared with the TAM mass); the TAM's own frequencies are
+reported separately (``tam_natural_freq_hz``) as a measure of the TAM's accuracy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .correlate import (
+    CROSS_ORTHOGONALITY_DIAG_MIN,
+    ORTHOGONALITY_OFFDIAG_MAX,
+    auto_mac,
+    check_orthogonality,
+    cross_orthogonality,
+    frequency_error_percent,
+    modal_assurance,
+    orthogonality,
+    pair_modes_by_mac,
+    real_mode_from_complex,
+)
+from .correlate_frf import (
+    FRF_GAP_METRIC,
+    cmif,
+    cmif_peaks,
+    cmif_shapes,
+    frf_assurance,
+    frf_gap,
+    frf_gap_db,
+    refine_peak_frequencies,
+)
+from .errors import InputError
+from .frf import FRFData, accelerance_from_model
+from .io import Model
+from .tam import (
+    TAM_METHODS,
+    dof_indices,
+    natural_frequencies_hz,
+    normal_modes,
+    reduce_to_tam,
+)
+
+__all__ = ["ANALYSIS_BAND_FACTOR", "CorrelationStudy", "correlate_models", "correlate_with_frf"]
+
+#: Analysis modes up to this multiple of the highest test frequency take part in the MAC.
+ANALYSIS_BAND_FACTOR = 1.5
+#: Pairs with a lower MAC are not paired (no counterpart).
+MIN_PAIR_MAC = 0.5
+
+
+@dataclass
+class CorrelationStudy:
+    """Everything a correlation produced: the JSON summary and arrays for the plots."""
+
+    summary: dict
+    mac: np.ndarray
+    test_freq_hz: np.ndarray
+    analysis_freq_hz: np.ndarray
+    pairs: list
+    frf_test: FRFData | None = None
+    frf_model: FRFData | None = None
+    cmif_test: np.ndarray | None = None
+    cmif_model: np.ndarray | None = None
+    warnings: list[str] = field(default_factory=list)
+
+
+def _modes(model: Model, who: str) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        lam, phi = normal_modes(model.M, model.K)
+    except np.linalg.LinAlgError:
+        raise InputError(f"{who} model: M is not positive definite, it has no normal modes") from None
+    return np.sign(lam) * np.sqrt(np.abs(lam)) / (2 * np.pi), phi
+
+
+def _tam(analysis: Model, retained: np.ndarray, tam: str, interface: Sequence[str] | None,
+         targets: Sequence[int] | None, test_dofs: Sequence[str]):
+    """TAM of the analysis model at ``retained``; ``"none"`` when nothing is omitted."""
+    if retained.size == analysis.n:
+        return "none", analysis.M[np.ix_(retained, retained)], analysis.K[np.ix_(retained, retained)]
+    if tam not in TAM_METHODS:
+        raise InputError(f"unknown TAM {tam!r}; choose one of {', '.join(TAM_METHODS)}")
+    boundary = None
+    if interface:
+        missing = [d for d in interface if d not in test_dofs]
+        if missing:
+            raise InputError(f"interface DOF {missing[0]!r} is not among the test DOFs")
+        boundary = dof_indices(analysis.dofs, interface, "interface DOF")
+    elif tam == "cb":
+        raise InputError("--tam cb needs the interface DOFs (--interface)")
+    t0 = None if targets is None else [t - 1 for t in targets]
+    try:
+        red = reduce_to_tam(tam, analysis.M, analysis.K, retained, targets=t0, boundary=boundary)
+    except np.linalg.LinAlgError as exc:
+        raise InputError(f"analysis model: the {tam} reduction failed ({exc})") from None
+    return tam, red.M, red.K
+
+
+def _mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarray,
+                      f_an: np.ndarray, M_tam: np.ndarray) -> tuple[dict, np.ndarray, list]:
+    """MAC, pairing, frequency errors, orthogonality and cross-orthogonality."""
+    mac = modal_assurance(phi_test, phi_an)
+    pairs = pair_modes_by_mac(mac, MIN_PAIR_MAC)
+    phi_test_r = real_mode_from_complex(phi_test)
+    xo = cross_orthogonality(phi_test_r, phi_an, M_tam)
+    ti = [p.test for p in pairs]
+    ai = [p.analysis for p in pairs]
+    xo_paired = xo[np.ix_(ti, ai)]
+    ortho = orthogonality(phi_test_r, M_tam)
+    ferr = frequency_error_percent(f_test[ti], f_an[ai]) if pairs else np.zeros(0)
+    paired = [
+        {
+            "test_mode": p.test + 1,
+            "analysis_mode": p.analysis + 1,
+            "mac": p.mac,
+            "test_freq_hz": float(f_test[p.test]),
+            "analysis_freq_hz": float(f_an[p.analysis]),
+            "freq_error_percent": float(e),
+            "cross_orthogonality": float(xo[p.test, p.analysis]),
+        }
+        for p, e in zip(pairs, ferr)
+    ]
+    o_chk = check_orthogonality(ortho, diag_min=0.0)
+    x_chk = check_orthogonality(xo_paired)
+    if not pairs:  # nothing paired: the criterion cannot be met
+        x_chk.passed = False
+    summary = {
+        "mac": mac,
+        "auto_mac_test": auto_mac(phi_test),
+        "auto_mac_analysis": auto_mac(phi_an),
+        "paired_modes": paired,
+        "freq_error_percent": [float(e) for e in ferr],
+        "orthogonality": {
+            "matrix": ortho,
+            **o_chk.to_dict(),
+            "criterion": {"offdiag_max": ORTHOGONALITY_OFFDIAG_MAX},
+        },
+        "cross_orthogonality": {
+            "matrix": xo,
+            "paired_matrix": xo_paired,
+            **x_chk.to_dict(),
+            "criterion": {"diag_min": CROSS_ORTHOGONALITY_DIAG_MIN,
+                          "offdiag_max": ORTHOGONALITY_OFFDIAG_MAX},
+        },
+    }
+    return summary, mac, pairs
+
+
+def _analysis_band(f_an: np.ndarray, f_test_max: float, n_test: int) -> int:
+    """How many analysis modes take part: up to 1.5 x the top test frequency, at least n_test."""
+    n = int(np.count_nonzero(f_an <= ANALYSIS_BAND_FACTOR * f_test_max))
+    return int(min(f_an.size, max(n, n_test)))
+
+
+def correlate_models(
+    test: Model,
+    analysis: Model,
+    *,
+    tam: str = "guyan",
+    interface: Sequence[str] | None = None,
+    targets: Sequence[int] | None = None,
+) -> CorrelationStudy:
+    """Correlate a test (identified) model with an analysis model.
+
+    Parameters
+    ----------
+    test : Model
+        Over the test DOFs; each must be a DOF of ``analysis``.
+    analysis : Model
+        The analytical model, full size.
+    tam : {"guyan", "irs", "serep", "hybrid", "cb"}
+        TAM reducing ``analysis`` to the test DOFs (not used when the DOF sets are equal).
+    interface : sequence of str, optional
+        Interface DOFs (needed by ``cb``).
+    targets : sequence of int, optional
+        1-based analysis mode numbers: target modes of serep, hybrid and cb.
+
+    Returns
+    -------
+    CorrelationStudy
+    """
+    warnings: list[str] = []
+    missing = [d for d in test.dofs if d not in set(analysis.dofs)]
+    if missing:
+        raise InputError(f"test DOF {missing[0]!r} is not among the analysis model's DOFs")
+    retained = dof_indices(analysis.dofs, test.dofs)
+    tam_used, M_tam, K_tam = _tam(analysis, retained, tam, interface, targets, test.dofs)
+    f_test, phi_test = _modes(test, "test")
+    f_all, phi_all = _modes(analysis, "analysis")
+    n_an = _analysis_band(f_all, float(np.max(f_test)), f_test.size)
+    f_an, phi_an = f_all[:n_an], phi_all[np.ix_(retained, np.arange(n_an))]
+    f_tam = _tam_frequencies(M_tam, K_tam, warnings)
+    corr, mac, pairs = _mode_correlation(phi_test, f_test, phi_an, f_an, M_tam)
+    summary = {
+        "mode": "model-model",
+        "tam": tam_used,
+        "dofs": list(test.dofs),
+        "interface_dofs": list(interface or []),
+        "target_modes": None if targets is None else [int(t) for t in targets],
+        "test_natural_freq_hz": f_test,
+        "analysis_natural_freq_hz": f_an,
+        "analysis_n_dofs": analysis.n,
+        "tam_natural_freq_hz": f_tam,
+        **corr,
+        "warnings": warnings,
+    }
+    return CorrelationStudy(summary, mac, f_test, f_an, pairs, warnings=warnings)
+
+
+def _tam_frequencies(M_tam: np.ndarray, K_tam: np.ndarray, warnings: list[str]) -> np.ndarray | None:
+    try:
+        return natural_frequencies_hz(M_tam, K_tam)
+    except np.linalg.LinAlgError:
+        warnings.append("the TAM mass is singular (fewer target modes than DOFs?): "
+                        "no TAM natural frequencies")
+        return None
+
+
+def correlate_with_frf(
+    frf: FRFData,
+    analysis: Model,
+    *,
+    tam: str = "guyan",
+    interface: Sequence[str] | None = None,
+    targets: Sequence[int] | None = None,
+    zeta: float = 0.02,
+    f_min_hz: float | None = None,
+    f_max_hz: float | None = None,
+) -> CorrelationStudy:
+    """Correlate an analysis model with measured FRFs.
+
+    The model's accelerances at the FRF's outputs and inputs come from the full model (exact
+    at the measured DOFs); with no C in the model, modal damping ``zeta`` is used for every
+    mode. FRAC and the gap compare the FRFs; the test "modes" are the CMIF peaks (frequency
+    and first left singular vector), correlated with the full model's modes at the outputs
+    using the TAM mass of ``tam``.
+
+    Parameters
+    ----------
+    frf : FRFData
+    analysis : Model
+        Its DOFs include every output of ``frf``.
+    zeta : float
+        Modal damping ratio used only when ``analysis.C`` is None.
+    f_min_hz, f_max_hz : float, optional
+        Band of lines compared.
+    """
+    warnings: list[str] = []
+    missing = [d for d in frf.outputs if d not in set(analysis.dofs)]
+    if missing:
+        raise InputError(f"FRF output {missing[0]!r} is not among the analysis model's DOFs")
+    lo = frf.freq_hz[0] if f_min_hz is None else f_min_hz
+    hi = frf.freq_hz[-1] if f_max_hz is None else f_max_hz
+    test = frf.band(lo, hi)
+    if test.n_freq < 3:
+        raise InputError(f"fewer than 3 frequency lines between {lo:g} and {hi:g} Hz")
+    valid = test.valid_mask()
+    if analysis.C is None:
+        from .modal import modal_damping_matrix
+
+        C = modal_damping_matrix(analysis.M, analysis.K, np.full(analysis.n, zeta))
+        damping_source = f"modal, zeta = {zeta:g} (the model has no C)"
+    else:
+        C = analysis.C
+        damping_source = "model C"
+    model = accelerance_from_model(analysis.M, C, analysis.K, analysis.dofs, test.freq_hz,
+                                   test.outputs, test.inputs)
+    retained = dof_indices(analysis.dofs, test.outputs)
+    tam_used, M_tam, K_tam = _tam(analysis, retained, tam, interface, targets, test.outputs)
+
+    sv_test = cmif(test.H, valid)
+    sv_model = cmif(model.H)
+    peaks = cmif_peaks(test.freq_hz, sv_test)
+    if peaks.size == 0:
+        warnings.append("no CMIF peak in the measured FRFs: no test modes to correlate")
+    f_test = refine_peak_frequencies(test.freq_hz, sv_test[:, 0], peaks)
+    phi_test = cmif_shapes(test.H, peaks, valid)
+    f_all, phi_all = _modes(analysis, "analysis")
+    n_an = _analysis_band(f_all, float(hi), max(peaks.size, 1))
+    f_an, phi_an = f_all[:n_an], phi_all[np.ix_(retained, np.arange(n_an))]
+    corr, mac, pairs = _mode_correlation(phi_test, f_test, phi_an, f_an, M_tam)
+    frac = frf_assurance(test.H, model.H, valid)
+    summary = {
+        "mode": "model-frf",
+        "tam": tam_used,
+        "dofs": list(test.outputs),
+        "inputs": list(test.inputs),
+        "interface_dofs": list(interface or []),
+        "target_modes": None if targets is None else [int(t) for t in targets],
+        "band_hz": [float(test.freq_hz[0]), float(test.freq_hz[-1])],
+        "test_natural_freq_hz": f_test,
+        "test_freq_source": "CMIF peaks (damped peak frequency, parabolic interpolation between lines)",
+        "analysis_natural_freq_hz": f_an,
+        "analysis_n_dofs": analysis.n,
+        "tam_natural_freq_hz": _tam_frequencies(M_tam, K_tam, warnings),
+        **corr,
+        "frac": {
+            "outputs": list(test.outputs),
+            "inputs": list(test.inputs),
+            "matrix": frac,
+            "mean": float(np.nanmean(frac)),
+            "min": float(np.nanmin(frac)),
+        },
+        "frf_gap": frf_gap(test.H, model.H, valid),
+        "frf_gap_metric": FRF_GAP_METRIC,
+        "frf_gap_db": frf_gap_db(test.H, model.H, valid),
+        "damping_source": damping_source,
+        "cmif": {"freq_hz": test.freq_hz, "test": sv_test, "analysis": sv_model},
+        "warnings": warnings,
+    }
+    return CorrelationStudy(summary, mac, f_test, f_an, pairs, test, model, sv_test, sv_model,
+                            warnings)

@@ -1,0 +1,258 @@
+"""``ssidlab correlate``: a test model or measured FRFs against an analysis model.
+
+    ssidlab correlate --model TEST --model ANALYSIS [--tam guyan|irs|serep|hybrid|cb] ...
+    ssidlab correlate --model ANALYSIS --frf FRF.h5 [--tam ...] ...
+
+Models may be ssidlab-model ``.h5``, MATLAB ``.mat`` or Nastran ``.op4`` files
+(:func:`ssid.matrix_io.read_analysis_model`). The JSON keys are defined in
+``docs/correlation.md``. Bad input raises :class:`ssid.errors.InputError`; ``ssidlab.cli.main``
+prints it as one line and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ssid.errors import InputError
+from ssid.tam import TAM_METHODS
+
+__all__ = ["add_correlate_subcommand", "jsonable", "parse_mode_list", "run_correlate"]
+
+HELP = "Correlate a test model or measured FRFs with an analysis model (MAC, orthogonality, FRAC)."
+
+
+# ----------------------------------------------------------------------------------------------
+# Parser
+# ----------------------------------------------------------------------------------------------
+
+
+def add_correlate_subcommand(sub: Any) -> argparse.ArgumentParser:
+    """Add the ``correlate`` subparser to ``sub`` (an argparse subparsers action); returns it."""
+    p = sub.add_parser("correlate", prog="ssidlab correlate", help=HELP, description=HELP,
+                       allow_abbrev=False)
+    p.add_argument(
+        "--model", action="append", metavar="MODEL", required=True,
+        help="model file (.h5 ssidlab-model, .mat, .op4). Twice: the test (identified) model, "
+        "then the analysis model, whose DOFs must include the test DOFs. Once, with --frf: the "
+        "analysis model",
+    )
+    p.add_argument("--frf", metavar="FRF.h5", help="measured FRFs (ssidlab-frf file)")
+    p.add_argument(
+        "--tam", choices=TAM_METHODS, default="guyan",
+        help="test-analysis model reducing the analysis model to the test DOFs (default guyan)",
+    )
+    p.add_argument("--interface", type=_label_list, metavar="DOF[,DOF...]",
+                   help="interface (boundary) DOF labels; needed by --tam cb")
+    p.add_argument("--targets", type=parse_mode_list, metavar="LIST",
+                   help="target modes of serep/hybrid/cb, 1-based analysis mode numbers, e.g. "
+                   "'1-10,17,18' (default: the lowest as many as test DOFs)")
+    p.add_argument("--zeta", type=_damping_ratio, default=0.02, metavar="RATIO",
+                   help="modal damping ratio for a model without C, with --frf (default 0.02)")
+    p.add_argument("--fmin", type=_frequency, metavar="HZ", help="lowest line compared (--frf)")
+    p.add_argument("--fmax", type=_frequency, metavar="HZ", help="highest line compared (--frf)")
+    p.add_argument("--json", metavar="OUT.json", required=True, help="correlation results")
+    p.add_argument("--plots", metavar="DIR", help="directory for PNG plots (created if needed)")
+    p.add_argument("--quiet", action="store_true", help="do not print the paired-mode table")
+    p.set_defaults(run=run_correlate)
+    return p
+
+
+def parse_mode_list(text: str) -> list[int]:
+    """argparse type: ``"1-10,17,18"`` -> ``[1, ..., 10, 17, 18]`` (1-based, distinct, sorted)."""
+    out: set[int] = set()
+    for part in text.split(","):
+        part = part.strip()
+        m = re.fullmatch(r"(\d+)(?:\s*-\s*(\d+))?", part)
+        if not m:
+            raise argparse.ArgumentTypeError(f"not a mode list: {text!r} (e.g. '1-10,17,18')")
+        lo = int(m.group(1))
+        hi = int(m.group(2) or lo)
+        if lo < 1 or hi < lo:
+            raise argparse.ArgumentTypeError(f"bad mode range {part!r}: modes count from 1")
+        out.update(range(lo, hi + 1))
+    return sorted(out)
+
+
+def _label_list(text: str) -> list[str]:
+    labels = [s.strip() for s in text.split(",")]
+    if not all(labels):
+        raise argparse.ArgumentTypeError(f"empty DOF label in {text!r}")
+    if len(set(labels)) != len(labels):
+        raise argparse.ArgumentTypeError(f"a DOF label is repeated in {text!r}")
+    return labels
+
+
+def _frequency(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite frequency >= 0 Hz, got {text!r}")
+    return value
+
+
+def _damping_ratio(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"must be a damping ratio between 0 and 1, got {text!r}")
+    return value
+
+
+# ----------------------------------------------------------------------------------------------
+# Run
+# ----------------------------------------------------------------------------------------------
+
+
+def run_correlate(args: argparse.Namespace) -> int:
+    """Carry out ``ssidlab correlate``; returns 0, raises InputError on bad input."""
+    models = list(args.model or [])
+    if len(models) > 2:
+        raise InputError("--model is given more than twice (test model, analysis model)")
+    if len(models) == 2 and args.frf:
+        raise InputError("give either a second --model or --frf, not both")
+    if len(models) == 1 and not args.frf:
+        raise InputError("give a second --model (the analysis model) or --frf (measured FRFs)")
+    if not args.frf and (args.fmin is not None or args.fmax is not None):
+        raise InputError("--fmin and --fmax apply to --frf only")
+    if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
+        raise InputError(f"--fmin ({args.fmin:g} Hz) must be below --fmax ({args.fmax:g} Hz)")
+    sources = models + ([args.frf] if args.frf else [])
+    _check_output_file(args.json, sources)
+    if args.plots is not None:
+        _check_plot_dir(args.plots, sources)
+
+    from ssid.correlate_models import correlate_models, correlate_with_frf
+    from ssid.io import read_frf
+    from ssid.matrix_io import read_analysis_model
+
+    analysis = read_analysis_model(models[0] if args.frf else models[1])
+    if args.targets is not None and max(args.targets) > analysis.n:
+        raise InputError(f"--targets: mode {max(args.targets)} but the analysis model has "
+                         f"{analysis.n} modes")
+    if args.frf:
+        frf = read_frf(args.frf)
+        study = correlate_with_frf(
+            frf, analysis, tam=args.tam, interface=args.interface, targets=args.targets,
+            zeta=args.zeta, f_min_hz=args.fmin, f_max_hz=args.fmax,
+        )
+        test_source, analysis_source = args.frf, models[0]
+    else:
+        test = read_analysis_model(models[0])
+        study = correlate_models(test, analysis, tam=args.tam, interface=args.interface,
+                                 targets=args.targets)
+        test_source, analysis_source = models[0], models[1]
+    summary = {"test_source": test_source, "analysis_source": analysis_source, **study.summary}
+    summary["plots"] = _write_plots(study, args.plots) if args.plots is not None else []
+    Path(args.json).write_text(json.dumps(jsonable(summary), indent=1) + "\n", encoding="utf-8")
+    if not args.quiet:
+        print(pair_table(summary))
+    return 0
+
+
+def _check_output_file(path: str, sources: list[str]) -> None:
+    real = os.path.realpath(path)
+    if any(real == os.path.realpath(s) for s in sources):
+        raise InputError(f"{path}: output would overwrite an input file")
+    if os.path.isdir(path):
+        raise InputError(f"{path}: is a directory, expected a file name")
+    parent = Path(path).parent
+    if not parent.is_dir():
+        raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")
+
+
+def _check_plot_dir(path: str, sources: list[str]) -> None:
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise InputError(f"{path}: exists and is not a directory (--plots)")
+    if any(os.path.realpath(path) == os.path.realpath(s) for s in sources):
+        raise InputError(f"{path}: is an input file")
+
+
+def _safe(label: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._+-]", "_", label)
+
+
+def _write_plots(study: Any, directory: str) -> list[str]:
+    from ssid.plots_correlation import (
+        plot_cmif,
+        plot_frequency_errors,
+        plot_frf_overlay,
+        plot_mac_matrix,
+    )
+
+    d = Path(directory)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{directory}: cannot create the plot directory ({exc.strerror or exc})") from None
+    s = study.summary
+    out = []
+    if study.mac.size:
+        out.append(plot_mac_matrix(study.mac, d / "mac.png", study.test_freq_hz,
+                                   study.analysis_freq_hz, title=f"MAC (TAM: {s['tam']})"))
+    if s["paired_modes"]:
+        out.append(plot_frequency_errors(s["paired_modes"], d / "freq_errors.png"))
+    if study.frf_test is not None:
+        t, m = study.frf_test, study.frf_model
+        out.append(plot_cmif(t.freq_hz, study.cmif_test, study.cmif_model, d / "cmif.png",
+                             peaks_hz=study.test_freq_hz))
+        valid = t.valid_mask()
+        # Drive points: one overlay per input, at its own output DOF.
+        for j, lbl in enumerate(t.inputs):
+            i = t.outputs.index(lbl)
+            out.append(plot_frf_overlay(
+                t.freq_hz, t.H[:, i, j], m.H[:, i, j], d / f"frf_{_safe(lbl)}_{_safe(lbl)}.png",
+                title=f"drive point {lbl}  (FRAC {s['frac']['matrix'][i][j]:.3f})",
+                valid=valid[:, i, j],
+            ))
+    return out
+
+
+def pair_table(summary: dict) -> str:
+    """Text table of the paired modes."""
+    lines = [
+        f"TAM: {summary['tam']}   paired modes: {len(summary['paired_modes'])}",
+        (f"{'test':>4} {'f_test [Hz]':>12} {'anal':>4} {'f_anal [Hz]':>12} "
+         f"{'err [%]':>9} {'MAC':>6} {'XOR':>7}"),
+    ]
+    for p in summary["paired_modes"]:
+        lines.append(f"{p['test_mode']:>4} {p['test_freq_hz']:>12.4f} {p['analysis_mode']:>4} "
+                     f"{p['analysis_freq_hz']:>12.4f} {p['freq_error_percent']:>9.3f} "
+                     f"{p['mac']:>6.3f} {p['cross_orthogonality']:>7.3f}")
+    xo = summary["cross_orthogonality"]
+    lines.append(f"cross-orthogonality: min |diag| {xo['min_abs_diag']:.3f}, max |off-diag| "
+                 f"{xo['max_abs_offdiag']:.3f} -> {'pass' if xo['pass'] else 'fail'}")
+    if "frf_gap" in summary:
+        lines.append(f"FRAC mean {summary['frac']['mean']:.3f}, gap ({summary['frf_gap_metric']}) "
+                     f"{summary['frf_gap']:.4g}, {summary['frf_gap_db']:.3g} dB rms")
+    return "\n".join(lines)
+
+
+def jsonable(obj: Any) -> Any:
+    """Numpy values as plain JSON types; NaN and Inf as None (strict JSON)."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj

@@ -1,0 +1,154 @@
+"""Correlation measures: MAC, orthogonality, cross-orthogonality, pairing, FRAC, gap, CMIF."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_tam_models import beam_model, translations
+
+from ssid.correlate import (
+    auto_mac,
+    check_orthogonality,
+    cross_orthogonality,
+    frequency_error_percent,
+    modal_assurance,
+    orthogonality,
+    pair_modes_by_mac,
+    real_mode_from_complex,
+)
+from ssid.correlate_frf import (
+    cmif,
+    cmif_peaks,
+    cmif_shapes,
+    frf_assurance,
+    frf_gap,
+    frf_gap_db,
+    refine_peak_frequencies,
+)
+from ssid.frf import accelerance
+from ssid.modal import modal_damping_matrix
+from ssid.tam import guyan_reduce, natural_frequencies_hz, normal_modes
+
+
+@pytest.fixture(scope="module")
+def tam():
+    M, K, dofs = beam_model()
+    a = translations(dofs, [1, 3, 5, 7, 9, 11])
+    red = guyan_reduce(M, K, a)
+    _, phi_full = normal_modes(M, K)
+    return M, K, a, red, phi_full
+
+
+def test_mac_of_rescaled_shapes_is_unchanged():
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(8, 5)) + 1j * rng.normal(size=(8, 5))
+    b = rng.normal(size=(8, 4))
+    ref = modal_assurance(a, b)
+    sa = rng.normal(size=5) * np.exp(1j * rng.uniform(0, 2 * np.pi, 5)) * 1e5
+    sb = rng.choice([-1, 1], 4) * 10 ** rng.uniform(-6, 6, 4)
+    # 1e-12: the ratio of products of sums of 8 terms, scaled back, is good to ~1e-15.
+    np.testing.assert_allclose(modal_assurance(a * sa, b * sb), ref, atol=1e-12)
+    np.testing.assert_allclose(np.diag(auto_mac(a)), 1.0, atol=1e-12)
+    assert np.all((ref >= 0) & (ref <= 1))
+
+
+def test_mac_zero_shape_and_dof_mismatch():
+    a = np.array([[1.0, 0.0], [0.0, 0.0]])
+    assert modal_assurance(a, a)[1, 1] == 0.0
+    with pytest.raises(ValueError, match="DOFs"):
+        modal_assurance(np.ones((3, 1)), np.ones((4, 1)))
+
+
+def test_cross_orthogonality_of_a_model_with_itself_is_identity(tam):
+    _, _, _, red, _ = tam
+    _, phi = normal_modes(red.M, red.K)
+    rng = np.random.default_rng(5)
+    s = rng.choice([-1, 1], phi.shape[1]) * rng.uniform(0.1, 10, phi.shape[1])
+    xo = cross_orthogonality(phi * s, phi, red.M)
+    np.testing.assert_allclose(np.abs(xo), np.eye(phi.shape[1]), atol=1e-10)
+    chk = check_orthogonality(xo)
+    assert chk.passed and chk.max_offdiag < 1e-10 and chk.min_diag > 1 - 1e-10
+    np.testing.assert_allclose(orthogonality(phi * s, red.M), np.eye(phi.shape[1]), atol=1e-10)
+
+
+def test_fem_modes_against_the_guyan_tam_mass_meet_the_criterion(tam):
+    # The full model's lower modes at the a-set, with the Guyan TAM mass: near-orthogonal
+    # (the report's check, off-diagonal < 0.1) because Guyan is accurate for them.
+    _, _, a, red, phi_full = tam
+    O = orthogonality(phi_full[a, :4], red.M)
+    chk = check_orthogonality(O, diag_min=0.0)
+    assert chk.passed, chk
+    # A badly wrong "test" mode (two modes mixed) fails the criterion.
+    mixed = phi_full[a, :4].copy()
+    mixed[:, 1] = phi_full[a, 1] + 0.6 * phi_full[a, 2] / np.abs(phi_full[a, 2]).max() * np.abs(phi_full[a, 1]).max()
+    assert not check_orthogonality(orthogonality(mixed, red.M), diag_min=0.0).passed
+
+
+def test_pairing_is_one_to_one_and_drops_poor_matches():
+    mac = np.array([[0.95, 0.90, 0.0], [0.97, 0.2, 0.0], [0.0, 0.1, 0.3]])
+    pairs = pair_modes_by_mac(mac, min_mac=0.5)
+    # Row-wise maxima would give both test modes 1 and 2 analysis mode 1; the assignment
+    # gives test 1 -> analysis 2, test 2 -> analysis 1, and test 3 has no match.
+    assert [(p.test, p.analysis) for p in pairs] == [(0, 1), (1, 0)]
+    np.testing.assert_allclose(frequency_error_percent([10.5, 9.0], [10.0, 10.0]), [5.0, -10.0])
+
+
+def test_real_mode_from_complex_recovers_a_rotated_normal_mode():
+    phi = np.array([1.0, -2.0, 0.5])
+    z = phi * 3.0 * np.exp(1j * 0.7)
+    r = real_mode_from_complex(z[:, None])[:, 0]
+    np.testing.assert_allclose(np.abs(r @ phi) / (np.linalg.norm(r) * np.linalg.norm(phi)), 1.0, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def frfs():
+    M, K, dofs = beam_model(n_elem=4)
+    C = modal_damping_matrix(M, K, np.full(M.shape[0], 0.02))
+    out = translations(dofs, [1, 2, 3, 4, 5])
+    S = np.eye(M.shape[0])[out]
+    D = S.T[:, [0, 4]]
+    f = np.linspace(2.0, 600.0, 2400)
+    H = accelerance(M, C, K, 2 * np.pi * f, D, S)
+    return f, H, M, K, out
+
+
+def test_frac_and_gap(frfs):
+    _, H, *_ = frfs
+    np.testing.assert_allclose(frf_assurance(H, H), 1.0, atol=1e-12)
+    assert frf_gap(H, H) == pytest.approx(0.0, abs=1e-12)
+    # A 10 % calibration error: FRAC cannot see a constant factor, the gap does.
+    G = 1.1 * H
+    np.testing.assert_allclose(frf_assurance(H, G), 1.0, atol=1e-12)
+    assert frf_gap(H, G) == pytest.approx(np.log(1.1), rel=1e-9)
+    assert frf_gap_db(H, G) == pytest.approx(20 * np.log10(1.1), rel=1e-9)
+    # A frequency shift lowers FRAC below 1.
+    assert np.nanmax(frf_assurance(H[:-40], H[40:])) < 0.9
+
+
+def test_blanked_values_are_skipped(frfs):
+    _, H, *_ = frfs
+    Hn = H.copy()
+    valid = np.ones(H.shape, dtype=bool)
+    Hn[100, 1, 0] = np.nan
+    Hn[200, 2, 1] = 1e9  # garbage, but marked invalid
+    valid[100, 1, 0] = valid[200, 2, 1] = False
+    assert frf_gap(Hn, H, valid) == pytest.approx(0.0, abs=1e-12)
+    np.testing.assert_allclose(frf_assurance(Hn, H, valid), 1.0, atol=1e-12)
+    assert np.all(np.isfinite(cmif(Hn, valid)))
+
+
+def test_cmif_finds_the_modes_and_their_shapes(frfs):
+    f, H, M, K, out = frfs
+    sv = cmif(H)
+    assert sv.shape == (f.size, 2) and np.all(np.diff(sv, axis=1) <= 0)
+    peaks = cmif_peaks(f, sv)
+    f_n = natural_frequencies_hz(M, K)
+    f_n = f_n[f_n < f[-1]]
+    fp = refine_peak_frequencies(f, sv[:, 0], peaks)
+    assert fp.size == f_n.size
+    # Accelerance peaks of 2 % damped modes sit ~zeta^2 above f_n; interpolation between
+    # 0.25 Hz lines: within 0.5 %.
+    np.testing.assert_allclose(fp, f_n, rtol=5e-3)
+    _, phi = normal_modes(M, K)
+    mac = modal_assurance(cmif_shapes(H, peaks), phi[out, : f_n.size])
+    assert np.all(np.diag(mac) > 0.99)

@@ -1,0 +1,169 @@
+"""``ssidlab correlate`` through its ``run`` function and a local parser that behaves like
+``ssidlab.cli.main`` (usage errors and InputError -> one line, status 2). The end-to-end
+subprocess test comes with the wiring into ssidlab/cli.py."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+import scipy.io
+from test_tam_models import beam_model, translations
+
+from ssid.errors import InputError
+from ssid.frf import accelerance_from_model
+from ssid.io import Model, write_frf, write_model
+from ssid.modal import modal_damping_matrix
+from ssid.tam import guyan_reduce
+from ssidlab.cli_correlate import add_correlate_subcommand, parse_mode_list
+
+
+class _Usage(Exception):
+    pass
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # like ssidlab.cli._Parser: no exit, one line
+        raise _Usage(f"{self.prog}: error: {message}")
+
+
+def run(argv: list[str]) -> tuple[int, str]:
+    parser = _Parser(prog="ssidlab")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_correlate_subcommand(sub)
+    try:
+        args = parser.parse_args(["correlate", *argv])
+    except _Usage as exc:
+        return 2, str(exc)
+    try:
+        return args.run(args), ""
+    except InputError as exc:
+        return 2, f"ssidlab correlate: error: {exc}"
+
+
+NODES = [1, 3, 5, 7]
+INTERFACE = "1+Z,7+Z"
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("corr")
+    M, K, dofs = beam_model(n_elem=6, length_m=1.0)
+    C = modal_damping_matrix(M, K, np.full(M.shape[0], 0.02))
+    write_model(d / "fem.h5", Model(M, K, C, dofs))
+    a = translations(dofs, NODES)
+    labels = [dofs[i] for i in a]
+    # "Identified" model: the Guyan TAM of a structure 3 % heavier than the FEM.
+    red = guyan_reduce(1.03 * M, K, a)
+    write_model(d / "test.h5", Model(red.M, red.K, None, labels))
+    frf = accelerance_from_model(M, C, K, dofs, np.linspace(5.0, 900.0, 1200), labels, labels[:2])
+    write_frf(d / "frf.h5", frf)
+    scipy.io.savemat(d / "fem.mat", {"M": M, "K": K, "dofs": np.array(dofs, dtype=object)})
+    bad = M.copy()
+    bad[0, 0] = np.nan
+    with open(d / "nan.h5", "wb"):
+        pass
+    scipy.io.savemat(d / "nan.mat", {"M": bad, "K": K, "dofs": np.array(dofs, dtype=object)})
+    return d
+
+
+@pytest.mark.parametrize("tam", ["guyan", "irs", "serep", "hybrid", "cb"])
+def test_model_against_model(files, tam):
+    out = files / f"mm_{tam}.json"
+    status, err = run(["--model", str(files / "test.h5"), "--model", str(files / "fem.mat"),
+                       "--tam", tam, "--interface", INTERFACE, "--json", str(out), "--quiet"])
+    assert (status, err) == (0, "")
+    s = json.loads(out.read_text())
+    for key in ("test_natural_freq_hz", "analysis_natural_freq_hz", "tam_natural_freq_hz", "mac",
+                "paired_modes", "freq_error_percent", "orthogonality", "cross_orthogonality"):
+        assert key in s
+    assert s["tam"] == tam and s["mode"] == "model-model"
+    assert len(s["paired_modes"]) == len(NODES)
+    # 3 % more mass: every frequency 1.5 % low; Guyan adds up to ~1 % on the top mode here.
+    assert all(-3.0 < e < 0.0 for e in s["freq_error_percent"])
+    xo = s["cross_orthogonality"]
+    assert xo["min_abs_diag"] > 0.99
+    # The C-B TAM with only two fixed-interface modes is the least accurate mass here (its
+    # 4th frequency is 2 % high): observed off-diagonal 0.11, the others 0.02.
+    assert xo["max_abs_offdiag"] < (0.15 if tam == "cb" else 0.05)
+
+
+def test_model_against_frf_with_plots(files):
+    out = files / "mf.json"
+    plots = files / "plots"
+    status, err = run(["--model", str(files / "fem.h5"), "--frf", str(files / "frf.h5"),
+                       "--tam", "cb", "--interface", INTERFACE, "--json", str(out),
+                       "--plots", str(plots), "--quiet"])
+    assert (status, err) == (0, "")
+    s = json.loads(out.read_text())
+    assert s["mode"] == "model-frf"
+    assert s["frf_gap"] < 1e-9 and s["frf_gap_metric"] == "rms_log_ratio"
+    assert min(map(min, s["frac"]["matrix"])) > 1 - 1e-9
+    assert {p.split("/")[-1] for p in s["plots"]} >= {"mac.png", "freq_errors.png", "cmif.png",
+                                                     "frf_1+Z_1+Z.png", "frf_3+Z_3+Z.png"}
+    assert all((plots / p.split("/")[-1]).stat().st_size > 1000 for p in s["plots"])
+    assert len(s["paired_modes"]) >= 3
+
+
+def test_same_dofs_need_no_tam(files):
+    out = files / "same.json"
+    status, _ = run(["--model", str(files / "fem.h5"), "--model", str(files / "fem.mat"),
+                     "--json", str(out), "--quiet"])
+    s = json.loads(out.read_text())
+    assert status == 0 and s["tam"] == "none"
+    np.testing.assert_allclose(np.abs(np.array(s["cross_orthogonality"]["paired_matrix"])),
+                               np.eye(len(s["paired_modes"])), atol=1e-8)
+
+
+def test_mode_list():
+    assert parse_mode_list("1-3,7, 5") == [1, 2, 3, 5, 7]
+    with pytest.raises(argparse.ArgumentTypeError):
+        parse_mode_list("0-2")
+
+
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        (["--model", "{d}/test.h5", "--json", "{d}/o.json"], "second --model"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--frf", "{d}/frf.h5",
+          "--json", "{d}/o.json"], "not both"),
+        (["--model", "{d}/a", "--model", "{d}/b", "--model", "{d}/c", "--json", "{d}/o.json"],
+         "more than twice"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--fmin", "3", "--json", "{d}/o.json"],
+         "--frf only"),
+        (["--model", "{d}/fem.h5", "--model", "{d}/test.h5", "--json", "{d}/o.json"],
+         "is not among the analysis model's DOFs"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--tam", "cb", "--json", "{d}/o.json"],
+         "interface"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--interface", "2+Z",
+          "--json", "{d}/o.json"], "not among the test DOFs"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--tam", "serep", "--targets", "1-99",
+          "--json", "{d}/o.json"], "--targets"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--targets", "x", "--json", "{d}/o.json"],
+         "not a mode list"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--tam", "magic", "--json", "{d}/o.json"],
+         "invalid choice"),
+        (["--model", "{d}/fem.h5", "--frf", "{d}/frf.h5", "--zeta", "2", "--json", "{d}/o.json"],
+         "damping ratio"),
+        (["--model", "{d}/test.h5", "--model", "{d}/missing.h5", "--json", "{d}/o.json"],
+         "no such file"),
+        (["--model", "{d}/test.h5", "--model", "{d}/nan.mat", "--json", "{d}/o.json"], "NaN"),
+        (["--model", "{d}/test.h5", "--model", "{d}/nan.h5", "--json", "{d}/o.json"],
+         "not an HDF5|recognised"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--json", "{d}/nodir/o.json"],
+         "does not exist"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--json", "{d}/test.h5"],
+         "overwrite an input"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--json", "{d}/o.json",
+          "--plots", "{d}/fem.h5"], "not a directory"),
+        (["--model", "{d}/fem.h5", "--frf", "{d}/test.h5", "--json", "{d}/o.json"], "format"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5"], "required"),
+    ],
+)
+def test_bad_input_is_one_line_and_status_2(files, argv, match):
+    status, err = run([a.format(d=files) for a in argv])
+    assert status == 2
+    assert "\n" not in err and err.startswith("ssidlab correlate: error:")
+    assert pytest.importorskip("re").search(match, err), err

@@ -288,10 +288,16 @@ def _add_correlate(sub: Any) -> None:
     add_correlate_subcommand(sub)
 
 
+def _add_sim_lab(sub: Any) -> None:
+    from sim_devices.cli import add_sim_lab_subcommand
+
+    add_sim_lab_subcommand(sub)
+
+
 # Future subcommands (see the contract): discrepancy, acquire.
 # Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
 # `run=_run_<name>`; list it here. Errors follow the same rules through main().
-_SUBCOMMANDS = (_add_identify, _add_demo, _add_correlate)
+_SUBCOMMANDS = (_add_identify, _add_demo, _add_correlate, _add_sim_lab)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,0 +1,390 @@
+"""Device layer: a shaker power amplifier on Modbus TCP (pymodbus async client).
+
+Transport and protocol are pymodbus's (TCP, Modbus application protocol); this module is
+the device: the register map (``docs/drivers.md``), the rules "enable only with the
+interlock closed and no fault", a status monitor that polls periodically and treats a
+stalled heartbeat as a fault, and a safe state (output disabled) on every exit.
+
+:class:`ShakerAmplifier` is the asyncio driver. :class:`SyncShakerAmplifier` runs it on a
+private event loop in a thread for callers that are not async (the monitor keeps running
+between calls).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ModbusException
+
+from .errors import (
+    AmplifierFault,
+    ConnectionLost,
+    DeviceError,
+    HeartbeatLost,
+    InstrumentError,
+    InstrumentTimeout,
+    InterlockOpen,
+    ProtocolError,
+    RangeError,
+)
+
+__all__ = ["FAULT_NAMES", "REG", "AmpStatus", "ShakerAmplifier", "SyncShakerAmplifier"]
+
+log = logging.getLogger(__name__)
+
+REG = {
+    "ENABLE": 0, "GAIN": 1, "FAULT_RESET": 2, "WATCHDOG_MS": 3,
+    "STATUS": 16, "FAULT_CODE": 17, "CURRENT_MA": 18, "TRAVEL_UM": 19,
+    "TEMPERATURE_DC": 20, "HEARTBEAT": 21, "INTERLOCK": 22, "MODEL_ID": 23,
+}
+MODEL_ID = 0x5A01
+FAULT_NAMES = {
+    0: "none", 1: "interlock open", 2: "over-temperature", 3: "armature over-travel",
+    4: "over-current", 5: "comms watchdog",
+}
+MODBUS_EXCEPTIONS = {
+    1: "illegal function", 2: "illegal data address", 3: "illegal data value (refused)",
+    4: "server device failure", 5: "acknowledge", 6: "server device busy",
+    10: "gateway path unavailable", 11: "gateway target failed to respond",
+}
+
+
+@dataclass(frozen=True)
+class AmpStatus:
+    """One reading of the amplifier's status registers (SI units)."""
+
+    enabled: bool
+    interlock_closed: bool
+    fault_latched: bool
+    fault_code: int
+    current_a: float
+    travel_m: float
+    temperature_c: float
+    heartbeat: int
+
+    @property
+    def fault_name(self) -> str:
+        return FAULT_NAMES.get(self.fault_code, f"code {self.fault_code}")
+
+
+class ShakerAmplifier:
+    """Async driver of one shaker amplifier.
+
+    Parameters
+    ----------
+    host, port : str, int
+        Modbus TCP address.
+    device_id : int
+        Modbus unit id.
+    timeout_s : float
+        Per-request timeout (each request also has an outer guard of twice that).
+    poll_interval_s : float
+        Status polling period of the monitor (also keeps the amplifier's comms watchdog fed).
+    heartbeat_timeout_s : float
+        A heartbeat counter that does not move for this long, or a status that cannot be
+        read for this long, is a fault: the driver disables the amplifier and every later
+        call raises :class:`~drivers.errors.HeartbeatLost` until :meth:`reset_fault`.
+    max_gain_v_per_v : float
+        Safety limit on the gain for this set-up (the instrument allows 0..50 V/V).
+    watchdog_ms : int
+        Comms watchdog set in the amplifier on connect (0: off).
+    """
+
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 502,
+        *,
+        device_id: int = 1,
+        name: str = "amp",
+        timeout_s: float = 0.5,
+        poll_interval_s: float = 0.2,
+        heartbeat_timeout_s: float = 1.0,
+        max_gain_v_per_v: float = 50.0,
+        gain_ramp_step_s: float = 0.02,
+        watchdog_ms: int = 1000,
+    ) -> None:
+        if not 0 < max_gain_v_per_v <= 50.0:
+            raise RangeError(f"{name}: max_gain_v_per_v must be in (0, 50]")
+        self.host, self.port, self.device_id, self.name = host, port, device_id, name
+        self.timeout_s = float(timeout_s)
+        self.poll_interval_s = float(poll_interval_s)
+        self.heartbeat_timeout_s = float(heartbeat_timeout_s)
+        self.max_gain_v_per_v = float(max_gain_v_per_v)
+        self.gain_ramp_step_s = float(gain_ramp_step_s)
+        self.watchdog_ms = int(watchdog_ms)
+        self.client: AsyncModbusTcpClient | None = None
+        self.last_status: AmpStatus | None = None
+        self._fault: InstrumentError | None = None
+        self._monitor_task: asyncio.Task | None = None
+        self._want_enabled = False
+        self._lock = asyncio.Lock()
+
+    # ------------------------------------------------------------------ link
+    async def connect(self) -> None:
+        """Open the connection, check the model id, set the watchdog, start the monitor."""
+        self.client = AsyncModbusTcpClient(
+            self.host, port=self.port, timeout=self.timeout_s, retries=0,
+            reconnect_delay=0.1, reconnect_delay_max=1.0,
+        )
+        try:
+            ok = await asyncio.wait_for(self.client.connect(), 2 * self.timeout_s + 1.0)
+        except TimeoutError:
+            ok = False
+        if not ok:
+            self.client.close()
+            raise ConnectionLost(f"{self.name}: cannot connect to {self.host}:{self.port}")
+        model = (await self._read(REG["MODEL_ID"], 1))[0]
+        if model != MODEL_ID:
+            self.client.close()
+            raise ProtocolError(f"{self.name}: unexpected model id 0x{model:04X} (want 0x{MODEL_ID:04X})")
+        await self._write(REG["WATCHDOG_MS"], self.watchdog_ms)
+        self.last_status = await self.read_status()
+        self._monitor_task = asyncio.get_running_loop().create_task(self._monitor())
+
+    async def _request(self, make):
+        """Run one pymodbus request with an outer timeout; map every failure to our errors.
+
+        ``make`` builds the request coroutine; pymodbus raises at once (not when awaited)
+        when the link is down, so the call must happen inside the ``try``.
+        """
+        if self.client is None:
+            raise ConnectionLost(f"{self.name}: not connected")
+        try:
+            async with self._lock:
+                rr = await asyncio.wait_for(make(), 2 * self.timeout_s)
+        except TimeoutError:
+            raise InstrumentTimeout(f"{self.name}: no Modbus reply within {2 * self.timeout_s:g} s") from None
+        except ModbusException as exc:
+            raise ConnectionLost(f"{self.name}: Modbus link failed: {exc}") from exc
+        except OSError as exc:
+            raise ConnectionLost(f"{self.name}: Modbus link failed: {exc}") from exc
+        if rr.isError():
+            code = getattr(rr, "exception_code", 0)
+            raise DeviceError(f"{self.name}: Modbus exception {code} ({MODBUS_EXCEPTIONS.get(code, 'unknown')})")
+        return rr
+
+    async def _read(self, address: int, count: int) -> list[int]:
+        rr = await self._request(
+            lambda: self.client.read_holding_registers(address, count=count, device_id=self.device_id)
+        )
+        if len(rr.registers) != count:
+            raise ProtocolError(f"{self.name}: asked for {count} registers, got {len(rr.registers)}")
+        return list(rr.registers)
+
+    async def _write(self, address: int, value: int) -> None:
+        await self._request(lambda: self.client.write_register(address, value, device_id=self.device_id))
+
+    # ------------------------------------------------------------------ device
+    async def read_status(self) -> AmpStatus:
+        w = await self._read(REG["STATUS"], 7)
+        st = AmpStatus(
+            enabled=bool(w[0] & 1), interlock_closed=bool(w[0] & 2), fault_latched=bool(w[0] & 4),
+            fault_code=w[1], current_a=w[2] / 1000.0, travel_m=w[3] * 1e-6,
+            temperature_c=w[4] / 10.0, heartbeat=w[5],
+        )
+        self.last_status = st
+        return st
+
+    def check(self) -> None:
+        """Raise the fault the monitor found, if any."""
+        if self._fault is not None:
+            raise self._fault
+
+    async def enable(self) -> None:
+        """Enable the output stage: only with the interlock closed and no fault latched."""
+        self.check()
+        st = await self.read_status()
+        self._refuse_unless_ready(st)
+        try:
+            await self._write(REG["ENABLE"], 1)
+        except DeviceError:
+            self._refuse_unless_ready(await self.read_status())  # say why, if we can
+            raise
+        st = await self.read_status()
+        if not st.enabled:
+            raise AmplifierFault(f"{self.name}: did not enable (fault: {st.fault_name})", st.fault_code)
+        self._want_enabled = True
+
+    def _refuse_unless_ready(self, st: AmpStatus) -> None:
+        if not st.interlock_closed:
+            raise InterlockOpen(f"{self.name}: interlock open (door or E-stop): will not enable")
+        if st.fault_latched:
+            raise AmplifierFault(f"{self.name}: fault latched ({st.fault_name}); clear the cause and reset", st.fault_code)
+
+    async def disable(self) -> None:
+        self._want_enabled = False
+        await self._write(REG["ENABLE"], 0)
+
+    async def set_gain(self, gain_v_per_v: float) -> None:
+        """Set the voltage gain; ramped in 10 % steps while the output is enabled."""
+        if not (math.isfinite(gain_v_per_v) and 0 <= gain_v_per_v <= self.max_gain_v_per_v):
+            raise RangeError(f"{self.name}: gain {gain_v_per_v!r} V/V outside [0, {self.max_gain_v_per_v:g}]")
+        self.check()
+        target = int(round(gain_v_per_v * 100))
+        if self._want_enabled:
+            now = (await self._read(REG["GAIN"], 1))[0]
+            span = max(1, int(math.ceil(abs(target - now) / (0.1 * self.max_gain_v_per_v * 100))))
+            for k in range(1, span + 1):
+                await self._write(REG["GAIN"], int(round(now + (target - now) * k / span)))
+                if k < span:
+                    await asyncio.sleep(self.gain_ramp_step_s)
+        else:
+            await self._write(REG["GAIN"], target)
+
+    async def reset_fault(self) -> None:
+        """Clear a latched fault in the amplifier and in the driver (the cause must be gone)."""
+        try:
+            await self._write(REG["FAULT_RESET"], 1)
+        except DeviceError as exc:
+            raise AmplifierFault(f"{self.name}: fault reset refused: its cause is still present") from exc
+        self._fault = None
+
+    # ------------------------------------------------------------------ monitor
+    async def _monitor(self) -> None:
+        last_beat, last_change, last_ok = None, time.monotonic(), time.monotonic()
+        while True:
+            await asyncio.sleep(self.poll_interval_s)
+            now = time.monotonic()
+            try:
+                st = await self.read_status()
+            except InstrumentError as exc:
+                if now - last_ok > self.heartbeat_timeout_s and self._fault is None:
+                    await self._set_fault(HeartbeatLost(f"{self.name}: status unreadable for {now - last_ok:.1f} s: {exc}"))
+                continue
+            last_ok = now
+            if st.heartbeat != last_beat:
+                last_beat, last_change = st.heartbeat, now
+            elif now - last_change > self.heartbeat_timeout_s and self._fault is None:
+                await self._set_fault(HeartbeatLost(f"{self.name}: heartbeat stopped at {st.heartbeat} for {now - last_change:.1f} s"))
+            if self._fault is None and self._want_enabled and not st.enabled:
+                cls = InterlockOpen if st.fault_code == 1 else AmplifierFault
+                err = cls(f"{self.name}: amplifier tripped ({st.fault_name})")
+                if isinstance(err, AmplifierFault):
+                    err.code = st.fault_code
+                await self._set_fault(err)
+
+    async def _set_fault(self, err: InstrumentError) -> None:
+        log.error("%s", err)
+        self._fault = err
+        self._want_enabled = False
+        try:
+            await self._write(REG["ENABLE"], 0)
+        except InstrumentError:
+            pass  # the amplifier's own watchdog disables it if we cannot reach it
+
+    # ------------------------------------------------------------------ safety
+    async def safe_state(self) -> None:
+        """Output disabled and confirmed; reconnects once if the link dropped. Never hangs."""
+        self._want_enabled = False
+        last: Exception | None = None
+        for attempt in range(2):
+            try:
+                await self._write(REG["ENABLE"], 0)
+                if not (await self.read_status()).enabled:
+                    return
+            except InstrumentError as exc:
+                last = exc
+            if attempt == 0 and self.client is not None:
+                # pymodbus reconnects by itself (reconnect_delay); wait for that rather than
+                # starting a second connection that would race with it.
+                deadline = time.monotonic() + 2 * self.timeout_s + 1.0
+                while not self.client.connected and time.monotonic() < deadline:
+                    await asyncio.sleep(0.05)
+        raise InstrumentError(f"{self.name}: could not confirm the amplifier disabled: {last}")
+
+    async def close(self) -> None:
+        """Safe state, stop the monitor, close the link (always, even if safe_state fails)."""
+        try:
+            if self.client is not None:
+                await self.safe_state()
+        finally:
+            if self._monitor_task is not None:
+                self._monitor_task.cancel()
+                await asyncio.gather(self._monitor_task, return_exceptions=True)
+                self._monitor_task = None
+            if self.client is not None:
+                self.client.close()
+                self.client = None
+
+    async def __aenter__(self) -> ShakerAmplifier:
+        await self.connect()
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.close()
+
+
+class SyncShakerAmplifier:
+    """Blocking facade of :class:`ShakerAmplifier` (its own event loop in a daemon thread).
+
+    Takes the same arguments. Every call has a deadline, so a dead link raises instead of
+    hanging. Use as a context manager; exit always reaches the safe state.
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        self.amp = ShakerAmplifier(*args, **kwargs)
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name=f"amp-{self.amp.name}", daemon=True)
+        self._thread.start()
+        try:
+            self._call(self.amp.connect())
+        except BaseException:
+            self._shutdown_loop()
+            raise
+
+    def _call(self, coro, timeout_s: float | None = None):
+        fut = asyncio.run_coroutine_threadsafe(coro, self._loop)
+        deadline = timeout_s if timeout_s is not None else 10 * self.amp.timeout_s + 5.0
+        try:
+            return fut.result(deadline)
+        except TimeoutError:
+            fut.cancel()
+            raise InstrumentTimeout(f"{self.amp.name}: call did not finish within {deadline:g} s") from None
+
+    def read_status(self) -> AmpStatus:
+        return self._call(self.amp.read_status())
+
+    def enable(self) -> None:
+        self._call(self.amp.enable())
+
+    def disable(self) -> None:
+        self._call(self.amp.disable())
+
+    def set_gain(self, gain_v_per_v: float) -> None:
+        self._call(self.amp.set_gain(gain_v_per_v))
+
+    def reset_fault(self) -> None:
+        self._call(self.amp.reset_fault())
+
+    def check(self) -> None:
+        self.amp.check()
+
+    def safe_state(self) -> None:
+        self._call(self.amp.safe_state())
+
+    def close(self) -> None:
+        if not self._thread.is_alive():
+            return
+        try:
+            self._call(self.amp.close())
+        finally:
+            self._shutdown_loop()
+
+    def _shutdown_loop(self) -> None:
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(timeout=5.0)
+        if not self._thread.is_alive():
+            self._loop.close()
+
+    def __enter__(self) -> SyncShakerAmplifier:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

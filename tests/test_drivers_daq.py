@@ -1,0 +1,231 @@
+"""CAN FD DAQ driver against the simulated DAQ node on a python-can virtual bus (CAN FD)."""
+
+from __future__ import annotations
+
+import itertools
+import time
+
+import can
+import numpy as np
+import pytest
+
+from drivers.daq import CanFdDaq, DaqChannel
+from drivers.daq_protocol import bus_load, decode_codes, fd_frame_bits, load_dbc
+from drivers.errors import (
+    BusCapacityError,
+    BusOff,
+    DeviceError,
+    FramesLost,
+    InstrumentError,
+    InstrumentTimeout,
+    RangeError,
+    SensorOverload,
+)
+from sim_devices.daq_sim import SimDaq
+from sim_devices.lab import example_world
+
+FS = 5120
+_names = itertools.count()
+CHANNELS = [DaqChannel("force 1+Z", 0, "force", 22.5, 10.0, "DC"),
+            DaqChannel("acc 1+Z", 2, "acceleration", 10.0, 10.0, "DC"),
+            DaqChannel("acc 5+Z", 6, "acceleration", 10.0, 10.0, "DC")]
+
+
+def driven_world(**kw):
+    w = example_world(noise=False, **kw)
+    ch = w.generators[0].channels[0]
+    ch.function, ch.freq_hz, ch.vpp, ch.output_on = "SIN", 37.0, 1.0, True
+    w.amplifiers[0].request_enable()
+    return w
+
+
+@pytest.fixture
+def rig():
+    """(world, simulated DAQ, driver) on a fresh virtual channel; everything closed afterwards."""
+    name = f"test-daq-{next(_names)}"
+    world = driven_world()
+    sim = SimDaq(world, name).start()
+    daq = CanFdDaq(channel=name, timeout_s=0.3, stream_timeout_s=0.5)
+    yield world, sim, daq
+    try:
+        daq.close()
+    except InstrumentError:
+        pass
+    sim.stop()
+
+
+def reference(n: int) -> np.ndarray:
+    """What the three CHANNELS should read: the same world run directly (deterministic)."""
+    w = driven_world()
+    w.set_sample_rate(FS)
+    blk = w.advance(n)
+    return blk.physical[[0, 2, 6]]
+
+
+def test_stream_matches_the_world(rig):
+    world, sim, daq = rig
+    assert daq.identity["n_inputs"] == 16 and daq.identity["fw_version"] == 0x0100
+    daq.configure(CHANNELS, FS)
+    assert sim.inputs[0].enabled and not sim.inputs[1].enabled and sim.inputs[2].coupling == 0
+    daq.start(4 * FS + 7)  # not a whole number of frames: the last frame is partial
+    a = daq.read(FS)
+    b = daq.read(3 * FS + 7)
+    assert a.first_index == 0 and b.first_index == FS and a.names == ("force 1+Z", "acc 1+Z", "acc 5+Z")
+    data = np.hstack([a.data, b.data])
+    ref = reference(4 * FS + 7)
+    lsb = 10.0 / 2**23 * 1000 / np.array([22.5, 10.0, 10.0])[:, None]
+    assert np.max(np.abs(data - ref) / lsb) <= 0.51
+    assert daq.status()["state"] == "finished"
+    assert all(s["lost"] == s["duplicates"] == 0 for s in daq.stats.values())
+
+
+def test_frames_agree_with_the_dbc(rig):
+    """The simulator packs frames by hand; cantools with the DBC must read the same values."""
+    world, sim, daq = rig
+    db = load_dbc()
+    spy = can.Bus(interface="virtual", channel=sim.channel, protocol=can.CanProtocol.CAN_FD)
+    try:
+        daq.configure(CHANNELS, FS)
+        daq.start(19 * 5)
+        daq.read(19 * 5)
+        frames = []
+        while (m := spy.recv(0.2)) is not None:
+            frames.append(m)
+    finally:
+        spy.shutdown()
+    data = [m for m in frames if m.arbitration_id == 0x202]
+    assert len(data) == 5 and all(m.is_fd and len(m.data) == 64 for m in data)
+    msg = db.get_message_by_name("DAQ_DATA")
+    for k, m in enumerate(data):
+        d = msg.decode(bytes(m.data))
+        assert d["seq"] == k and d["timestamp"] == 19 * k and d["n_samples"] == 19
+        np.testing.assert_array_equal([d[f"S{i:02d}"] for i in range(19)], decode_codes(bytes(m.data[7:64])))
+    rsp = [db.decode_message(m.arbitration_id, bytes(m.data)) for m in frames if m.arbitration_id == 0x101]
+    assert rsp and all(r["result"] == 0 for r in rsp)
+
+
+def test_bus_capacity_is_checked():
+    nominal, data = fd_frame_bits(64)
+    assert (nominal, data) == (34, 678)
+    fps, load = bus_load(16, 5120, 1_000_000, 5_000_000)
+    assert fps == pytest.approx(4311.6, abs=0.1) and load == pytest.approx(0.732, abs=0.001)
+    name = f"test-daq-{next(_names)}"
+    with SimDaq(example_world(), name), CanFdDaq(channel=name, timeout_s=0.3) as daq:
+        chans = [DaqChannel(f"c{k}", k) for k in range(16)]
+        with pytest.raises(BusCapacityError, match=r"16 channels x 8192 S/s needs 6899 frames/s, 117 %"):
+            daq.configure(chans, 8192)
+        daq.configure(chans, 5120)  # fits at 1 Mbit/s / 5 Mbit/s
+    with SimDaq(example_world(), name), CanFdDaq(channel=name, timeout_s=0.3, data_bitrate=2_000_000) as daq:
+        with pytest.raises(BusCapacityError, match="faster data bit rate"):
+            daq.configure([DaqChannel(f"c{k}", k) for k in range(16)], 5120)
+
+
+def test_bad_configuration_is_refused(rig):
+    _, sim, daq = rig
+    with pytest.raises(RangeError):
+        daq.configure([DaqChannel("x", 16)], FS)  # the DAQ has 16 inputs
+    with pytest.raises(RangeError):
+        daq.configure([DaqChannel("x", 0), DaqChannel("y", 0)], FS)
+    with pytest.raises(RangeError):
+        daq.configure([DaqChannel("x", 0, range_volt=20.0)], FS)
+    with pytest.raises(RangeError, match="sample_rate_hz"):
+        daq.request("SET_RATE", sample_rate_hz=0)  # outside the DBC's range: not sent
+    with pytest.raises(DeviceError, match="bad value"):  # the device's own check
+        daq.request("SET_CHANNEL", channel=0, enable=1, coupling=0, range_mv=1000, sensitivity_mv=-1.0, quantity=1)
+    daq.configure(CHANNELS, FS)
+    daq.start()
+    with pytest.raises(DeviceError, match="busy"):
+        daq.request("SET_RATE", sample_rate_hz=FS)
+    with pytest.raises(InstrumentError, match="stop the acquisition"):
+        daq.configure(CHANNELS, FS)
+
+
+def test_lost_frame_raises_or_marks(rig):
+    _, sim, daq = rig
+    daq.configure(CHANNELS, FS)
+    sim.inject("drop", channel=2, seq=10)
+    daq.start(19 * 60)
+    with pytest.raises(FramesLost, match=r"acc 1\+Z: 1 frame\(s\) lost \(seq 10..10, 19 samples from sample 190\)"):
+        daq.read(19 * 60)
+    daq.safe_state()
+    # The same with on_gap="mark": NaN where the frame was, every channel still aligned.
+    daq.on_gap = "mark"
+    sim.inject("drop", channel=2, seq=10)
+    sim.world.reset_state()
+    sim.world.generators[0].channels[0].phase_rad = 0.0
+    daq.start(19 * 60)
+    blk = daq.read(19 * 60)
+    lost = np.isnan(blk.data)
+    assert lost[1].sum() == 19 and np.all(lost[1, 190:209]) and not lost[[0, 2]].any()
+    ref = reference(19 * 60)
+    ok = ~lost[1]
+    assert np.allclose(blk.data[1, ok], ref[1, ok], atol=1e-2)
+
+
+@pytest.mark.parametrize("fault,counter", [("duplicate", "duplicates"), ("swap", "reordered")])
+def test_duplicated_and_reordered_frames_are_repaired(rig, fault, counter):
+    _, sim, daq = rig
+    daq.configure(CHANNELS, FS)
+    sim.inject(fault, channel=6, seq=7)
+    daq.start(19 * 40)
+    blk = daq.read(19 * 40)
+    assert daq.stats["acc 5+Z"][counter] == 1 and daq.stats["acc 5+Z"]["lost"] == 0
+    np.testing.assert_allclose(blk.data, reference(19 * 40), atol=1e-2)
+
+
+def test_bus_off(rig):
+    _, sim, daq = rig
+    daq.configure(CHANNELS, FS)
+    daq.start()
+    daq.read(FS // 4)
+    sim.inject("bus_off", duration_s=0.3)
+    t0 = time.monotonic()
+    with pytest.raises(BusOff, match="bus-off"):
+        daq.read(FS)
+    assert time.monotonic() - t0 < 2.0
+    daq.safe_state()  # STOP retried until the node is back on the bus
+    assert sim.state == 0
+
+
+def test_silent_node(rig):
+    _, sim, daq = rig
+    daq.configure(CHANNELS, FS)
+    daq.start()
+    sim.inject("silent", on=True)
+    t0 = time.monotonic()
+    with pytest.raises(BusOff, match="no sample frames"):
+        daq.read(10 * FS)
+    with pytest.raises(InstrumentTimeout, match="no response to STATUS"):
+        daq.status()
+    with pytest.raises(InstrumentError, match="could not confirm acquisition stopped"):
+        daq.safe_state()
+    assert time.monotonic() - t0 < 5.0
+    sim.inject("silent", on=False)
+    daq.safe_state()
+    assert sim.state == 0
+
+
+def test_sensor_overload(rig):
+    _, sim, daq = rig
+    daq.configure(CHANNELS, FS)
+    daq.start(FS)
+    sim.inject("overload", channel=6)
+    with pytest.raises(SensorOverload, match=r"acc 5\+Z") as info:
+        daq.read(FS)
+    assert info.value.channels == ("acc 5+Z",) and info.value.block.data.shape == (3, FS)
+    assert daq.status()["overload_mask"] == 1 << 6
+    # Marking instead of raising; a range too small for the signal also overloads.
+    daq.on_overload = "mark"
+    small = [DaqChannel("force 1+Z", 0, "force", 22.5, 0.1, "DC"), CHANNELS[1]]
+    daq.configure(small, FS)
+    daq.start(FS)
+    assert daq.read(FS).overload == ("force 1+Z",)
+
+
+def test_exit_stops_acquisition(rig):
+    _, sim, daq = rig
+    daq.configure(CHANNELS, FS)
+    daq.start()
+    daq.read(100)
+    daq.close()
+    assert sim.state == 0

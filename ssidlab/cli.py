@@ -31,6 +31,7 @@ import numpy as np
 from ssid.errors import IdentificationError, InputError
 from ssid.io import Model, read_frf, write_model
 from ssidlab import __version__
+from ssidlab.argtypes import frequency_hz
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -140,15 +141,6 @@ def _add_subcommand(sub: Any, name: str, help_text: str) -> _Parser:
     )
 
 
-def _frequency(text: str) -> float:
-    """argparse type for a frequency in Hz: finite and >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite frequency >= 0 Hz, got {text!r}")
-    return value
 
 
 # ----------------------------------------------------------------------------------------------
@@ -172,8 +164,8 @@ def _add_identify(sub: Any) -> None:
         help="ml: maximum likelihood, weights each line by its noise (default); "
         "ls: least squares; tls: total least squares; stls: scaled total least squares",
     )
-    p.add_argument("--fmin", type=_frequency, metavar="HZ", help="lowest frequency line used")
-    p.add_argument("--fmax", type=_frequency, metavar="HZ", help="highest frequency line used")
+    p.add_argument("--fmin", type=frequency_hz, metavar="HZ", help="lowest frequency line used")
+    p.add_argument("--fmax", type=frequency_hz, metavar="HZ", help="highest frequency line used")
     p.add_argument(
         "--damping", choices=DAMPING_CHOICES, default="identified",
         help="identified: C as identified (default); modal: C rebuilt from modal damping ratios",

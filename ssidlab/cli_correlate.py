@@ -23,6 +23,7 @@ import numpy as np
 
 from ssid.errors import InputError
 from ssid.tam import TAM_METHODS
+from ssidlab.argtypes import frequency_hz
 
 __all__ = ["add_correlate_subcommand", "jsonable", "parse_mode_list", "run_correlate"]
 
@@ -56,8 +57,8 @@ def add_correlate_subcommand(sub: Any) -> argparse.ArgumentParser:
                    "'1-10,17,18' (default: the lowest as many as test DOFs)")
     p.add_argument("--zeta", type=_damping_ratio, default=0.02, metavar="RATIO",
                    help="modal damping ratio for a model without C, with --frf (default 0.02)")
-    p.add_argument("--fmin", type=_frequency, metavar="HZ", help="lowest line compared (--frf)")
-    p.add_argument("--fmax", type=_frequency, metavar="HZ", help="highest line compared (--frf)")
+    p.add_argument("--fmin", type=frequency_hz, metavar="HZ", help="lowest line compared (--frf)")
+    p.add_argument("--fmax", type=frequency_hz, metavar="HZ", help="highest line compared (--frf)")
     p.add_argument("--json", metavar="OUT.json", required=True, help="correlation results")
     p.add_argument("--plots", metavar="DIR", help="directory for PNG plots (created if needed)")
     p.add_argument("--quiet", action="store_true", help="do not print the paired-mode table")
@@ -90,14 +91,6 @@ def _label_list(text: str) -> list[str]:
     return labels
 
 
-def _frequency(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite frequency >= 0 Hz, got {text!r}")
-    return value
 
 
 def _damping_ratio(text: str) -> float:

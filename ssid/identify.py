@@ -168,7 +168,8 @@ def _weights_from_levels(s2: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.broadcast_to(1.0 / np.sqrt(s2), valid.shape) * valid
 
 
-def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict) -> Step1Estimate:
+def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
+              candidates: dict | None = None) -> Step1Estimate:
     """Our default step 1 (see ``docs/algorithm.md``).
 
     1. Noise levels: from the file (variance or coherence) or, failing that, from the
@@ -201,6 +202,8 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict) -> 
     costs = {k: output_error_cost(d, e) for k, e in starts.items()}
     best = min(costs, key=costs.get)
     info["start"] = best
+    if candidates is not None:
+        candidates.update(starts)
     if d.n * d.p > ML_MAX_UNKNOWNS:
         info["ml_skipped"] = (
             f"{d.n * d.p} step-1 unknowns exceed {ML_MAX_UNKNOWNS}: line-weighted equation error "
@@ -233,11 +236,36 @@ def _step2_weights(d: Step1Data, est: Step1Estimate) -> np.ndarray:
     return np.where(np.isfinite(var), 1.0 / np.sqrt(var), 0.0)
 
 
-def identify_step1(frf: FRFData, solver: str = "ml") -> tuple[Step1Estimate, Step1Data, dict]:
+def _step2(d: Step1Data, est: Step1Estimate, solver: str):
+    """Eq. 3.12, the scale factors (Eq. 3.23) and M, C, K for one step-1 estimate."""
+    modes = state_space_modes(est.C_hat, est.K_hat)
+    if solver == "ml":
+        d.weight = _step2_weights(d, est)
+    u = modal_scale_factors(d, modes)
+    M, C, K, asm = assemble_mck(modes, u)
+    return modes, M, C, K, asm
+
+
+def _hard_problems(modes, M: np.ndarray, K: np.ndarray) -> int:
+    """How many ways a model is not physical: real roots, negative damping, M not positive
+    definite, K not positive semi-definite (each counts once)."""
+    m = modes.n_pairs
+    _, zeta = root_frequency_damping(modes.lam[:m])
+    ev_m = np.linalg.eigvalsh(M)
+    ev_k = np.linalg.eigvalsh(K)
+    return int(modes.lam.size > 2 * m) + int(np.any(zeta < 0)) + int(ev_m.min() <= 0) + int(
+        ev_k.min() < -1e-9 * np.abs(ev_k).max()
+    )
+
+
+def identify_step1(
+    frf: FRFData, solver: str = "ml", candidates: dict | None = None
+) -> tuple[Step1Estimate, Step1Data, dict]:
     """Step 1 of SSID on all lines of ``frf``: ``M^-1 C, M^-1 K, M^-1 D`` (Eqs. 3.6-3.9).
 
     Returns the estimate, the arranged data with the noise weights the solver used (step 2
-    and band processing reuse them), and ``info`` (with a ``warnings`` list).
+    and band processing reuse them), and ``info`` (with a ``warnings`` list). With ``ml``,
+    ``candidates`` (if given) receives the equation-error starts by name.
     """
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
@@ -253,7 +281,7 @@ def identify_step1(frf: FRFData, solver: str = "ml") -> tuple[Step1Estimate, Ste
             "are left out of the equation-error fits"
         )
     if solver == "ml":
-        est = _step1_ml(d, valid, know_noise, info)
+        est = _step1_ml(d, valid, know_noise, info, candidates)
         if "ml_skipped" in info:
             warnings.append(info["ml_skipped"])
     else:
@@ -306,14 +334,35 @@ def identify_mck(
     data = frf.band(lo, hi)
     if data.n_freq == 0:
         raise IdentificationError(f"no frequency lines between {lo:g} and {hi:g} Hz")
-    est, d, info = identify_step1(data, solver=solver)
+    starts: dict = {}
+    est, d, info = identify_step1(data, solver=solver, candidates=starts)
     warnings = list(info.pop("warnings"))
 
-    modes = state_space_modes(est.C_hat, est.K_hat)
-    if solver == "ml":
-        d.weight = _step2_weights(d, est)
-    u = modal_scale_factors(d, modes)
-    M, C, K, asm = assemble_mck(modes, u)
+    step1_weight = d.weight
+    modes, M, C, K, asm = _step2(d, est, solver)
+    if solver == "ml" and _hard_problems(modes, M, K):
+        # The refinement fits the data best but cannot hold what the data lack (e.g. a
+        # reduced-order model with modes outside its reach); a start that is physical wins.
+        tried = {"ml": (_hard_problems(modes, M, K), output_error_cost(d, est))}
+        best = None
+        for name, cand in starts.items():
+            d.weight = step1_weight
+            try:
+                res = _step2(d, cand, solver)
+            except (IdentificationError, np.linalg.LinAlgError):
+                continue
+            score = (_hard_problems(res[0], res[1], res[3]), output_error_cost(d, cand))
+            tried[name] = score
+            if score < tried["ml"] and (best is None or score < tried[best[0]]):
+                best = (name, res)
+        info["candidates"] = {k: {"problems": v[0], "output_error": v[1]} for k, v in tried.items()}
+        if best is not None:
+            modes, M, C, K, asm = best[1]
+            info["selected"] = best[0]
+            warnings.append(
+                f"the maximum-likelihood refinement gave a non-physical model; the "
+                f"{best[0]} start, with fewer problems, is used instead"
+            )
     info.update(asm)
 
     m = modes.n_pairs

@@ -178,3 +178,22 @@ def test_json_result_is_strict_json_with_shapes(frf14):
     assert shapes.shape == (14, len(back["natural_freq_hz"]))
     assert np.allclose(np.max(np.abs(shapes), axis=0), 1.0)
     assert np.array(back["real_mode_shapes"]).shape == (14, 14)
+
+
+def test_default_prefers_a_physical_start_when_the_refinement_is_not():
+    """Reduced order (12 of 52 DOFs of the payload model measured, 1-650 Hz, noise-free):
+    the data hold modes a 12-DOF model cannot, the output-error refinement gives a
+    non-physical model, and the default falls back to a start with fewer problems and says so."""
+    from ssid.models.payload import INTERFACE_DOFS, modal_damping, payload_simulator
+
+    p = payload_simulator()
+    C = modal_damping(p.M, p.K, 0.02)
+    sensors = ["1+Z", "2+Z", "3+Z", "4+Z", "5+Z", "6+Z", "7+Z", "8+Z", "12+Z", "15+Z", "17+Z", "18+Z"]
+    frf = accelerance_from_model(p.M, C, p.K, p.dofs, np.linspace(1, 650, 512), sensors,
+                                 INTERFACE_DOFS)
+    r = identify_mck(frf)
+    cands = r.info["candidates"]
+    assert cands["ml"]["problems"] > 0
+    chosen = r.info["selected"]
+    assert cands[chosen]["problems"] < cands["ml"]["problems"]
+    assert any("non-physical" in w for w in r.warnings)

@@ -129,20 +129,18 @@ def full_order(truth: Truth) -> None:
 def reduced_noise_free(truth: Truth) -> None:
     print("\n## 2. Reduced-order models, noise-free, three input spectra (Tables 6.4-6.10)\n")
     print("frequency / damping max |% error| over target modes; default solver")
-    print("| model | spectrum | report | ours |")
-    print("|---|---|---|---|")
     for n in ("10", "12", "16"):
         sensors, tm = truth.sensors(int(n))
+        print(f"\n{n}-DOF sensors (EfI): {', '.join(sensors)}; targets (Hz): "
+              f"{', '.join(f'{truth.f[i]:.1f}' for i in tm)}\n")
+        print("| model | spectrum | report | ours |")
+        print("|---|---|---|---|")
         for key, spec in SPECTRA.items():
             r = identify_mck(truth.frf(sensors, spec))
             e, z, miss = paired_errors(truth, sensors, tm, r.natural_freq_hz, r.damping_ratio,
                                        r.mode_shapes)
             rep = REPORT[(n, key)]
             print(f"| {n}-DOF | 1-{spec[1]:g} Hz, {spec[2]} lines | {fmt(*rep)} | {fmt(e, z, miss)} |")
-        print(f"\n{n}-DOF sensors (EfI): {', '.join(sensors)}; targets (Hz): "
-              f"{', '.join(f'{truth.f[i]:.1f}' for i in tm)}\n")
-        print("| model | spectrum | report | ours |")
-        print("|---|---|---|---|")
 
 
 def reduced_noisy(truth: Truth, seeds: list[int]) -> None:

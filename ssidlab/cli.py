@@ -286,10 +286,24 @@ def _add_sim_lab(sub: Any) -> None:
     add_sim_lab_subcommand(sub)
 
 
+def _add_convert(sub: Any) -> None:
+    from ssidlab.cli_convert import add_convert_subcommand
+
+    add_convert_subcommand(sub)
+
+
+def _add_export_model(sub: Any) -> None:
+    from ssidlab.cli_export import add_export_model_subcommand
+
+    add_export_model_subcommand(sub)
+
+
 # Future subcommands (see the contract): discrepancy, acquire.
 # Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
 # `run=_run_<name>`; list it here. Errors follow the same rules through main().
-_SUBCOMMANDS = (_add_identify, _add_demo, _add_correlate, _add_sim_lab)
+_SUBCOMMANDS = (
+    _add_identify, _add_demo, _add_correlate, _add_sim_lab, _add_convert, _add_export_model,
+)
 
 
 # ----------------------------------------------------------------------------------------------

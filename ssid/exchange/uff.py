@@ -1,0 +1,457 @@
+"""FRFs and coherence as UFF (universal file) dataset 58, ASCII or binary 58b, through pyuff.
+
+Mapping (details and the reasons in ``docs/exchange.md``):
+
+* one dataset 58 per (output, input) pair: function type 4 (FRF), response node/direction from
+  the output label, reference node/direction from the input label (``"4+Z"`` <-> node 4,
+  direction +3); ordinate acceleration (specific data type 12) over excitation force (13),
+  abscissa frequency (18) in Hz; complex double precision, uneven abscissa (the frequency of
+  every point is stored);
+* coherence: function type 6, real; interface reactions: function type 4 with ordinate
+  reaction force (9);
+* a dataset 164 declares SI units; a dataset 2411 holds node coordinates when they are given;
+* blanked values (``valid`` False) are **not written**: each function holds only its valid
+  lines, which the uneven abscissa allows. On reading, a line that a function lacks, or a NaN
+  value, is blanked again, so the ``valid`` mask survives the round trip. ``H_var``, ``n_avg``
+  and the file attributes have no place in dataset 58 and are not written.
+
+Precision: ASCII 58 stores values with 12 significant digits (pyuff writes E20.11) but the
+abscissa only with 6 (the standard's E13.5); binary 58b stores both as IEEE float64, exactly.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import time
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ssid.errors import InputError
+from ssid.frf import FRFData
+from ssid.io import validate_frf
+
+from ._uffio import read_datasets, write_datasets
+from .labels import format_dof_label, labels_to_node_dirs
+from .uff_geometry import Geometry, geometry_dataset, si_units_dataset, unit_factors
+
+__all__ = ["UFFWarning", "frf_datasets", "read_uff_frf", "write_uff_frf"]
+
+FUNC_FRF, FUNC_COHERENCE, FUNC_MULTIPLE_COHERENCE = 4, 6, 26
+SPEC_GENERAL, SPEC_DISPLACEMENT, SPEC_REACTION = 1, 8, 9
+SPEC_VELOCITY, SPEC_ACCELERATION, SPEC_FORCE, SPEC_FREQUENCY = 11, 12, 13, 18
+_SPEC_NAMES = {2: "stress", 3: "strain", 5: "temperature", 6: "heat flux", 13: "excitation force",
+               15: "pressure", 16: "mass", 17: "time", 18: "frequency", 19: "rpm", 20: "order"}
+# Relative gap below which abscissa values of different functions are the same line (a few
+# ulp: even-spaced abscissae computed as min + k * inc by different readers).
+_SAME_LINE_RTOL = 1e-12
+# Single-precision files round coherence near 1 to values like 1.000001.
+_COHERENCE_ROUNDING = 1e-6
+
+
+class UFFWarning(UserWarning):
+    """Something in a UFF file was converted or left out (shown by the CLI as one line)."""
+
+
+# ----------------------------------------------------------------------------------------------
+# Writing
+# ----------------------------------------------------------------------------------------------
+
+
+def write_uff_frf(
+    path: str | os.PathLike,
+    frf: FRFData,
+    *,
+    binary: bool = False,
+    geometry: Geometry | None = None,
+) -> None:
+    """Write FRFs (and coherence, reactions) as a UFF file of datasets 164, [2411,] 58.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Target file (``.uff`` or ``.unv``), replaced if it exists.
+    frf : FRFData
+        Validated like :func:`ssid.io.write_frf`. Every output, input and reaction label must
+        have the node+direction form (:func:`ssid.exchange.labels.parse_dof_label`).
+    binary : bool
+        Write binary 58b (float64, exact) instead of ASCII 58.
+    geometry : mapping of node -> (x, y, z), optional
+        Node coordinates in metres, written as dataset 2411.
+
+    Raises
+    ------
+    InputError
+        Invalid data, a label without node+direction form, fewer than 2 frequency lines, or
+        (ASCII only) two lines that the abscissa's 6 significant digits cannot tell apart.
+    OSError
+        The file cannot be created.
+    """
+    src = os.fspath(path)
+    write_datasets(path, frf_datasets(src, frf, binary=binary, geometry=geometry))
+
+
+def frf_datasets(src: str, frf: FRFData, *, binary: bool = False,
+                 geometry: Geometry | None = None) -> list[dict]:
+    """The pyuff dataset dictionaries :func:`write_uff_frf` writes (164, [2411,] 58 ...)."""
+    data = validate_frf(frf, src)
+    target = "UFF dataset 58"
+    nodes = dict(zip(data.outputs, labels_to_node_dirs(src, data.outputs, "output", target)))
+    freq = data.freq_hz
+    if freq.size < 2:
+        raise InputError(f"{src}: UFF 58 needs at least 2 frequency lines, got {freq.size}")
+    if not binary:
+        _check_ascii_abscissa(src, freq)
+    stamp = time.strftime("%d-%b-%y %H:%M:%S")
+    multiple = data.n_in > 1
+    out: list[dict] = [si_units_dataset()]
+    if geometry:
+        out.append(geometry_dataset(src, geometry))
+
+    def function(kind: str, rsp: str, ref: str, x: np.ndarray, y: np.ndarray) -> dict:
+        d = _function_dict(kind, nodes[rsp], nodes[ref], x, y, binary, multiple)
+        d.update(id1=f"{rsp}/{ref} {d.pop('_what')}"[:80], id2="ssidlab", id3=stamp,
+                 func_id=len(out), rsp_ent_name=_entity(rsp), ref_ent_name=_entity(ref))
+        return d
+
+    valid = data.valid_mask() & np.isfinite(data.H)
+    short = []
+    for j, ref in enumerate(data.inputs):
+        for i, rsp in enumerate(data.outputs):
+            keep = valid[:, i, j]
+            # pyuff needs two points per function; a pair with none is simply absent.
+            if keep.sum() >= 2:
+                out.append(function("frf", rsp, ref, freq[keep], data.H[keep, i, j]))
+            elif keep.any():
+                short.append(f"{rsp}/{ref}")
+    if data.coherence is not None:
+        for j, ref in enumerate(data.inputs):
+            for i, rsp in enumerate(data.outputs):
+                out.append(function("coherence", rsp, ref, freq, data.coherence[:, i, j]))
+    if data.H_reaction is not None:
+        for j, ref in enumerate(data.inputs):
+            for r, rsp in enumerate(data.reactions or []):
+                out.append(function("reaction", rsp, ref, freq, data.H_reaction[:, r, j]))
+    if short:
+        warnings.warn(f"{src}: {len(short)} FRF(s) with a single valid line not written "
+                      f"(UFF 58 needs 2 points), e.g. {short[0]}", UFFWarning, stacklevel=3)
+    return out
+
+
+def _check_ascii_abscissa(src: str, freq: np.ndarray) -> None:
+    """Refuse lines that become equal in the E13.5 abscissa field of an ASCII 58."""
+    stored = np.array([float(f"{f:13.5e}") for f in freq])
+    same = np.flatnonzero(np.diff(stored) <= 0)
+    if same.size:
+        k = int(same[0])
+        raise InputError(
+            f"{src}: frequency lines {freq[k]:.10g} and {freq[k + 1]:.10g} Hz are the same to "
+            "the 6 significant digits of an ASCII UFF 58 abscissa (E13.5); write binary 58b")
+
+
+def _entity(label: str) -> str:
+    # Entity names are 10 characters; longer labels are only in ID line 1.
+    return label if len(label) <= 10 else "NONE"
+
+
+def _function_dict(kind: str, rsp: tuple[int, int], ref: tuple[int, int], x: np.ndarray,
+                   y: np.ndarray, binary: bool, multiple: bool) -> dict[str, Any]:
+    rot_rsp, rot_ref = abs(rsp[1]) > 3, abs(ref[1]) > 3
+    force_unit = "N*m" if rot_ref else "N"
+    if kind == "frf":
+        what, func = "accelerance", FUNC_FRF
+        num = (SPEC_ACCELERATION, "Acceleration", "rad/s^2" if rot_rsp else "m/s^2")
+        den = (SPEC_FORCE, "Force", force_unit)
+        y = np.asarray(y, dtype=complex)
+    elif kind == "reaction":
+        what, func = "reaction force per input force", FUNC_FRF
+        num = (SPEC_REACTION, "Reaction force", "N*m" if rot_rsp else "N")
+        den = (SPEC_FORCE, "Force", force_unit)
+        y = np.asarray(y, dtype=complex)
+    else:
+        # pyuff writes only function type 6; with several inputs the values are the multiple
+        # coherence of the output, stored against each input (ID line 1 says which).
+        what = "multiple coherence" if multiple else "coherence"
+        func = FUNC_COHERENCE
+        num, den = (SPEC_GENERAL, "Coherence", "NONE"), (0, "NONE", "NONE")
+        y = np.asarray(y, dtype=float)
+    return {
+        "type": 58, "binary": int(binary), "_what": what,
+        "id4": "NONE", "id5": "NONE",
+        "func_type": func, "ver_num": 0, "load_case_id": 0,
+        "rsp_node": int(rsp[0]), "rsp_dir": int(rsp[1]),
+        "ref_node": int(ref[0]), "ref_dir": int(ref[1]),
+        "abscissa_spacing": 0,
+        "abscissa_spec_data_type": SPEC_FREQUENCY, "abscissa_axis_lab": "Frequency",
+        "abscissa_axis_units_lab": "Hz",
+        "ordinate_spec_data_type": num[0], "ordinate_axis_lab": num[1],
+        "ordinate_axis_units_lab": num[2],
+        "orddenom_spec_data_type": den[0], "orddenom_axis_lab": den[1],
+        "orddenom_axis_units_lab": den[2],
+        "z_axis_spec_data_type": 0,
+        "x": np.asarray(x, dtype=float), "data": y,
+    }
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Function:
+    kind: str  # "frf", "coherence" or "reaction"
+    index: int
+    rsp: str
+    ref: str
+    x: np.ndarray
+    y: np.ndarray
+
+
+def read_uff_frf(path: str | os.PathLike) -> FRFData:
+    """Read FRFs, coherence and reactions from the datasets 58 of a UFF file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        ASCII and/or binary UFF file, e.g. written by :func:`write_uff_frf` or another program.
+
+    Returns
+    -------
+    FRFData
+        Validated accelerances in SI. Outputs and inputs are in order of first appearance,
+        labels ``"<node><+|-><dir>"``. Values missing from a function, or NaN, are blanked
+        (``valid`` False, ``H`` NaN); ``valid`` is None when nothing is blanked.
+
+    Notes
+    -----
+    * Function type 4 with ordinate acceleration (12) is taken as is; velocity (11) and
+      displacement (8) FRFs are converted with ``j omega`` and ``-omega^2``; an unknown
+      ordinate type (0 or 1) is taken as acceleration, with a warning; ordinate reaction force
+      (9) makes an interface reaction. Function types 6 and 26 are coherence. Others are
+      skipped with a warning.
+    * A dataset 164 converts the file's units to SI (``H * force_factor / length_factor``).
+    * Lines at or below 0 Hz are dropped with a warning (the FRF file needs f > 0).
+
+    Raises
+    ------
+    InputError
+        Unreadable or malformed file, no FRF, inconsistent functions (duplicates, real FRFs,
+        a non-frequency abscissa), or data the FRF file layout refuses.
+    """
+    src = os.fspath(path)
+    datasets = read_datasets(path, types={58, 164})
+    length, force = unit_factors(src, datasets)
+    functions = [d for d in datasets if d["type"] == 58]
+    if not functions:
+        raise InputError(f"{src}: no function datasets (58) in the file")
+    frfs, cohs, reacts = [], [], []
+    skipped = unknown_units = 0
+    for d in functions:
+        ftype = d.get("func_type")
+        if ftype == FUNC_FRF:
+            spec = d.get("ordinate_spec_data_type", 0)
+            if spec == SPEC_REACTION:
+                reacts.append(_read_function(src, d, "reaction"))
+                continue
+            f = _read_function(src, d, "frf")
+            factor, known = _to_accelerance(src, d, spec, 2 * np.pi * f.x)
+            unknown_units += not known
+            f.y = f.y * factor * (force / length)
+            frfs.append(f)
+        elif ftype in (FUNC_COHERENCE, FUNC_MULTIPLE_COHERENCE):
+            cohs.append(_read_function(src, d, "coherence"))
+        else:
+            skipped += 1
+    if not frfs:
+        raise InputError(f"{src}: no FRF (dataset 58 with function type 4) among "
+                         f"{len(functions)} function dataset(s)")
+    if skipped:
+        warnings.warn(f"{src}: skipped {skipped} dataset(s) 58 that are neither FRFs nor "
+                      "coherence", UFFWarning, stacklevel=2)
+    if unknown_units:
+        warnings.warn(f"{src}: {unknown_units} FRF(s) do not say what the ordinate is "
+                      "(specific data type 0/1); taken as acceleration per force (accelerance)",
+                      UFFWarning, stacklevel=2)
+
+    freq, lines = _frequency_grid(src, frfs + cohs + reacts)
+    outputs = _merged_order(frfs + cohs, "rsp", "ref")
+    inputs = _merged_order(frfs + cohs, "ref", "rsp")
+    nf, nc = len(frfs), len(cohs)
+    H, have = _assemble(src, frfs, outputs, inputs, lines[:nf], freq.size, "FRF")
+    valid = have & ~np.isnan(H)
+    coherence = _coherence(src, cohs, outputs, inputs, lines[nf:nf + nc], freq.size, valid)
+    reactions = _merged_order(reacts, "rsp", "ref", "reaction") or None
+    H_reaction = None
+    if reacts:
+        stray = [f.ref for f in reacts if f.ref not in inputs]
+        if stray:
+            raise InputError(f"{src}: reaction function with reference {stray[0]!r}, which is "
+                             "not an input of any FRF")
+        H_reaction, have_r = _assemble(src, reacts, reactions, inputs, lines[nf + nc:],
+                                       freq.size, "reaction")
+        if not have_r.all():
+            k, r, j = (int(v) for v in np.argwhere(~have_r)[0])
+            raise InputError(f"{src}: no reaction value for {reactions[r]!r} per input "
+                             f"{inputs[j]!r} at {freq[k]:g} Hz; reactions must cover every "
+                             "line and input")
+    frf = FRFData(freq_hz=freq, H=H, outputs=outputs, inputs=inputs, coherence=coherence,
+                  valid=None if valid.all() else valid, H_reaction=H_reaction,
+                  reactions=reactions, attrs={"converted_from": os.path.basename(src)})
+    return validate_frf(frf, src)
+
+
+def _where(d: dict) -> str:
+    return f"dataset {d['_index'] + 1} (58)"
+
+
+def _merged_order(functions: list[_Function], key: str, group: str,
+                  primary: str = "frf") -> list[str]:
+    """Labels ``key`` of the FRF functions in an order consistent with every group's file order.
+
+    A pair that is absent (all its values blanked) removes a label from one group's sequence
+    (e.g. outputs per input); merging the sequences (a topological sort, ties broken by first
+    appearance) still gives the order they were written in. Inconsistent orders (possible in
+    other programs' files) fall back to first appearance. Only labels of functions of kind
+    ``primary`` are returned; others (coherence) add ordering only.
+    """
+    labels = {getattr(f, key) for f in functions if f.kind == primary}
+    first: dict[str, int] = {}
+    sequences: dict[tuple[str, str], list[str]] = {}
+    for f in functions:
+        label = getattr(f, key)
+        if label not in labels:
+            continue
+        first.setdefault(label, len(first))
+        sequences.setdefault((f.kind, getattr(f, group)), []).append(label)
+    after: dict[str, set[str]] = {label: set() for label in first}
+    for seq in sequences.values():
+        for a, b in itertools.pairwise(seq):
+            after[a].add(b)
+    indegree = {label: 0 for label in first}
+    for targets in after.values():
+        for b in targets:
+            indegree[b] += 1
+    ready = sorted((first[label], label) for label, d in indegree.items() if d == 0)
+    order: list[str] = []
+    while ready:
+        _, label = ready.pop(0)
+        order.append(label)
+        for b in after[label]:
+            indegree[b] -= 1
+            if indegree[b] == 0:
+                ready.append((first[b], b))
+        ready.sort()
+    return order if len(order) == len(first) else sorted(first, key=first.get)
+
+
+def _read_function(src: str, d: dict, kind: str) -> _Function:
+    where = _where(d)
+    complex_ = kind != "coherence"
+    try:
+        rsp = format_dof_label(d.get("rsp_node", 0), d.get("rsp_dir", 0))
+    except ValueError as exc:
+        raise InputError(f"{src}: {where}: response {exc}") from None
+    try:
+        ref = format_dof_label(d.get("ref_node", 0), d.get("ref_dir", 0))
+    except ValueError as exc:
+        raise InputError(f"{src}: {where}: reference (input) {exc}") from None
+    x = np.asarray(d.get("x"), dtype=float).ravel()
+    y = np.asarray(d.get("data")).ravel()
+    n = d.get("num_pts")
+    if n is not None and y.size != int(n):
+        raise InputError(f"{src}: {where}: header announces {int(n)} values, the data hold "
+                         f"{y.size} (truncated or damaged file)")
+    if y.size == 0 or x.shape != y.shape:
+        raise InputError(f"{src}: {where}: {x.size} abscissa values for {y.size} data values")
+    abscissa = d.get("abscissa_spec_data_type", 0)
+    if abscissa not in (0, SPEC_GENERAL, SPEC_FREQUENCY):
+        name = _SPEC_NAMES.get(abscissa, f"type {abscissa}")
+        raise InputError(f"{src}: {where}: abscissa is {name}, not frequency")
+    if not np.all(np.isfinite(x)) or np.any(np.diff(x) <= 0):
+        raise InputError(f"{src}: {where}: abscissa (frequency) is not finite and strictly "
+                         "increasing")
+    if complex_ and y.dtype.kind != "c":
+        raise InputError(f"{src}: {where}: FRF {rsp}/{ref} is real; an FRF needs complex "
+                         "values (magnitude and phase)")
+    if not complex_:
+        if y.dtype.kind == "c":
+            if np.any(y.imag != 0):
+                raise InputError(f"{src}: {where}: coherence {rsp}/{ref} is complex")
+            y = y.real
+        y = y.astype(float)
+    return _Function(kind, d["_index"], rsp, ref, x, y)
+
+
+def _to_accelerance(src: str, d: dict, spec: int, omega: np.ndarray) -> tuple[Any, bool]:
+    """Factor turning the function's ordinate into accelerance, and whether it was known."""
+    if spec == SPEC_ACCELERATION:
+        return 1.0, True
+    if spec == SPEC_VELOCITY:  # mobility: a = j omega v
+        return 1j * omega, True
+    if spec == SPEC_DISPLACEMENT:  # receptance: a = -omega^2 x
+        return -(omega**2), True
+    if spec in (0, SPEC_GENERAL):
+        return 1.0, False
+    name = _SPEC_NAMES.get(spec, f"specific data type {spec}")
+    raise InputError(f"{src}: {_where(d)}: FRF ordinate is {name}; only acceleration, velocity "
+                     "or displacement per force can become an accelerance")
+
+
+def _frequency_grid(src: str, functions: list[_Function]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The union of all abscissae (lines > 0 Hz) and each function's line indices (-1: dropped)."""
+    allx = np.sort(np.concatenate([f.x for f in functions]))
+    tol = _SAME_LINE_RTOL * float(np.abs(allx).max() or 1.0)
+    grid = allx[np.r_[True, np.diff(allx) > tol]]
+    positive = grid > 0
+    if not positive.any():
+        raise InputError(f"{src}: no frequency line above 0 Hz")
+    if not positive.all():
+        warnings.warn(f"{src}: dropped {int((~positive).sum())} line(s) at or below 0 Hz "
+                      "(FRF files hold f > 0 only)", UFFWarning, stacklevel=3)
+    new_index = np.cumsum(positive) - 1
+    lines = []
+    for f in functions:
+        k = np.clip(np.searchsorted(grid, f.x - tol), 0, grid.size - 1)
+        lines.append(np.where(positive[k], new_index[k], -1))
+    return grid[positive], lines
+
+
+def _assemble(src: str, functions: list[_Function], rows: list[str], cols: list[str],
+              lines: list[np.ndarray], n_freq: int, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Complex (n_freq, n_rows, n_cols) array (NaN where absent) and where values were given."""
+    row, col = {r: i for i, r in enumerate(rows)}, {c: j for j, c in enumerate(cols)}
+    out = np.full((n_freq, len(rows), len(cols)), np.nan, dtype=complex)
+    have = np.zeros(out.shape, dtype=bool)
+    seen: dict[tuple[int, int], int] = {}
+    for f, k in zip(functions, lines):
+        i, j = row[f.rsp], col[f.ref]
+        if (i, j) in seen:
+            raise InputError(f"{src}: datasets {seen[(i, j)] + 1} and {f.index + 1} are both "
+                             f"the {what} {f.rsp}/{f.ref}")
+        seen[(i, j)] = f.index
+        keep = k >= 0
+        out[k[keep], i, j] = f.y[keep]
+        have[k[keep], i, j] = True
+    return out, have
+
+
+def _coherence(src: str, cohs: list[_Function], outputs: list[str], inputs: list[str],
+               lines: list[np.ndarray], n_freq: int, valid: np.ndarray) -> np.ndarray | None:
+    """Coherence over the FRF grid, or None (with a warning) when it does not cover the FRFs."""
+    if not cohs:
+        return None
+    pairs = [(f, k) for f, k in zip(cohs, lines) if f.rsp in outputs and f.ref in inputs]
+    coh_lines = [k for _, k in pairs]
+    C, have = _assemble(src, [f for f, _ in pairs], outputs, inputs, coh_lines, n_freq,
+                        "coherence")
+    if not have[valid].all():
+        warnings.warn(f"{src}: coherence does not cover every FRF value; not read",
+                      UFFWarning, stacklevel=3)
+        return None
+    C = np.where(have, C.real, 0.0)  # no coherence where there is no FRF value either
+    near = (C > -_COHERENCE_ROUNDING) & (C < 1 + _COHERENCE_ROUNDING)
+    return np.where(near, np.clip(C, 0.0, 1.0), C)

@@ -1,0 +1,422 @@
+"""UFF exchange: DOF labels, FRF round trips (ASCII 58, binary 58b), files in other programs'
+conventions, malformed files, mode shapes (55) and geometry (2411, 15)."""
+
+from __future__ import annotations
+
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import chain_frf, chain_model, full_frf
+
+from ssid.errors import InputError
+from ssid.exchange import (
+    UFFModes,
+    UFFWarning,
+    format_dof_label,
+    modes_from_model,
+    modes_from_result,
+    parse_dof_label,
+    read_uff_frf,
+    read_uff_geometry,
+    read_uff_modes,
+    write_uff_frf,
+    write_uff_geometry,
+    write_uff_modes,
+)
+
+pytest.importorskip("pyuff")
+
+# ASCII 58 as written: values %20.11e = 12 significant digits -> relative error <= 5e-12 per
+# real/imaginary part; the abscissa is E13.5 (the standard's record 12 format for uneven data)
+# = 6 significant digits -> relative error <= 5e-6.
+ASCII_VALUE_RTOL = 5e-12
+ASCII_FREQ_RTOL = 5e-6
+
+
+def one_line(exc: pytest.ExceptionInfo) -> str:
+    message = str(exc.value)
+    assert "\n" not in message
+    return message
+
+
+# ----------------------------------------------------------------------------------------------
+# Labels
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("label, node_dir", [("4+Z", (4, 3)), ("17+RX", (17, 4)),
+                                             ("2-Y", (2, -2)), ("9", (9, 0)),
+                                             ("123456-RZ", (123456, -6))])
+def test_label_round_trip(label, node_dir):
+    assert parse_dof_label(label) == node_dir
+    assert format_dof_label(*node_dir) == label
+
+
+@pytest.mark.parametrize("label", ["acc1", "4+z", "04+Z", "4 +Z", "0+Z", "4+TX", "", "4+"])
+def test_label_without_node_direction_form_is_refused(label):
+    with pytest.raises(ValueError, match="not of the form"):
+        parse_dof_label(label)
+
+
+def test_write_refuses_labels_that_uff_cannot_address(tmp_path):
+    frf = chain_frf()
+    frf.outputs = ["base", "2+Z", "3+Z"]
+    frf.inputs = ["base", "3+Z"]
+    with pytest.raises(InputError) as exc:
+        write_uff_frf(tmp_path / "x.uff", frf)
+    assert "'base'" in one_line(exc) and "node" in one_line(exc)
+    assert not (tmp_path / "x.uff").exists()
+
+
+# ----------------------------------------------------------------------------------------------
+# FRF round trips
+# ----------------------------------------------------------------------------------------------
+
+
+def _check_same_layout(back, frf):
+    assert back.outputs == frf.outputs and back.inputs == frf.inputs
+    assert back.reactions == frf.reactions
+    np.testing.assert_array_equal(back.valid, frf.valid)
+    assert np.all(np.isnan(back.H[~frf.valid]))  # blanked values come back blanked
+
+
+def test_ascii_round_trip_within_format_precision(tmp_path):
+    frf = full_frf()  # coherence, a blanked value, reactions
+    path = tmp_path / "frf.uff"
+    write_uff_frf(path, frf)
+    back = read_uff_frf(path)
+    _check_same_layout(back, frf)
+    np.testing.assert_allclose(back.freq_hz, frf.freq_hz, rtol=ASCII_FREQ_RTOL, atol=0)
+    ok = frf.valid
+    for part in (np.real, np.imag):
+        np.testing.assert_allclose(part(back.H[ok]), part(frf.H[ok]), rtol=ASCII_VALUE_RTOL, atol=0)
+        np.testing.assert_allclose(part(back.H_reaction), part(frf.H_reaction),
+                                   rtol=ASCII_VALUE_RTOL, atol=0)
+    np.testing.assert_allclose(back.coherence, frf.coherence, rtol=ASCII_VALUE_RTOL, atol=0)
+    # What dataset 58 cannot hold does not come back.
+    assert back.H_var is None and back.n_avg is None and "operator" not in back.attrs
+
+
+def test_binary_round_trip_is_exact(tmp_path):
+    frf = full_frf()
+    path = tmp_path / "frf.uff"
+    write_uff_frf(path, frf, binary=True)
+    back = read_uff_frf(path)
+    _check_same_layout(back, frf)
+    np.testing.assert_array_equal(back.freq_hz, frf.freq_hz)
+    np.testing.assert_array_equal(back.H[frf.valid], frf.H[frf.valid])
+    np.testing.assert_array_equal(back.coherence, frf.coherence)
+    np.testing.assert_array_equal(back.H_reaction, frf.H_reaction)
+
+
+def test_binary_header_byte_count_matches_the_data(tmp_path):
+    frf = chain_frf(inputs=["1+Z"], n_freq=10)
+    path = tmp_path / "frf.uff"
+    write_uff_frf(path, frf, binary=True)
+    raw = path.read_bytes()
+    headers = re.findall(rb"\n    58b.{6}.{6}.{12}(.{12})", raw)
+    assert len(headers) == 3
+    # Uneven abscissa, complex double: frequency, real, imaginary per line.
+    assert all(int(h) == 10 * 3 * 8 for h in headers)
+
+
+def test_blanked_values_are_not_written_and_come_back_blanked(tmp_path):
+    frf = chain_frf(n_freq=12)
+    frf.valid = np.ones(frf.H.shape, dtype=bool)
+    frf.valid[:, 2, 1] = False  # a whole FRF missing
+    frf.valid[3, 0, 0] = False  # one value, its H left as a number
+    path = tmp_path / "frf.uff"
+    write_uff_frf(path, frf, binary=True)
+    assert path.read_text(errors="replace").count("    58b") == 5
+    back = read_uff_frf(path)
+    np.testing.assert_array_equal(back.valid, frf.valid)
+    np.testing.assert_array_equal(back.H[frf.valid], frf.H[frf.valid])
+
+
+def test_a_line_blanked_everywhere_is_lost_without_coherence(tmp_path):
+    frf = chain_frf(n_freq=12)
+    frf.valid = np.ones(frf.H.shape, dtype=bool)
+    frf.valid[4] = False
+    write_uff_frf(tmp_path / "a.uff", frf, binary=True)
+    back = read_uff_frf(tmp_path / "a.uff")
+    np.testing.assert_array_equal(back.freq_hz, np.delete(frf.freq_hz, 4))
+    assert back.valid is None
+    # With coherence (written for every line) the line stays, blanked.
+    frf.coherence = np.full(frf.H.shape, 0.9)
+    write_uff_frf(tmp_path / "b.uff", frf, binary=True)
+    back = read_uff_frf(tmp_path / "b.uff")
+    np.testing.assert_array_equal(back.freq_hz, frf.freq_hz)
+    np.testing.assert_array_equal(back.valid, frf.valid)
+
+
+def test_single_valid_line_warns(tmp_path):
+    frf = chain_frf(n_freq=8)
+    frf.valid = np.ones(frf.H.shape, dtype=bool)
+    frf.valid[1:, 1, 0] = False
+    with pytest.warns(UFFWarning, match="single valid line"):
+        write_uff_frf(tmp_path / "x.uff", frf)
+    assert not read_uff_frf(tmp_path / "x.uff").valid[:, 1, 0].any()
+
+
+def test_ascii_refuses_lines_its_abscissa_cannot_separate(tmp_path):
+    frf = chain_frf(n_freq=4)
+    frf.freq_hz = np.array([100.0, 100.0000001, 100.0000002, 100.0000003])
+    with pytest.raises(InputError, match="binary 58b"):
+        write_uff_frf(tmp_path / "x.uff", frf)
+    write_uff_frf(tmp_path / "x.uff", frf, binary=True)
+    np.testing.assert_array_equal(read_uff_frf(tmp_path / "x.uff").freq_hz, frf.freq_hz)
+
+
+def test_rotational_and_negative_directions_round_trip(tmp_path):
+    frf = chain_frf(inputs=["1+Z"], n_freq=6)
+    frf.outputs = ["1+Z", "2-RX", "30"]
+    frf.inputs = ["1+Z"]
+    write_uff_frf(tmp_path / "x.uff", frf)
+    text = (tmp_path / "x.uff").read_text()
+    assert "rad/s^2" in text  # the rotational response is an angular acceleration
+    assert read_uff_frf(tmp_path / "x.uff").outputs == ["1+Z", "2-RX", "30"]
+
+
+# ----------------------------------------------------------------------------------------------
+# Files in other programs' conventions
+# ----------------------------------------------------------------------------------------------
+
+
+def fortran(x: float, width: int = 13, digits: int = 5, letter: str = "E") -> str:
+    """Fortran ``Ew.d`` / ``Dw.d`` output: ``0.12346E+01``, right-justified."""
+    exp = 0 if x == 0 else int(np.floor(np.log10(abs(x)))) + 1
+    mant = x / 10.0**exp
+    if round(abs(mant), digits) >= 1.0:
+        mant, exp = mant / 10, exp + 1
+    return f"{mant:.{digits}f}{letter}{exp:+03d}".rjust(width)
+
+
+def header58(id1: str, func: int, rsp: tuple, ref: tuple, ord_type: int, n: int, f0: float,
+             df: float, num: tuple, den: tuple) -> list[str]:
+    return [
+        "    -1", "    58", id1, "Run 12 hammer test", "12-MAR-24 10:11:12", "NONE", "NONE",
+        (f"{func:5d}{1:10d}{1:5d}{0:10d} {rsp[0]:<10s}{rsp[1]:10d}{rsp[2]:4d} "
+         f"{ref[0]:<10s}{ref[1]:10d}{ref[2]:4d}"),
+        f"{ord_type:10d}{n:10d}{1:10d}{fortran(f0)}{fortran(df)}{fortran(0.0)}",
+        f"{18:10d}{0:5d}{0:5d}{0:5d} {'Frequency':<20s} {'Hz':<20s}",
+        f"{num[0]:10d}{0:5d}{0:5d}{0:5d} {num[1]:<20s} {num[2]:<20s}",
+        f"{den[0]:10d}{0:5d}{0:5d}{0:5d} {den[1]:<20s} {den[2]:<20s}",
+        f"{0:10d}{0:5d}{0:5d}{0:5d} {'NONE':<20s} {'NONE':<20s}",
+    ]
+
+
+def rows(fields: list[str], per_line: int) -> list[str]:
+    return ["".join(fields[k:k + per_line]) for k in range(0, len(fields), per_line)]
+
+
+def commercial_file() -> tuple[str, dict]:
+    """A UFF in the style of a commercial test package: CRLF, Fortran 0.d exponents, D
+    exponents, mm units (164), even abscissa, single and double precision, a 0 Hz line."""
+    rng = np.random.default_rng(3)
+    f0, df, n = 0.0, 12.5, 5
+    acc = rng.normal(size=n) + 1j * rng.normal(size=n)  # (mm/s^2)/N, single precision
+    mob = rng.normal(size=n) + 1j * rng.normal(size=n)  # (mm/s)/N, double precision
+    coh = rng.uniform(0.6, 0.99, size=(2, n))
+    acc_txt = [fortran(v) for z in acc for v in (z.real, z.imag)]
+    mob_txt = [fortran(v, 20, 12, "D") for z in mob for v in (z.real, z.imag)]
+    lines = [
+        "    -1", "   164", f"{9:10d}{'mm N s degC':<20s}{2:10d}",
+        "  0.10000000000000000D+04  0.10000000000000000D+01  0.10000000000000000D+01",
+        "  0.27314999389648438D+03", "    -1",
+        "    -1", "  2411",
+        f"{1:10d}{0:10d}{0:10d}{11:10d}", "   0.0000000000000000D+00" * 3,
+        f"{2:10d}{0:10d}{0:10d}{11:10d}",
+        "   0.5000000000000000D+03   0.0000000000000000D+00   0.2500000000000000D+02",
+        "    -1",
+    ]
+    lines += header58("PT1:+Z/PT1:+Z", 4, ("PT1", 1, 3), ("PT1", 1, 3), 5, n, f0, df,
+                      (12, "Acceleration", "mm/s^2"), (13, "Force", "N"))
+    lines += rows(acc_txt, 6) + ["    -1"]
+    lines += header58("PT2:-Y/PT1:+Z", 4, ("PT2", 2, -2), ("PT1", 1, 3), 6, n, f0, df,
+                      (11, "Velocity", "mm/s"), (13, "Force", "N"))
+    lines += rows(mob_txt, 4) + ["    -1"]
+    for k, rsp in enumerate([("PT1", 1, 3), ("PT2", 2, -2)]):
+        lines += header58("Multiple coherence", 26, rsp, ("PT1", 1, 3), 2, n, f0, df,
+                          (0, "Coherence", "NONE"), (0, "NONE", "NONE"))
+        lines += rows([fortran(v) for v in coh[k]], 6) + ["    -1"]
+    text = "\r\n".join(lines) + "\r\n"
+    parsed = {
+        "freq": f0 + df * np.arange(n),
+        "acc": np.array([complex(float(a), float(b)) for a, b in zip(acc_txt[::2], acc_txt[1::2])]),
+        "mob": np.array([complex(float(a.replace("D", "E")), float(b.replace("D", "E")))
+                         for a, b in zip(mob_txt[::2], mob_txt[1::2])]),
+        "coh": np.array([[float(fortran(v)) for v in c] for c in coh]),
+    }
+    return text, parsed
+
+
+def test_reads_a_commercial_style_file(tmp_path):
+    text, expected = commercial_file()
+    path = tmp_path / "test_lab.unv"
+    path.write_bytes(text.encode("ascii"))
+    with pytest.warns(UFFWarning, match="0 Hz"):
+        frf = read_uff_frf(path)
+    assert frf.outputs == ["1+Z", "2-Y"] and frf.inputs == ["1+Z"]
+    f = expected["freq"][1:]  # the 0 Hz line is dropped
+    np.testing.assert_array_equal(frf.freq_hz, f)
+    # mm -> m (164 length factor 1000); mobility -> accelerance with j omega.
+    np.testing.assert_allclose(frf.H[:, 0, 0], expected["acc"][1:] / 1000, rtol=1e-15)
+    np.testing.assert_allclose(frf.H[:, 1, 0], 1j * 2 * np.pi * f * expected["mob"][1:] / 1000,
+                               rtol=1e-14)
+    np.testing.assert_allclose(frf.coherence[:, :, 0], expected["coh"][:, 1:].T, rtol=1e-15)
+    assert frf.valid is None
+    geometry = read_uff_geometry(path)
+    np.testing.assert_allclose(geometry[2], [0.5, 0.0, 0.025])
+
+
+def test_unknown_ordinate_type_is_taken_as_accelerance_with_a_warning(tmp_path):
+    text, expected = commercial_file()
+    path = tmp_path / "x.uff"
+    path.write_text(text.replace("        12    0    0    0 Acceleration",
+                                 "         0    0    0    0 Acceleration"))
+    with pytest.warns(UFFWarning) as record:
+        frf = read_uff_frf(path)
+    assert any("taken as acceleration" in str(w.message) for w in record)
+    np.testing.assert_allclose(frf.H[:, 0, 0], expected["acc"][1:] / 1000, rtol=1e-15)
+
+
+# ----------------------------------------------------------------------------------------------
+# Malformed files
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ascii_uff(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("uff") / "frf.uff"
+    write_uff_frf(path, chain_frf(n_freq=8))
+    return path
+
+
+def _malformed(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "bad.uff"
+    path.write_text(text)
+    with pytest.raises(InputError) as exc:
+        read_uff_frf(path)
+    return one_line(exc)
+
+
+def test_malformed_files_give_one_line_errors(tmp_path, ascii_uff):
+    text = ascii_uff.read_text()
+    lines = text.splitlines()
+    assert "no such file" in str(pytest.raises(InputError, read_uff_frf, tmp_path / "none.uff").value)
+    assert "no datasets" in _malformed(tmp_path, "just some text\n1 2 3\n")
+    assert "truncated" in _malformed(tmp_path, text[: len(text) // 2])
+    first58 = lines.index("    58" + " " * 74)
+    # A data line removed: fewer values than the header announces.
+    assert "header announces" in _malformed(tmp_path, "\n".join(lines[:first58 + 14]
+                                                               + lines[first58 + 15:]))
+    # A number that is not one.
+    broken = lines[:]
+    broken[first58 + 13] = broken[first58 + 13].replace("e", "x", 1)
+    assert "malformed" in _malformed(tmp_path, "\n".join(broken))
+    # A direction code outside -6 .. 6.
+    broken = lines[:]
+    broken[first58 + 6] = broken[first58 + 6][:51] + "   9" + broken[first58 + 6][55:]
+    assert "direction code 9" in _malformed(tmp_path, "\n".join(broken))
+    # Functions, but none of them an FRF (function type 4 -> 2, auto spectrum).
+    assert "no FRF" in _malformed(tmp_path, text.replace("\n    4 ", "\n    2 "))
+
+
+def test_an_hdf5_file_is_not_a_uff(tmp_path):
+    from ssid.io import write_frf
+
+    write_frf(tmp_path / "frf.h5", chain_frf())
+    with pytest.raises(InputError, match="HDF5"):
+        read_uff_frf(tmp_path / "frf.h5")
+
+
+def test_duplicate_functions_are_refused(tmp_path, ascii_uff):
+    text = ascii_uff.read_text()
+    blocks = text.split("    -1\n")
+    dup = text + "    -1\n" + blocks[3] + "    -1\n"
+    assert "both" in _malformed(tmp_path, dup)
+
+
+# ----------------------------------------------------------------------------------------------
+# Modes (55) and geometry (2411, 15)
+# ----------------------------------------------------------------------------------------------
+
+
+def test_complex_modes_round_trip(tmp_path):
+    m = chain_model()
+    modes = modes_from_model(m.M, m.C, m.K, m.dofs)
+    geometry = {1: (0.0, 0.0, 0.0), 2: (0.1, 0.0, 0.0), 3: (0.2, 0.0, 0.0)}
+    write_uff_modes(tmp_path / "modes.uff", modes, geometry=geometry)
+    back = read_uff_modes(tmp_path / "modes.uff", dofs=m.dofs)
+    # Dataset 55 is E13.5: 6 significant digits (shapes are scaled to a largest entry of 1).
+    np.testing.assert_allclose(back.natural_freq_hz, modes.natural_freq_hz, rtol=1e-5)
+    np.testing.assert_allclose(back.damping_ratio, modes.damping_ratio, rtol=2e-5)
+    np.testing.assert_allclose(back.mode_shapes, modes.mode_shapes, atol=1e-5)
+    assert read_uff_geometry(tmp_path / "modes.uff")[3][0] == 0.2
+    # Without a selection every node component comes back, unmeasured ones as 0.
+    every = read_uff_modes(tmp_path / "modes.uff")
+    assert every.dofs[:3] == ["1+X", "1+Y", "1+Z"]
+
+
+def test_modes_from_an_identification_result_json(tmp_path):
+    m = chain_model()
+    modes = modes_from_model(m.M, m.C, m.K, m.dofs)
+    result = {"natural_freq_hz": list(modes.natural_freq_hz) + [None],
+              "damping_ratio": list(modes.damping_ratio) + [None],
+              "dofs": m.dofs,
+              "mode_shapes": {"dofs": m.dofs,
+                              "real": np.c_[modes.mode_shapes.real, np.zeros(3)].tolist(),
+                              "imag": np.c_[modes.mode_shapes.imag, np.zeros(3)].tolist()}}
+    got = modes_from_result(result)
+    assert got.natural_freq_hz.size == 3  # the undetermined mode is left out
+    write_uff_modes(tmp_path / "r.uff", got)
+    back = read_uff_modes(tmp_path / "r.uff", dofs=["3+Z", "1-Z"])
+    np.testing.assert_allclose(back.mode_shapes[1], -modes.mode_shapes[0], atol=1e-5)
+
+
+def test_real_modes_with_rotations_and_the_limits_of_complex_ones(tmp_path):
+    m = chain_model()
+    dofs = ["1+Z", "1+RY", "2-RX"]
+    modes = modes_from_model(m.M, None, m.K, dofs)
+    write_uff_modes(tmp_path / "real.uff", modes)
+    back = read_uff_modes(tmp_path / "real.uff", dofs=dofs)
+    assert back.mode_shapes.dtype.kind == "f"
+    np.testing.assert_allclose(back.mode_shapes, modes.mode_shapes,
+                               atol=5e-6 * np.abs(modes.mode_shapes).max())
+    np.testing.assert_allclose(back.damping_ratio, 0.0)
+    complex_modes = modes_from_model(m.M, m.C, m.K, dofs)
+    with pytest.raises(InputError, match="rotation"):
+        write_uff_modes(tmp_path / "c.uff", complex_modes)
+    with pytest.raises(InputError, match="same node component"):
+        write_uff_modes(tmp_path / "c.uff", UFFModes(modes.natural_freq_hz, modes.damping_ratio,
+                                                     modes.mode_shapes, ["1+Z", "1-Z", "2+Z"]))
+    with pytest.raises(InputError, match="no value for DOF"):
+        read_uff_modes(tmp_path / "real.uff", dofs=["9+Z"])
+    with pytest.raises(InputError, match="no mode shapes"):
+        read_uff_modes(_frf_only(tmp_path))
+
+
+def test_geometry_round_trip_and_dataset_15(tmp_path):
+    geometry = {7: (1.0, -1.0, 0.5), 3: (0.0, 2.0, -1.25)}
+    write_uff_geometry(tmp_path / "g.uff", geometry)
+    back = read_uff_geometry(tmp_path / "g.uff")
+    assert sorted(back) == [3, 7]
+    np.testing.assert_array_equal(back[7], geometry[7])
+    # Dataset 15 (single precision, older programs).
+    text = ("    -1\n    15\n"
+            f"{5:10d}{0:10d}{0:10d}{8:10d}{1.5:13.5E}{-2.0:13.5E}{0.25:13.5E}\n"
+            "    -1\n")
+    (tmp_path / "g15.unv").write_text(text)
+    np.testing.assert_array_equal(read_uff_geometry(tmp_path / "g15.unv")[5], [1.5, -2.0, 0.25])
+    with pytest.raises(InputError, match="no node coordinates"):
+        read_uff_geometry(_frf_only(tmp_path))
+
+
+def _frf_only(tmp_path: Path) -> Path:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_uff_frf(tmp_path / "frf_only.uff", chain_frf(n_freq=4))
+    return tmp_path / "frf_only.uff"

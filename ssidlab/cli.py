@@ -298,11 +298,18 @@ def _add_export_model(sub: Any) -> None:
     add_export_model_subcommand(sub)
 
 
-# Future subcommands (see the contract): discrepancy, acquire.
+def _add_discrepancy(sub: Any) -> None:
+    from ssidlab.cli_discrepancy import add_discrepancy_subcommand
+
+    add_discrepancy_subcommand(sub)
+
+
+# Future subcommands (see the contract): acquire.
 # Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
 # `run=_run_<name>`; list it here. Errors follow the same rules through main().
 _SUBCOMMANDS = (
     _add_identify, _add_demo, _add_correlate, _add_sim_lab, _add_convert, _add_export_model,
+    _add_discrepancy,
 )
 
 

@@ -1,0 +1,170 @@
+"""The search for a model file without C: modal damping, one ratio for every mode, as a nuisance.
+
+An undamped nominal model cannot be compared with measured FRFs, so it gets modal damping
+``zeta C_1`` (``response.unit_modal_damping``) with one ratio for every mode. That ratio is
+not known; worse, the effects sought trade off against it (a grounded damper adds damping to
+the modes that move its DOF, a heavily damped oscillator below the band acts as a damper and
+a spring). So:
+
+1. ``none`` is judged at its own best ratio: the nominal model fitted alone.
+2. The search starts from the ratio read off the measured peaks (``damping.damping_from_data``,
+   no model: a nominal fit would be biased by the very effect sought), and alternates: the
+   ratio refitted with the leader in place, the search repeated, until the leader is stable.
+3. The leading candidates of different effects or DOFs are then each refitted *jointly* with
+   the ratio (an outer 1-D search on ``log zeta``, the effect's own fit inside it), and the best
+   joint fit decides the ratio of the final search. Without this a candidate fitted at another
+   candidate's ratio is judged unfairly.
+
+Each joint fit uses modal superposition of the nominal modes and the rank-one update of the
+candidate's location only, so it costs a few modal syntheses per ratio tried.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from ..frf import FRFData
+from ..io import Model
+from ..tam import normal_modes
+from .damping import damping_from_data
+from .effects import PARAMETER_KEYS, Effect, effect_dynamic_stiffness, unit_shape
+from .fit import fit_one_parameter, fit_oscillator
+from .localise import Locations, compress
+from .response import fit_global_damping, modal_accelerance, unit_modal_damping
+from .search import NONNEGATIVE, Candidate, SearchResult, rerank_none
+
+__all__ = ["joint_damping_fit", "modal_location", "search_undamped"]
+
+#: Leading candidates (distinct effect and DOFs) refitted jointly with the damping ratio.
+N_JOINT = 4
+
+
+def effect_direction(n: int, dofs: list[str], effect: Effect) -> np.ndarray:
+    """``u`` of the effect's rank-one change ``delta u u^T``, (n,)."""
+    u = np.zeros(n)
+    u[dofs.index(effect.dofs[0])] = 1.0
+    if len(effect.dofs) == 2:
+        u[dofs.index(effect.dofs[1])] = -1.0
+    return u
+
+
+def modal_location(lam, phi, out_idx, in_idx, omega, zeta: float, u: np.ndarray,
+                   H: np.ndarray, W: np.ndarray) -> tuple[Locations, float]:
+    """Compressed residual data of the one location ``u`` with modal damping ``zeta``, and RSS_0."""
+    w = np.asarray(omega, dtype=float)[:, None]
+    inv_den = 1.0 / (lam[None, :] - w**2 + 2j * zeta * np.sqrt(np.abs(lam))[None, :] * w)
+    po, pi = phi[out_idx], phi[in_idx]
+    H_nom = -(w[:, :, None] ** 2) * np.einsum("or,kr,ir->koi", po, inv_den, pi, optimize=True)
+    pu = phi.T @ u
+    g_o = (inv_den * pu[None, :]) @ po.T  # (n_freq, n_out)
+    g_i = (inv_den * pu[None, :]) @ pi.T  # (n_freq, n_in)
+    g = inv_den @ pu**2
+    R = np.where(W > 0, H - H_nom, 0)
+    W2 = W**2
+    c, b = compress(w[:, 0], g_o[:, :, None], g_i[:, None, :], W2, W2 * R)
+    # The index is a placeholder: the fits use only c, a* and g.
+    return Locations.from_cb([[0, -1]], c, b, g[:, None]), float(np.sum(W2 * np.abs(R) ** 2))
+
+
+def _fit_at(cand: Candidate, loc: Locations, omega: np.ndarray) -> tuple[float, dict]:
+    """Remaining cost and parameters of ``cand``'s effect refitted at ``loc``'s one location."""
+    if cand.name == "attached_oscillator":
+        f = fit_oscillator(omega, loc, np.array([0]))
+        return float(f.cost[0]), (f.parameters(0) if np.isfinite(f.cost[0]) else cand.effect.parameters)
+    fit = fit_one_parameter(unit_shape(cand.name, omega), loc, nonnegative=cand.name in NONNEGATIVE)
+    return float(fit.cost[0]), {PARAMETER_KEYS[cand.name][0]: float(fit.theta[0])}
+
+
+def joint_damping_fit(cand: Candidate, model: Model, lam, phi, out_idx, in_idx, omega, H, W,
+                      zeta0: float) -> tuple[float, Effect, float]:
+    """Damping ratio and effect parameters fitted together: ``(zeta, effect, rss)``.
+
+    Outer: bounded 1-D search on ``log zeta`` within a factor 3 of ``zeta0``; inner: the
+    effect's own fit (``fit.fit_one_parameter`` or ``fit.fit_oscillator``) at that ratio.
+    """
+    u = effect_direction(model.n, model.dofs, cand.effect)
+    best: dict = {}
+
+    def rss_of(log_zeta: float) -> float:
+        z = float(np.exp(log_zeta))
+        loc, rss0 = modal_location(lam, phi, out_idx, in_idx, omega, z, u, H, W)
+        cost, pars = _fit_at(cand, loc, omega)
+        rss = rss0 - float(loc.explained[0]) + cost
+        if not np.isfinite(rss):
+            return 1e300  # a failed inner fit: finite, so that the outer search stays defined
+        if not best or rss < best["rss"]:
+            best.update(rss=rss, zeta=z, pars=pars)
+        return rss
+
+    with np.errstate(invalid="ignore", over="ignore"):
+        minimize_scalar(rss_of, bounds=(np.log(zeta0 / 3), np.log(zeta0 * 3)), method="bounded",
+                        options={"xatol": 0.01})
+    if not best:
+        return zeta0, cand.effect, np.inf
+    return best["zeta"], Effect(cand.name, cand.effect.dofs, best["pars"]), best["rss"]
+
+
+def _leaders(search: SearchResult, n: int) -> list[Candidate]:
+    out, seen = [], set()
+    for c in search.candidates:
+        key = (c.name, c.effect.dofs)
+        if c.name != "none" and key not in seen:
+            seen.add(key)
+            out.append(c)
+        if len(out) >= n:
+            break
+    return out
+
+
+def search_undamped(model: Model, data: FRFData, omega, H, W, valid, out_idx, in_idx, search_fn):
+    """The search for a model without C (module docstring).
+
+    ``search_fn(C) -> SearchResult`` runs one search round with damping matrix ``C``.
+
+    Returns
+    -------
+    (search, C, zeta, text): the final search, its damping matrix and ratio, and how the
+    ratio was found.
+    """
+    C1 = unit_modal_damping(model.M, model.K)
+    lam, phi = normal_modes(model.M, model.K)
+
+    def nominal_frf(z):
+        return modal_accelerance(lam, phi, out_idx, in_idx, omega, z)
+
+    zeta_nom = fit_global_damping(H, W, nominal_frf)
+    rss_none = float(np.sum(W**2 * np.abs(H - nominal_frf(zeta_nom)) ** 2))
+    zeta = damping_from_data(data.freq_hz, H, valid)
+    how = "median of the measured modes' damping (one pole fitted per CMIF peak)"
+    if zeta is None:
+        zeta, how = zeta_nom, "fitted with the nominal model (no measured peak could be fitted)"
+    search = search_fn(zeta * C1)
+    seen: list[tuple] = []
+    for _ in range(3):
+        eff = search.best.effect
+        if eff.name == "none" or (eff.name, eff.dofs) in seen:
+            break
+        seen.append((eff.name, eff.dofs))
+        u = effect_direction(model.n, model.dofs, eff)
+        delta = effect_dynamic_stiffness(eff, omega)
+        zeta = fit_global_damping(H, W, lambda z, u=u, delta=delta: modal_accelerance(
+            lam, phi, out_idx, in_idx, omega, z, u=u, delta=delta), zeta_range=(zeta / 4, zeta * 4))
+        how = "refitted to the FRFs with the effect found in place"
+        search = search_fn(zeta * C1)
+    joint = []
+    for cand in _leaders(search, N_JOINT):
+        z, eff, rss = joint_damping_fit(cand, model, lam, phi, out_idx, in_idx, omega, H, W, zeta)
+        joint.append((float(search.criterion(rss, eff.n_parameters)), z, eff))
+    if joint:
+        _, z, eff = min(joint, key=lambda t: t[0])
+        if (eff.name, eff.dofs) != (search.best.name, search.best.effect.dofs) or abs(np.log(z / zeta)) > 0.01:
+            zeta, how = z, f"fitted jointly with {eff.name} at {'-'.join(eff.dofs)}"
+            search = search_fn(zeta * C1)
+    rerank_none(search, rss_none)
+    if search.best.name == "none" and zeta != zeta_nom:
+        zeta, how = zeta_nom, "fitted to the FRFs with the nominal model"
+        search = search_fn(zeta * C1)
+    text = (f"the model has no C: modal damping with one ratio for every mode, zeta = {zeta:.4g} "
+            f"({how})")
+    return search, zeta * C1, zeta, text

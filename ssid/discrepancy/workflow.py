@@ -1,0 +1,337 @@
+"""``find_discrepancy``: find the gap, name the missing effect, add it, show the gap shrink.
+
+1. The nominal model's FRFs against the measured ones (``valid`` mask and noise weights
+   respected): the gap by FRF and by band, paired modes, and the localisation ``E`` of every
+   DOF (``ssid.discrepancy.localise``).
+2. Every effect of the library at every plausible DOF or DOF pair, fitted to the complex FRFs
+   and ranked by EBIC (``ssid.discrepancy.search``); ``none`` wins when nothing pays for its
+   parameters, and the winner must survive cross-validation over alternate lines.
+3. The winner is added to the model; the same gap measure before and after.
+4. A second round on the updated model says whether one effect closed the gap: if another
+   effect still beats ``none`` it is reported (and, with ``max_effects=2``, added, the two
+   refitted in turn each with the other in place).
+
+Damping: a model file without C is given modal damping with one ratio for all modes, found
+as ``ssid.discrepancy.undamped`` describes. ``gap_before`` uses the nominal model with that
+same damping, so the gaps before and after differ by the effect only, and the updated model
+is written with it.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..correlate_frf import frf_gap
+from ..errors import InputError
+from ..frf import FRFData, accelerance_from_model
+from ..io import Model
+from .effects import Effect, apply_effect_to_model, effect_dynamic_stiffness
+from .report import (
+    LOG_GAP_METRIC,
+    DiscrepancyResult,
+    gap_by_band,
+    gap_by_frf,
+    noise_gap,
+    paired_modes,
+)
+from .search import (
+    CRITERION_NAME,
+    Candidate,
+    SearchResult,
+    candidate_frf,
+    cross_validated_gain,
+    demote,
+    search_round,
+)
+from .undamped import search_undamped
+from .weights import noise_weights
+
+__all__ = ["find_discrepancy"]
+
+#: Fewest valid lines the workflow accepts.
+MIN_LINES = 8
+#: Candidates listed in the JSON besides the best of each effect and ``none``.
+N_LISTED = 20
+
+
+def _check(model: Model, frf: FRFData) -> None:
+    """Raise InputError when the model and FRFs do not go together."""
+    dofs = set(model.dofs)
+    missing = [d for d in frf.outputs if d not in dofs]
+    if missing:
+        raise InputError(f"FRF output {missing[0]!r} is not among the model's DOFs")
+    not_out = [d for d in frf.inputs if d not in set(frf.outputs)]
+    if not_out:
+        raise InputError(f"FRF input {not_out[0]!r} is not among the FRF outputs")
+    if frf.H.shape != (frf.n_freq, len(frf.outputs), len(frf.inputs)):
+        raise InputError(f"H has shape {frf.H.shape}, expected (n_freq, n_out, n_in)")
+    for name in ("M", "K"):
+        A = getattr(model, name)
+        if A.shape != (model.n, model.n) or not np.isfinite(A).all():
+            raise InputError(f"model {name} must be finite and {model.n} x {model.n}")
+    if model.C is not None and (model.C.shape != (model.n, model.n) or not np.isfinite(model.C).all()):
+        raise InputError(f"model C must be finite and {model.n} x {model.n}")
+
+
+def _valid_mask(frf: FRFData) -> np.ndarray:
+    valid = frf.valid_mask() & np.isfinite(frf.H)
+    bad = frf.valid_mask() & ~np.isfinite(frf.H)
+    if bad.any():
+        k = int(np.argwhere(bad)[0][0])
+        raise InputError(f"H is NaN or Inf at {frf.freq_hz[k]:g} Hz where valid is not False")
+    lines = int(valid.any(axis=(1, 2)).sum())
+    if lines < MIN_LINES:
+        raise InputError(f"only {lines} frequency lines with valid values, at least {MIN_LINES} needed")
+    return valid
+
+
+def _candidate_json(search: SearchResult, cand: Candidate, H_meas: np.ndarray, valid: np.ndarray) -> dict:
+    return {
+        "effect": cand.name,
+        "dofs": list(cand.effect.dofs),
+        "parameters": dict(cand.effect.parameters),
+        "gap_after": float(np.sqrt(cand.rss / search.n_valid)),
+        "gap_after_log_ratio": frf_gap(H_meas, candidate_frf(search, cand), valid),
+        "criterion": cand.criterion,
+        "delta_criterion": cand.delta_criterion,
+        "n_parameters": cand.effect.n_parameters,
+        "rss": cand.rss,
+    }
+
+
+def _listed(search: SearchResult) -> list[Candidate]:
+    """The best N_LISTED candidates, plus the best of every effect (and none), in rank order."""
+    keep = list(search.candidates[:N_LISTED])
+    for name in {c.name for c in search.candidates}:
+        best = search.best_of(name)
+        if best is not None and best not in keep:
+            keep.append(best)
+    return sorted(keep, key=lambda c: c.criterion)
+
+
+def _localisation(search: SearchResult, dofs: list[str], n_top: int = 10) -> dict:
+    s, p = search.singles, search.pairs
+    tot = max(search.rss0, 1e-300)
+    top_s = np.argsort(-s.explained)[:n_top]
+    top_p = np.argsort(-p.explained)[:n_top] if p.n else np.zeros(0, int)
+    return {
+        "measure": "share of the weighted residual RSS_0 that one change of the dynamic "
+                   "stiffness at the DOF (or between the pair) can remove, E / RSS_0",
+        "dofs": [{"dof": dofs[s.index[j, 0]], "explained_fraction": s.explained[j] / tot} for j in top_s],
+        "pairs": [{"dofs": [dofs[p.index[j, 0]], dofs[p.index[j, 1]]],
+                   "explained_fraction": p.explained[j] / tot} for j in top_p],
+    }
+
+
+def _search(model: Model, C, omega, H, W, out_idx, in_idx) -> SearchResult:
+    return search_round(model.M, C, model.K, model.dofs, omega, H, W, out_idx, in_idx)
+
+
+def _validate(search: SearchResult, tries: int = 3) -> list[dict]:
+    """Cross-validate the leader (``search.cross_validated_gain``); demote it below none if it fails.
+
+    Returns the checks made (effect, DOFs, held-out gain, passed), leader first.
+    """
+    checks = []
+    for _ in range(tries):
+        best = search.best
+        if best.name == "none":
+            break
+        gain = cross_validated_gain(search, best)
+        checks.append({"effect": best.name, "dofs": list(best.effect.dofs), "heldout_gain": gain,
+                       "passed": gain > 0})
+        if gain > 0:
+            break
+        demote(search, best)
+    return checks
+
+
+def find_discrepancy(
+    model: Model,
+    frf: FRFData,
+    *,
+    f_min_hz: float | None = None,
+    f_max_hz: float | None = None,
+    max_effects: int = 1,
+    second_round: bool = True,
+    n_bands: int = 8,
+) -> DiscrepancyResult:
+    """Find the effect missing from ``model`` that explains the measured ``frf``.
+
+    Parameters
+    ----------
+    model : Model
+        Nominal model; its DOFs include every FRF output (it may have more). ``C`` None:
+        undamped (modal damping is then fitted, see the module docstring).
+    frf : FRFData
+        Measured accelerance; ``valid``, ``coherence`` and ``H_var`` are used when present.
+    f_min_hz, f_max_hz : float, optional
+        Band of lines used (default: all).
+    max_effects : int
+        1: one effect (the contract's result). 2: a second effect found by the second round is
+        added too.
+    second_round : bool
+        Search again on the updated model and report whether another effect is indicated.
+    n_bands : int
+        Bands of the gap-by-band report.
+
+    Returns
+    -------
+    DiscrepancyResult
+    """
+    t0 = time.perf_counter()
+    _check(model, frf)
+    lo = frf.freq_hz[0] if f_min_hz is None else f_min_hz
+    hi = frf.freq_hz[-1] if f_max_hz is None else f_max_hz
+    data = frf.band(lo, hi)
+    valid = _valid_mask(data)
+    W, noise = noise_weights(data, valid)
+    H = np.where(valid, data.H, 0)
+    omega = data.omega
+    out_idx = np.array([model.dofs.index(d) for d in data.outputs])
+    in_idx = np.array([model.dofs.index(d) for d in data.inputs])
+    warnings: list[str] = []
+
+    C, damping = model.C, "model C"
+    if model.C is None:
+        search, C, _, damping = search_undamped(
+            model, data, omega, H, W, valid, out_idx, in_idx,
+            lambda C_: _search(model, C_, omega, H, W, out_idx, in_idx))
+    else:
+        search = _search(model, C, omega, H, W, out_idx, in_idx)
+    validation = _validate(search)
+    t_search = time.perf_counter() - t0
+
+    nominal = Model(M=model.M, K=model.K, C=C, dofs=list(model.dofs), attrs=dict(model.attrs))
+    chosen = search.best
+    effects = [] if chosen.name == "none" else [chosen.effect]
+    updated = nominal
+    for eff in effects:
+        updated = apply_effect_to_model(updated, eff)
+    H_nom = search.nominal.H
+    H_upd = _model_frf(updated, data)
+
+    rounds = [_round_json(search, H, valid, model.dofs)]
+    second = None
+    if second_round and effects:
+        second = _search(updated, updated.C, omega, H, W, out_idx, in_idx)
+        _validate(second)
+        rounds.append(_round_json(second, H, valid, updated.dofs))
+        if second.best.name != "none" and max_effects >= 2:
+            effects = _backfit(nominal, effects[0], second.best.effect, omega, H, W, out_idx, in_idx)
+            updated = nominal
+            for eff in effects:
+                updated = apply_effect_to_model(updated, eff)
+            H_upd = _model_frf(updated, data)
+    gap_before = noise_gap(H, H_nom, W)
+    gap_after = noise_gap(H, H_upd, W)
+    residual = _residual_statement(second, effects, gap_after)
+    if chosen.name == "none" and search.rss0 > 2.0 * search.n_valid:
+        warnings.append("no effect of the library pays for its parameters, yet the residual is "
+                        f"{search.rss0 / search.n_valid:.2g} times the noise level: the model "
+                        "differs from the test in a way the library does not describe")
+    updated.attrs = {**updated.attrs, "discrepancy_effects": "; ".join(e.describe() for e in effects) or "none"}
+
+    info = {
+        "gap_log_ratio_before": frf_gap(H, H_nom, valid),
+        "gap_log_ratio_after": frf_gap(H, H_upd, valid),
+        "gap_log_ratio_metric": LOG_GAP_METRIC,
+        "criterion": CRITERION_NAME,
+        "cross_validation": {"method": "two-fold over alternate lines: refitted on one half, the "
+                                       "leader must lower the weighted residual of the other half",
+                             "checks": validation},
+        "n_values": search.n_real,
+        "band_hz": [float(data.freq_hz[0]), float(data.freq_hz[-1])],
+        "outputs": list(data.outputs),
+        "inputs": list(data.inputs),
+        "noise": noise,
+        "damping_source": damping,
+        "residual": residual,
+        "tried": search.tried,
+        "localisation": _localisation(search, model.dofs),
+        "gap_by_band": gap_by_band(data.freq_hz, H, {"nominal": H_nom, "updated": H_upd}, W, n_bands),
+        "gap_by_frf": {"outputs": list(data.outputs), "inputs": list(data.inputs),
+                       "nominal": gap_by_frf(H, H_nom, W), "updated": gap_by_frf(H, H_upd, W)},
+        "paired_modes": paired_modes(data, valid, {"nominal": nominal, "updated": updated}, out_idx),
+        "rounds": rounds,
+        "warnings": warnings,
+        "timing_s": {"search": t_search, "total": time.perf_counter() - t0},
+    }
+    best_loc = chosen.location if chosen.location is not None else ("dof", int(np.argmax(search.singles.explained)))
+    loc = search.singles if best_loc[0] == "dof" else search.pairs
+    arrays = {"freq_hz": data.freq_hz, "H_meas": H, "H_nominal": H_nom, "H_updated": H_upd,
+              "valid": valid, "outputs": list(data.outputs), "inputs": list(data.inputs),
+              "delta_star": loc.delta_star(best_loc[1]),
+              "delta_fit": effect_dynamic_stiffness(chosen.effect, omega),
+              "delta_dofs": [model.dofs[i] for i in loc.index[best_loc[1]] if i >= 0],
+              "explained": search.singles.explained / max(search.rss0, 1e-300),
+              "explained_dofs": [model.dofs[i] for i in search.singles.index[:, 0]]}
+    cands = [_candidate_json(search, c, H, valid) for c in _listed(search)]
+    first = effects[0] if effects else chosen.effect
+    return DiscrepancyResult(first, effects, gap_before, gap_after, cands, updated, info, arrays)
+
+
+def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx, in_idx,
+             sweeps: int = 2) -> list[Effect]:
+    """Two effects refitted in turn, each with the other in place (backfitting).
+
+    The first round fitted its effect with the second one missing, so it may have absorbed
+    part of it (an oscillator standing in for a mass plus a spring); searching again for each
+    effect with the other added undoes that. An effect at the first one's own oscillator DOF
+    cannot be refitted without it and is kept as found.
+    """
+    effects = [first, second]
+    if any(d not in nominal.dofs for d in second.dofs):
+        return effects
+    for _ in range(sweeps):
+        for k in (0, 1):
+            base = apply_effect_to_model(nominal, effects[1 - k])
+            found = _search(base, base.C, omega, H, W, out_idx, in_idx)
+            _validate(found)
+            if found.best.name != "none" and all(d in nominal.dofs for d in found.best.effect.dofs):
+                effects[k] = found.best.effect
+    return effects
+
+
+def _model_frf(model: Model, data: FRFData) -> np.ndarray:
+    return accelerance_from_model(model.M, model.C, model.K, model.dofs, data.freq_hz,
+                                  data.outputs, data.inputs).H
+
+
+def _round_json(search: SearchResult, H, valid, dofs) -> dict:
+    best = search.best
+    runner = next((c for c in search.candidates[1:] if c.name != best.name or c.effect.dofs != best.effect.dofs), None)
+    return {
+        "best": {"effect": best.name, "dofs": list(best.effect.dofs), "parameters": best.effect.parameters,
+                 "criterion": best.criterion},
+        "runner_up": None if runner is None else {
+            "effect": runner.name, "dofs": list(runner.effect.dofs),
+            "parameters": runner.effect.parameters, "delta_criterion": runner.delta_criterion},
+        "none_delta_criterion": search.none().delta_criterion,
+        "gap_before": float(np.sqrt(search.rss0 / search.n_valid)),
+        "gap_best": float(np.sqrt(best.rss / search.n_valid)),
+    }
+
+
+def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_after: float) -> dict:
+    """Does one effect close the gap? The residual and the next-best candidate."""
+    nxt = None
+    if second is not None:
+        b = second.best
+        nxt = None if b.name == "none" else {"effect": b.name, "dofs": list(b.effect.dofs),
+                                              "parameters": b.effect.parameters,
+                                              "criterion_gain_over_none": -second.none().delta_criterion}
+    closed = nxt is None if (second is not None or not effects) else None
+    if closed is None:
+        text = f"{effects[0].describe()} found; whether it closes the gap was not checked"
+    elif not effects:
+        text = "the data agree with the nominal model within noise: no effect pays for its parameters"
+    elif closed:
+        text = (f"{effects[0].describe()} closes the gap: a second search finds no further effect "
+                f"(gap after {gap_after:.3g}, 1 = noise level)")
+    else:
+        text = (f"one effect does not close the gap (gap after {gap_after:.3g}): the second search "
+                f"names {nxt['effect']} at {'-'.join(nxt['dofs'])}")
+    return {"closed": closed, "text": text, "next_effect": nxt}

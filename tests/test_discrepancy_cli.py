@@ -1,0 +1,115 @@
+"""``ssidlab discrepancy`` (ssidlab/cli_discrepancy.py): files in, contract JSON and model out,
+one-line errors with status 2 through ``ssidlab.cli.main``'s rules."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from ssid.discrepancy.cases import make_case
+from ssid.errors import InputError
+from ssid.io import read_model, write_frf, write_model
+from ssidlab import cli
+from ssidlab.cli_discrepancy import add_discrepancy_subcommand
+
+CONTRACT_KEYS = ["effect", "dofs", "parameters", "gap_before", "gap_after", "gap_metric", "candidates"]
+
+
+def _parse(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="ssidlab")
+    add_discrepancy_subcommand(parser.add_subparsers(dest="command"))
+    return parser.parse_args(["discrepancy", *argv])
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("disc")
+    case = make_case(1000, structure="chain", effect="added_mass")
+    write_model(d / "nominal.h5", case.nominal)
+    write_frf(d / "frf.h5", case.frf)
+    return d, case
+
+
+def test_run_writes_contract_json_updated_model_and_plots(files, capsys):
+    d, case = files
+    args = _parse(["--model", str(d / "nominal.h5"), "--measured", str(d / "frf.h5"),
+                   "--json", str(d / "out.json"), "--out", str(d / "updated.h5"),
+                   "--plots", str(d / "plots")])
+    assert args.run(args) == 0
+    data = json.loads((d / "out.json").read_text())
+    assert list(data)[: len(CONTRACT_KEYS)] == CONTRACT_KEYS
+    assert (data["effect"], set(data["dofs"])) == (case.truth.name, set(case.truth.dofs))
+    assert data["parameters"]["mass_kg"] == pytest.approx(case.truth.parameters["mass_kg"], rel=0.2)
+    assert data["gap_after"] <= 0.5 * data["gap_before"]
+    updated = read_model(d / "updated.h5")
+    i = updated.dofs.index(data["dofs"][0])
+    assert updated.M[i, i] - case.nominal.M[i, i] == pytest.approx(data["parameters"]["mass_kg"])
+    assert len(data["plots"]) >= 4 and all((d / "plots").joinpath(p.split("/")[-1]).exists()
+                                           for p in data["plots"])
+    assert "effect: added_mass" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("extra,message", [
+    (["--fmin", "50", "--fmax", "10"], "must be below"),
+    (["--fmin", "1e6"], "no frequency lines"),
+])
+def test_band_errors(files, extra, message):
+    d, _ = files
+    args = _parse(["--model", str(d / "nominal.h5"), "--measured", str(d / "frf.h5"),
+                   "--json", str(d / "e.json"), *extra])
+    with pytest.raises(InputError, match=message):
+        args.run(args)
+
+
+def test_output_must_not_overwrite_an_input(files):
+    d, _ = files
+    args = _parse(["--model", str(d / "nominal.h5"), "--measured", str(d / "frf.h5"),
+                   "--json", str(d / "e.json"), "--out", str(d / "nominal.h5")])
+    with pytest.raises(InputError, match="overwrite an input"):
+        args.run(args)
+
+
+def test_outputs_missing_from_the_model_are_refused(files, tmp_path):
+    d, case = files
+    small = case.nominal
+    keep = [k for k, lbl in enumerate(small.dofs) if lbl != case.frf.outputs[0]]
+    from ssid.io import Model
+
+    write_model(tmp_path / "small.h5", Model(M=small.M[np.ix_(keep, keep)], K=small.K[np.ix_(keep, keep)],
+                                             C=small.C[np.ix_(keep, keep)], dofs=[small.dofs[k] for k in keep]))
+    args = _parse(["--model", str(tmp_path / "small.h5"), "--measured", str(d / "frf.h5"),
+                   "--json", str(tmp_path / "e.json")])
+    with pytest.raises(InputError, match="not a DOF of the model"):
+        args.run(args)
+
+
+def test_main_gives_one_line_and_status_2_on_bad_input(files, tmp_path, capsys):
+    """Through ssidlab.cli.main, as the console command runs it."""
+    d, _ = files
+    nan_file = tmp_path / "nan.h5"
+    with h5py.File(d / "frf.h5", "r") as src, h5py.File(nan_file, "w") as dst:
+        for k, v in src.attrs.items():
+            dst.attrs[k] = v
+        for name in src:
+            data = src[name][()]
+            if name == "H":
+                data[2, 0, 0] = np.nan
+            if name == "valid":
+                data[:] = True
+            dst.create_dataset(name, data=data)
+    cases = [
+        ["--model", str(tmp_path / "missing.h5"), "--measured", str(d / "frf.h5"), "--json", str(tmp_path / "o.json")],
+        ["--model", str(d / "frf.h5"), "--measured", str(d / "frf.h5"), "--json", str(tmp_path / "o.json")],
+        ["--model", str(d / "nominal.h5"), "--measured", str(nan_file), "--json", str(tmp_path / "o.json")],
+        ["--model", str(d / "nominal.h5"), "--measured", str(d / "frf.h5"), "--json", str(tmp_path / "o.json"), "--bogus"],
+        ["--model", str(d / "nominal.h5"), "--json", str(tmp_path / "o.json")],
+    ]
+    for argv in cases:
+        assert cli.main(["discrepancy", *argv]) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("ssidlab discrepancy: error:"), err
+        assert "Traceback" not in err

@@ -1,4 +1,31 @@
 """Acquisition: excitation scheduling, FRF estimation, safety limits, crash-safe storage.
 
-Not built yet (issue 6). Depends on ``drivers`` and ``ssid``.
+``ssidlab acquire SETUP.toml [--sim]`` runs :func:`daq.run.run_test`; the user guide is
+``docs/acquisition.md``.
+
+==========================  ====================================================================
+module                      what
+==========================  ====================================================================
+``daq.setup``               the TOML test setup: parsing, validation (errors name the key)
+``daq.rig``                 ``Rig``: the instruments behind one interface; ``InstrumentRig``
+                            opens the drivers (generator, amplifiers, CAN FD DAQ)
+``daq.estimate``            harmonic least-squares fit, multi-input solve ``H = X_A X_F^-1``,
+                            Welch spectra, H1 / H2 / Hv, ordinary and multiple coherence
+``daq.schedule``            stepped-sine line grid and the adaptive sweep (refines near
+                            resonances on the fly; one sweep per shaker)
+``daq.sine_line``           one stepped-sine line: level control, settling by the measured
+                            transient decay, dwell, noise floor
+``daq.stepped_sine``        the stepped-sine run: sub-lines -> FRF lines, quality, blanking,
+                            resume by replaying the records
+``daq.random_run``          continuous, periodic and burst random (MIMO), spectral averaging
+``daq.storage``             the run file: contract FRF view + ``/acq`` records, flushed per
+                            line, finalised atomically
+``daq.safety``              limits (abort the line), faults (stop the run), messages
+``daq.run``                 a whole run: every exit path ends in the safe state
+UFF 58 export               by ``daq.run`` through ``ssid.exchange.write_uff_frf``
+``daq.simlab``              the only bridge to ``sim_devices``: the ``--sim`` lab for a setup,
+                            ``WorldRig`` for benchmarks
+==========================  ====================================================================
+
+Dependencies: ``daq -> drivers``, ``daq -> ssid``; ``sim_devices`` only in ``daq.simlab``.
 """

@@ -262,15 +262,24 @@ def _fmt(value: Any, scale: float, spec: str) -> str:
 def _add_demo(sub: Any) -> None:
     p = _add_subcommand(sub, "demo", "The main job end to end on the embedded default (see README).")
     p.add_argument("--out", metavar="DIR", required=True, help="directory for all results")
+    p.add_argument(
+        "--example", action="store_true",
+        help="instead of the simulated lab, identify the bundled synthetic example (seconds)",
+    )
     p.set_defaults(run=_run_demo)
 
 
 def _run_demo(args: argparse.Namespace) -> int:
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise InputError(f"{args.out}: exists and is not a directory")
-    from ssidlab.demo import run_demo
+    if args.example:
+        from ssidlab.demo import run_demo
 
-    run_demo(args.out)
+        run_demo(args.out)
+    else:
+        from ssidlab.lab_demo import run_lab_demo
+
+        run_lab_demo(args.out)
     return EXIT_OK
 
 
@@ -304,12 +313,19 @@ def _add_discrepancy(sub: Any) -> None:
     add_discrepancy_subcommand(sub)
 
 
-# Future subcommands (see the contract): acquire.
+def _add_acquire(sub: Any) -> None:
+    from ssidlab.cli_acquire import add_acquire_subcommand
+
+    add_acquire_subcommand(sub)
+
+
+# Each subcommand is an _add_<name>(sub) that builds its parser with _add_subcommand() (or
+# sub.add_parser) and sets `run=...`; errors follow the same rules through main().
 # Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
 # `run=_run_<name>`; list it here. Errors follow the same rules through main().
 _SUBCOMMANDS = (
     _add_identify, _add_demo, _add_correlate, _add_sim_lab, _add_convert, _add_export_model,
-    _add_discrepancy,
+    _add_discrepancy, _add_acquire,
 )
 
 

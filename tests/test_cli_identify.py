@@ -43,10 +43,25 @@ def test_identify_writes_contract_model_and_json(tmp_path):
     assert len(res["damping_ratio"]) == len(res["natural_freq_hz"])
 
 
-def test_demo_end_to_end(tmp_path):
-    p = run("demo", "--out", str(tmp_path / "demo"))
+def test_example_demo_end_to_end(tmp_path):
+    p = run("demo", "--example", "--out", str(tmp_path / "demo"))
     assert p.returncode == 0, p.stderr
     for name in ("frf.h5", "model.h5", "result.json", "frf_overlay.png"):
         assert (tmp_path / "demo" / name).stat().st_size > 0
     res = json.loads((tmp_path / "demo" / "result.json").read_text())
     assert res["demo"]["max_abs_freq_error_percent"] < 1.0
+
+
+def test_lab_demo_end_to_end(tmp_path):
+    """The main job: simulated lab, stepped sine, SSID with reactions, correlation."""
+    p = run("demo", "--out", str(tmp_path / "lab"))
+    assert p.returncode == 0, p.stderr
+    out = tmp_path / "lab"
+    for name in ("frf.h5", "model.h5", "result.json", "summary.json", "correlation.json",
+                 "frf_overlay.png", "mac.png"):
+        assert (out / name).stat().st_size > 0, name
+    from ssid.io import read_frf
+
+    frf = read_frf(str(out / "frf.h5"))
+    assert frf.H_reaction is not None and frf.n_in == 2 and frf.n_out == 16
+    assert "Traceback" not in p.stderr

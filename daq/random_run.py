@@ -1,0 +1,175 @@
+"""Random excitation: continuous, periodic (pseudo-) and burst random; H1, H2, Hv.
+
+Kinds (``[random] kind``):
+
+* ``random``: the generators' Gaussian noise (NOIS) on every shaker at once, uncorrelated
+  between shakers (MIMO); a continuous record cut into Welch blocks (``window``,
+  ``overlap``) after ``settle_blocks`` blocks.
+* ``periodic``: per average, each shaker gets its own new random-phase multisine (flat
+  spectrum over the band, one period = ``block_size`` samples at the DAQ rate) through the
+  generator's arbitrary waveform; after ``settle_blocks`` periods one period is analysed
+  with a rectangular window - no leakage, so noise-free FRFs are exact.
+* ``burst``: per average, a new random burst (``burst_fraction`` of the block, then zeros)
+  as arbitrary waveform; one block from the burst's start, rectangular window. The
+  response must die out within the block.
+
+Every average adds to the spectral sums (``Gxx``, ``Gyx``, ``Gyy``), which are written to
+the run file and committed with the FRF view; resume continues the averaging (periodic and
+burst realisations are seeded by their index, so a resumed run uses the same signals).
+A limit exceeded during random excitation stops the run (the drive is ramped to zero): the
+drive level of a random test is fixed, so the next average would exceed it again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ssid.frf import FRFData
+
+from .estimate import SpectralSums, frf_from_spectra, spectra_of_blocks, welch_blocks
+from .rig import Rig
+from .safety import RunStopped, check_limits
+from .setup import TestSetup
+from .storage import RunFile
+
+__all__ = ["RandomRun", "random_bins"]
+
+
+def random_bins(setup: TestSetup) -> np.ndarray:
+    r = setup.random
+    f = np.fft.rfftfreq(r.block_size, 1.0 / setup.daq.sample_rate_hz)
+    return f[(f >= r.f_min_hz) & (f <= r.f_max_hz)]
+
+
+def _bin_mask(setup: TestSetup) -> np.ndarray:
+    r = setup.random
+    f = np.fft.rfftfreq(r.block_size, 1.0 / setup.daq.sample_rate_hz)
+    return (f >= r.f_min_hz) & (f <= r.f_max_hz)
+
+
+def multisine(n: int, band: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One period of a random-phase multisine with flat amplitude on the bins ``band``."""
+    spec = np.zeros(n // 2 + 1, complex)
+    spec[band] = np.exp(2j * np.pi * rng.random(int(band.sum())))
+    x = np.fft.irfft(spec, n)
+    return x / np.max(np.abs(x))
+
+
+class RandomRun:
+    """One random run (new or resumed) on ``rig``, stored in ``runfile``."""
+
+    def __init__(self, setup: TestSetup, rig: Rig, runfile: RunFile, echo: Callable[[str], None] = print) -> None:
+        self.setup, self.rig, self.rf, self.echo = setup, rig, runfile, echo
+        self.spec = setup.random
+        roles = setup.roles()
+        self.fi = roles["force"]
+        self.yi = roles["response"] + roles["reaction"]
+        self.n_out = len(roles["response"])
+        self.roles = roles
+        self.mask = _bin_mask(setup)
+        self.freq = random_bins(setup)
+        n_in, n_y = len(self.fi), len(self.yi)
+        saved = runfile.read_arrays("random")
+        if saved and int(saved["n_avg"]) == runfile.n_done and runfile.n_done > 0:
+            self.S = SpectralSums(saved["Gxx"], saved["Gyx"], saved["Gyy"], None, int(saved["n_avg"]))
+            echo(f"resuming: {self.S.n_avg} averages on file")
+        else:
+            self.S = SpectralSums.empty(self.freq.size, n_in, n_y)
+        self.test_time_s = float(saved.get("test_time_s", 0.0)) if saved else 0.0
+
+    # ------------------------------------------------------------------ acquisition
+    def _acquire(self, n: int) -> np.ndarray:
+        self.rig.line_check()
+        data, _ = self.rig.acquire(n)
+        self.test_time_s += n / self.rig.fs_hz
+        reason = check_limits(self.setup.limits, np.max(np.abs(data), axis=1), self.roles,
+                              self.spec.drive_vpp, self.rig.names)
+        if reason:
+            for j in range(len(self.fi)):
+                self.rig.drive_off(j)
+            raise RunStopped(f"limit exceeded during random excitation: {reason}")
+        return data
+
+    def _add(self, blocks: list[np.ndarray], window: str) -> None:
+        X = spectra_of_blocks(blocks, window)[:, :, self.mask]
+        self.S.add(X[:, self.fi], X[:, self.yi])
+        self._commit()
+
+    def _commit(self) -> None:
+        d = self.result()
+        self.rf.write_arrays("random", {"Gxx": self.S.Gxx, "Gyx": self.S.Gyx, "Gyy": self.S.Gyy,
+                                        "n_avg": np.int64(self.S.n_avg), "test_time_s": self.test_time_s})
+        self.rf.write_view(d["H"], d["var"], d["coherence"], d["valid"], d.get("Hr"))
+        self.rf.commit(self.S.n_avg)
+        self.echo(f"  average {self.S.n_avg}/{self.spec.averages}  min coherence "
+                  f"{np.min(d['coherence']):.3f}  [{self.test_time_s:.1f} s test time]")
+
+    def run(self) -> dict:
+        r, n = self.spec, self.spec.block_size
+        n_sh = len(self.fi)
+        if r.kind == "random":
+            for j in range(n_sh):
+                self.rig.noise(j, r.drive_vpp)
+            self._acquire(r.settle_blocks * n) if r.settle_blocks else None
+            hop = max(1, int(round(n * (1 - r.overlap))))
+            buf = self._acquire(n)
+            blocks = [buf]
+            while self.S.n_avg + len(blocks) < r.averages:
+                buf = np.hstack([buf, self._acquire(hop)])[:, -n:]
+                blocks.append(buf)
+                if len(blocks) >= 4:  # commit in small groups: few flushes, little at risk
+                    self._add(blocks, r.window)
+                    blocks = []
+            if blocks:
+                self._add(blocks, r.window)
+        else:
+            while self.S.n_avg < r.averages:
+                a = self.S.n_avg
+                for j in range(n_sh):
+                    rng = np.random.default_rng([r.seed, a, j])
+                    if r.kind == "periodic":
+                        x = multisine(n, self.mask, rng)
+                    else:
+                        x = np.zeros(n)
+                        nb = int(r.burst_fraction * n)
+                        x[:nb] = rng.standard_normal(nb)
+                    self.rig.arb(j, x, r.drive_vpp)
+                if r.kind == "periodic":
+                    data = self._acquire((r.settle_blocks + 1) * n)[:, -n:]
+                else:
+                    data = self._acquire(n)
+                self._add([data], "rect")
+        for j in range(n_sh):
+            self.rig.drive_off(j)
+        return self.summary()
+
+    # ------------------------------------------------------------------ results
+    def result(self) -> dict:
+        est = self.spec.estimator
+        d = frf_from_spectra(self.S, est)
+        no = self.n_out
+        valid = (d["coherence"][:, :no] >= self.setup.min_coherence) & np.isfinite(d["H"][:, :no])
+        valid &= self.S.n_avg > len(self.fi)
+        out = {"H": d["H"][:, :no], "var": d["var"][:, :no], "coherence": d["coherence"][:, :no], "valid": valid}
+        if self.roles["reaction"]:
+            out["Hr"] = d["H"][:, no:]
+        return out
+
+    def frf(self) -> FRFData:
+        d = self.result()
+        s = self.setup
+        frf = FRFData(freq_hz=self.freq, H=np.where(d["valid"], d["H"], np.nan), outputs=s.outputs,
+                      inputs=s.inputs, coherence=np.clip(d["coherence"], 0, 1), valid=d["valid"],
+                      H_var=np.nan_to_num(d["var"]), n_avg=int(self.S.n_avg))
+        if s.reactions:
+            frf.H_reaction = np.nan_to_num(d["Hr"])
+            frf.reactions = s.reactions
+        return frf
+
+    def summary(self) -> dict:
+        d = self.result()
+        return {"excitation": f"random ({self.spec.kind}, {self.spec.estimator})", "n_lines": int(self.freq.size),
+                "n_avg": int(self.S.n_avg), "n_values_blanked": int(np.count_nonzero(~d["valid"])),
+                "test_time_s": self.test_time_s, "min_coherence": float(np.min(d["coherence"]))}

@@ -1,0 +1,206 @@
+"""A whole acquisition: run file, instruments, the excitation, and every exit path safe.
+
+:func:`run_test` is what ``ssidlab acquire`` calls. Whatever happens - the run completes,
+a limit or an instrument fault stops it, Ctrl-C, SIGTERM or a bug - the instruments are put
+in the safe state (all generator outputs off, all amplifiers disabled, acquisition stopped)
+before the function returns or raises, and the run file holds every completed line:
+
+* complete: the run file is replaced by the compact FRF file (plus ``/acq``), and the
+  FRFs are exported to UFF 58 if ``[output] uff`` is set;
+* stopped, interrupted or failed: ``/acq`` attribute ``state`` says why and the file can
+  be continued with ``ssidlab acquire --resume FILE``.
+"""
+
+from __future__ import annotations
+
+import logging
+import platform
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from drivers.errors import InstrumentError
+from ssid.errors import InputError
+
+from .rig import InstrumentRig, Rig
+from .safety import RunStopped, describe_fault
+from .setup import TestSetup, load_setup, parse_setup
+from .storage import RunFile
+
+__all__ = ["load_resume_setup", "run_test"]
+
+log = logging.getLogger(__name__)
+
+
+def _version() -> str:
+    try:
+        from ssidlab import __version__
+
+        return str(__version__)
+    except Exception:  # pragma: no cover - version is informative only
+        return "unknown"
+
+
+def load_resume_setup(path: str | Path, setup_path: str | None = None) -> TestSetup:
+    """The setup of an unfinished run file, checked against ``setup_path`` when given."""
+    rf = RunFile.open(path)
+    try:
+        text, sha = rf.setup_text, rf.setup_sha256
+    finally:
+        rf.close()
+    if setup_path is not None:
+        setup = load_setup(setup_path)
+        if setup.sha256 != sha:
+            raise InputError(f"{setup_path}: differs from the setup the run {path} was started with "
+                             f"(SHA-256 {setup.sha256[:12]}... vs {sha[:12]}...); resume needs the same file")
+        return setup
+    setup = parse_setup(text, f"{path}:/acq/setup_toml")
+    if setup.sha256 != sha:
+        raise InputError(f"{path}: the stored setup does not match its SHA-256 (damaged run file)")
+    return setup
+
+
+def _create_runfile(setup: TestSetup, path: Path) -> RunFile:
+    if setup.excitation == "stepped_sine":
+        from .stepped_sine import sine_grid
+
+        freq = sine_grid(setup)
+    else:
+        from .random_run import random_bins
+
+        freq = random_bins(setup)
+    attrs = {"test_name": setup.name, "setup_sha256": setup.sha256, "software": f"ssidlab {_version()}",
+             "excitation": setup.excitation,
+             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    meta = {"software_version": _version(), "python": platform.python_version(), "host": platform.node(),
+            "started_utc": attrs["started_utc"],
+            "channels": [c.__dict__ for c in setup.channels], "shakers": [s.__dict__ for s in setup.shakers]}
+    return RunFile.create(path, kind=setup.excitation, setup_text=setup.text, setup_sha256=setup.sha256,
+                          freq_hz=freq, outputs=setup.outputs, inputs=setup.inputs, reactions=setup.reactions,
+                          channel_names=[c.name for c in setup.channels], meta=meta, attrs=attrs)
+
+
+def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, sim: bool = False,
+             echo: Callable[[str], None] = print, rig_factory: Callable[[TestSetup], Rig] | None = None) -> dict:
+    """Run (or resume) the test of ``setup``; returns a summary dict.
+
+    Parameters
+    ----------
+    setup : TestSetup
+    out : str, optional
+        Run file (default: the setup's ``[output] file``). With ``resume``, the file to continue.
+    resume : bool
+        Continue an unfinished run file (its setup hash must match).
+    sim : bool
+        Start the simulated lab (:mod:`daq.simlab`) and run against it.
+    rig_factory : callable, optional
+        Builds the rig from the (possibly re-addressed) setup; default :class:`InstrumentRig`.
+
+    Raises
+    ------
+    RunStopped
+        A fault stopped the run (instruments safe, file resumable).
+    InputError
+        Bad setup or run file.
+    KeyboardInterrupt
+        Ctrl-C / SIGTERM (instruments safe, file resumable).
+    """
+    path = Path(out or setup.output_file)
+    if resume:
+        rf = RunFile.open(path)
+        if rf.setup_sha256 != setup.sha256:
+            rf.close()
+            raise InputError(f"{path}: was started with another setup (SHA-256 differs)")
+        if rf.state == "complete":
+            rf.close()
+            echo(f"{path}: the run is complete; nothing to resume")
+            return {"state": "complete", "file": str(path), "resumed": False}
+        echo(f"{path}: resuming ({rf.n_done} records, state was {rf.state!r})")
+        rf.set_state("running")
+    else:
+        if not path.parent.is_dir():
+            raise InputError(f"{path}: directory {str(path.parent)!r} does not exist")
+        rf = _create_runfile(setup, path)
+    handle = None
+    rig = None
+    state = "failed"
+    summary: dict = {}
+    frf = None
+    try:
+        inst_setup = setup
+        if sim:
+            from .simlab import start_sim_lab
+
+            handle, inst_setup = start_sim_lab(setup)
+            echo("simulated lab started (generators, amplifiers, CAN FD DAQ on their real transports)")
+        rig = (rig_factory or InstrumentRig)(inst_setup)
+        meta = rf.meta
+        meta.setdefault("sessions", []).append({
+            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "instruments": rig.identities(),
+            "simulated": bool(sim), "resumed_at_record": rf.n_done})
+        rf.set_meta(meta)
+        rig.prepare()
+        if setup.excitation == "stepped_sine":
+            from .stepped_sine import SteppedSineRun
+
+            runner = SteppedSineRun(setup, rig, rf, echo)
+        else:
+            from .random_run import RandomRun
+
+            runner = RandomRun(setup, rig, rf, echo)
+        summary = runner.run()
+        frf = runner.frf()
+        frf.attrs = {k: v for k, v in rf.f.attrs.items() if k not in ("format", "format_version", "quantity", "n_avg")}
+        state = "complete"
+    except InstrumentError as exc:
+        state = f"stopped: {describe_fault(exc)}"
+        raise RunStopped(f"run stopped safely: {describe_fault(exc)}", exc) from None
+    except RunStopped as exc:
+        state = f"stopped: {exc}"
+        raise
+    except KeyboardInterrupt:
+        state = "interrupted"
+        raise
+    except BaseException as exc:
+        state = f"failed: {type(exc).__name__}: {exc}"
+        raise
+    finally:
+        problems: list[str] = []
+        if rig is not None:
+            problems = rig.safe_state()
+            try:
+                rig.close()
+            except Exception as exc:  # closing must not hide the first error
+                problems.append(str(exc))
+        if handle is not None:
+            handle.stop()
+        if state == "complete" and not problems:
+            rf.finalize(frf)
+        else:
+            if problems:
+                state = f"{state}; safe state not confirmed: {'; '.join(problems)}"
+            rf.set_state(state[:500])
+            rf.close()
+        if problems and state.startswith("complete"):
+            raise RunStopped(f"run finished but the safe state was not confirmed: {'; '.join(problems)}")
+    summary.update({"state": state, "file": str(path), "resumed": bool(resume)})
+    if setup.uff_file:
+        from ssid.exchange import write_uff_frf
+
+        uff = Path(setup.uff_file)
+        if not uff.is_absolute() and out is not None:
+            uff = path.parent / uff.name
+        try:
+            write_uff_frf(str(uff), frf)
+        except InputError as exc:
+            # The measurement is safe in the HDF5 file; a label UFF cannot carry must not
+            # turn a finished run into a failure.
+            summary["uff_error"] = str(exc)
+            echo(f"warning: UFF export skipped: {exc}")
+        else:
+            summary["uff"] = str(uff)
+            echo(f"exported {frf.n_out * frf.n_in} FRFs to {uff} (UFF 58)")
+    summary["test_time_s"] = float(summary.get("test_time_s", np.nan))
+    return summary

@@ -1,0 +1,87 @@
+"""Safety: what stops a line, what stops a run, and the words that say why.
+
+Two levels:
+
+* a **limit** (response acceleration, drive voltage, force, reaction load) aborts the
+  current line: the drive is ramped to zero, the line is recorded as aborted with the
+  reason, and the run goes on with the next line (:class:`LineAborted`);
+* an **instrument fault** (amplifier interlock or fault, lost heartbeat, an instrument that
+  stops answering, a DAQ overload, a CAN frame gap or bus-off) stops the run
+  (:class:`RunStopped`). Every exit path - normal end, fault, Ctrl-C, any exception - then
+  goes through :meth:`daq.rig.Rig.safe_state`: all generator outputs off, all amplifiers
+  disabled, acquisition stopped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drivers.errors import (
+    AmplifierFault,
+    BusOff,
+    ConnectionLost,
+    FramesLost,
+    HeartbeatLost,
+    InstrumentError,
+    InstrumentTimeout,
+    InterlockOpen,
+    SensorOverload,
+    StreamError,
+)
+
+from .setup import Limits
+
+__all__ = ["LineAborted", "RunStopped", "check_limits", "describe_fault"]
+
+
+class LineAborted(Exception):
+    """A limit was exceeded during a line; the drive has to go to zero for this line."""
+
+
+class RunStopped(Exception):
+    """The run was stopped safely (instruments in the safe state); the message says why.
+
+    ``cause`` is the driver error behind it, if any. The run file stays resumable.
+    """
+
+    def __init__(self, message: str, cause: BaseException | None = None) -> None:
+        super().__init__(message)
+        self.cause = cause
+
+
+def describe_fault(exc: BaseException) -> str:
+    """One line naming the kind of fault and the instrument's own message."""
+    kinds = [
+        (InterlockOpen, "amplifier interlock open"),
+        (HeartbeatLost, "amplifier heartbeat lost"),
+        (AmplifierFault, "amplifier fault"),
+        (SensorOverload, "DAQ overload"),
+        (FramesLost, "CAN frame gap"),
+        (BusOff, "CAN bus-off or DAQ silent"),
+        (StreamError, "DAQ stream broken"),
+        (InstrumentTimeout, "instrument lost (no reply)"),
+        (ConnectionLost, "instrument lost (link down)"),
+        (InstrumentError, "instrument error"),
+    ]
+    for cls, words in kinds:
+        if isinstance(exc, cls):
+            return f"{words}: {exc}"
+    return f"{type(exc).__name__}: {exc}"
+
+
+def check_limits(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]], drive_vpp: float,
+                 names: list[str]) -> str | None:
+    """The first limit exceeded by a record (``peaks``: largest |sample| per channel), or None."""
+    if drive_vpp > limits.max_drive_vpp * (1 + 1e-9):
+        return f"drive {drive_vpp:.4g} Vpp above the limit {limits.max_drive_vpp:g} Vpp"
+    for role, lim, unit, what in (("response", limits.max_accel_m_per_s2, "m/s^2", "acceleration"),
+                                  ("force", limits.max_force_n, "N", "force"),
+                                  ("reaction", limits.max_reaction_n, "N", "reaction load")):
+        idx = roles.get(role, [])
+        if not idx or not np.isfinite(lim):
+            continue
+        p = peaks[idx]
+        k = int(np.argmax(p))
+        if p[k] > lim:
+            return f"{what} {p[k]:.4g} {unit} on {names[idx[k]]!r} above the limit {lim:g} {unit}"
+    return None

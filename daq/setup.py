@@ -1,0 +1,470 @@
+"""The test setup file (TOML): parsing and validation into :class:`TestSetup`.
+
+Every key is checked before any instrument is touched. A bad file raises
+:class:`ssid.errors.InputError` with one line that names the file and the key, e.g.
+``setup.toml: [stepped_sine] f_max_hz: must be greater than f_min_hz (20)``.
+The keys are documented in ``docs/acquisition.md``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ssid.errors import InputError
+
+__all__ = [
+    "AmplifierSpec", "ChannelSpec", "DaqSpec", "GeneratorSpec", "Limits", "RandomSpec",
+    "ShakerSetup", "SineSpec", "TestSetup", "load_setup", "parse_setup",
+]
+
+QUANTITIES = ("acceleration", "force", "reaction")
+COUPLINGS = ("DC", "AC", "IEPE")
+
+
+@dataclass(frozen=True)
+class GeneratorSpec:
+    name: str
+    url: str
+    max_vpp: float = 10.0
+    timeout_s: float = 1.0
+    ramp_time_s: float = 0.2
+
+
+@dataclass(frozen=True)
+class AmplifierSpec:
+    name: str
+    host: str
+    port: int
+    gain_v_per_v: float = 1.0
+    device_id: int = 1
+
+
+@dataclass(frozen=True)
+class ShakerSetup:
+    dof: str
+    generator: str
+    channel: int
+    amplifier: str
+    force_channel: str
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    name: str
+    input: int
+    dof: str
+    quantity: str
+    sensitivity_mv_per_unit: float
+    range_volt: float = 10.0
+    coupling: str = "DC"
+
+
+@dataclass(frozen=True)
+class DaqSpec:
+    interface: str = "virtual"
+    channel: str = "ssidlab-daq"
+    sample_rate_hz: int = 4096
+    nominal_bitrate: int = 1_000_000
+    data_bitrate: int = 5_000_000
+
+
+@dataclass(frozen=True)
+class SineSpec:
+    """Stepped-sine settings (``[stepped_sine]``)."""
+
+    f_min_hz: float
+    f_max_hz: float
+    n_lines: int = 50
+    spacing: str = "log"
+    refine: int = 8
+    max_change: float = 0.25
+    force_n: float = 1.0
+    control: str = "force"
+    control_target: float = 0.0
+    tolerance: float = 0.15
+    compression: float = 2.0
+    accuracy: float = 1e-3
+    min_cycles: float = 8.0
+    min_dwell_s: float = 0.05
+    max_settle_s: float = 20.0
+    max_dwell_s: float = 10.0
+    initial_vpp: float = 0.05
+    damping_guess: float = 0.01
+
+
+@dataclass(frozen=True)
+class RandomSpec:
+    """Random-excitation settings (``[random]``)."""
+
+    kind: str
+    f_min_hz: float
+    f_max_hz: float
+    block_size: int = 2048
+    averages: int = 16
+    overlap: float = 0.5
+    window: str = "hann"
+    drive_vpp: float = 1.0
+    estimator: str = "H1"
+    burst_fraction: float = 0.5
+    settle_blocks: int = 2
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Limits:
+    max_drive_vpp: float = 10.0
+    max_force_n: float = math.inf
+    max_accel_m_per_s2: float = math.inf
+    max_reaction_n: float = math.inf
+
+
+@dataclass
+class TestSetup:
+    """A validated test setup. ``text`` and ``sha256`` identify the file for resume."""
+
+    source: str
+    text: str
+    sha256: str
+    name: str
+    output_file: str
+    uff_file: str | None
+    raw_time: bool
+    daq: DaqSpec
+    generators: list[GeneratorSpec]
+    amplifiers: list[AmplifierSpec]
+    shakers: list[ShakerSetup]
+    channels: list[ChannelSpec]
+    excitation: str
+    sine: SineSpec | None
+    random: RandomSpec | None
+    limits: Limits
+    min_coherence: float
+    sim: dict = field(default_factory=dict)
+
+    # Derived views -------------------------------------------------------------------
+    @property
+    def outputs(self) -> list[str]:
+        """DOF labels of the accelerometers (the FRF outputs), in channel order."""
+        return [c.dof for c in self.channels if c.quantity == "acceleration"]
+
+    @property
+    def inputs(self) -> list[str]:
+        return [s.dof for s in self.shakers]
+
+    @property
+    def reactions(self) -> list[str]:
+        return [c.dof for c in self.channels if c.quantity == "reaction"]
+
+    def channel_index(self, name: str) -> int:
+        return [c.name for c in self.channels].index(name)
+
+    def roles(self) -> dict[str, list[int]]:
+        """Channel indices of the force gauges (shaker order), responses and reactions."""
+        return {
+            "force": [self.channel_index(s.force_channel) for s in self.shakers],
+            "response": [i for i, c in enumerate(self.channels) if c.quantity == "acceleration"],
+            "reaction": [i for i, c in enumerate(self.channels) if c.quantity == "reaction"],
+        }
+
+
+class _Table:
+    """Typed access to one TOML table; every failure names the file, table and key."""
+
+    def __init__(self, src: str, where: str, data: Any) -> None:
+        self.src, self.where = src, where
+        if not isinstance(data, dict):
+            raise self.error(None, "must be a table")
+        self.data = data
+        self.used: set[str] = set()
+
+    def error(self, key: str | None, problem: str) -> InputError:
+        loc = f"{self.where} {key}" if key else self.where
+        return InputError(f"{self.src}: {loc}: {problem}")
+
+    def _get(self, key: str, default: Any, required: bool) -> Any:
+        self.used.add(key)
+        if key not in self.data:
+            if required:
+                raise self.error(key, "missing (required)")
+            return default
+        return self.data[key]
+
+    def str(self, key: str, default: str | None = None, *, required: bool = False,
+            choices: tuple[str, ...] | None = None) -> str | None:
+        v = self._get(key, default, required)
+        if v is None:
+            return None
+        if not isinstance(v, str) or not v.strip():
+            raise self.error(key, f"must be a non-empty string, got {v!r}")
+        if choices and v not in choices:
+            raise self.error(key, f"must be one of {', '.join(choices)}, got {v!r}")
+        return v
+
+    def num(self, key: str, default: float | None = None, *, required: bool = False,
+            lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
+        v = self._get(key, default, required)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.error(key, f"must be a number, got {v!r}")
+        v = float(v)
+        if math.isnan(v) or (v <= lo if lo_open else v < lo) or v > hi:
+            rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+            raise self.error(key, f"must be in {rng}, got {v:g}")
+        return v
+
+    def int(self, key: str, default: int | None = None, *, required: bool = False,
+            lo: int = -2**62, hi: int = 2**62) -> int:
+        v = self._get(key, default, required)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.error(key, f"must be a whole number, got {v!r}")
+        if not lo <= v <= hi:
+            raise self.error(key, f"must be in [{lo}, {hi}], got {v}")
+        return v
+
+    def bool(self, key: str, default: bool) -> bool:
+        v = self._get(key, default, False)
+        if not isinstance(v, bool):
+            raise self.error(key, f"must be true or false, got {v!r}")
+        return v
+
+    def done(self) -> None:
+        """Unknown keys are errors: a typo must not silently fall back to a default."""
+        extra = sorted(set(self.data) - self.used)
+        if extra:
+            raise self.error(extra[0], "unknown key")
+
+
+def _tables(src: str, doc: dict, key: str) -> list[_Table]:
+    items = doc.get(key, [])
+    if not isinstance(items, list) or not items:
+        raise InputError(f"{src}: [[{key}]]: at least one entry is required")
+    return [_Table(src, f"[[{key}]] #{i + 1}", t) for i, t in enumerate(items)]
+
+
+def load_setup(path: str | Path) -> TestSetup:
+    """Read and validate a setup file."""
+    p = Path(path)
+    src = str(path)
+    try:
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{src}: no such file") from None
+    except OSError as exc:
+        raise InputError(f"{src}: cannot read ({exc.strerror})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{src}: not UTF-8 text") from None
+    return parse_setup(text, src)
+
+
+def parse_setup(text: str, src: str = "setup") -> TestSetup:
+    """Validate the TOML ``text`` of a setup file (``src`` names it in messages)."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{src}: not valid TOML ({exc})") from None
+    known = {"test", "output", "daq", "generators", "amplifiers", "shakers", "channels",
+             "excitation", "stepped_sine", "random", "limits", "quality", "sim"}
+    extra = sorted(set(doc) - known)
+    if extra:
+        raise InputError(f"{src}: [{extra[0]}]: unknown table")
+
+    test = _Table(src, "[test]", doc.get("test", {}))
+    name = test.str("name", "ssidlab test")
+    test.str("operator", None)
+    test.done()
+
+    out = _Table(src, "[output]", doc.get("output", {}))
+    output_file = out.str("file", required=True)
+    uff_file = out.str("uff", None)
+    raw_time = out.bool("raw_time", False)
+    out.done()
+
+    dq = _Table(src, "[daq]", doc.get("daq", {}))
+    daq = DaqSpec(
+        interface=dq.str("interface", "virtual"), channel=dq.str("channel", "ssidlab-daq"),
+        sample_rate_hz=dq.int("sample_rate_hz", 4096, lo=1, hi=102400),
+        nominal_bitrate=dq.int("nominal_bitrate", 1_000_000, lo=10_000, hi=1_000_000),
+        data_bitrate=dq.int("data_bitrate", 5_000_000, lo=100_000, hi=8_000_000),
+    )
+    dq.done()
+
+    generators = []
+    for t in _tables(src, doc, "generators"):
+        generators.append(GeneratorSpec(
+            name=t.str("name", required=True), url=t.str("url", required=True),
+            max_vpp=t.num("max_vpp", 10.0, lo=0.002, hi=20.0),
+            timeout_s=t.num("timeout_s", 1.0, lo=0.01, hi=60.0, lo_open=True),
+            ramp_time_s=t.num("ramp_time_s", 0.2, lo=0.0, hi=60.0)))
+        t.done()
+    amplifiers = []
+    for t in _tables(src, doc, "amplifiers"):
+        amplifiers.append(AmplifierSpec(
+            name=t.str("name", required=True), host=t.str("host", "127.0.0.1"),
+            port=t.int("port", 502, lo=0, hi=65535),
+            gain_v_per_v=t.num("gain_v_per_v", 1.0, lo=0.0, hi=50.0),
+            device_id=t.int("device_id", 1, lo=0, hi=247)))
+        t.done()
+    channels = []
+    for t in _tables(src, doc, "channels"):
+        q = t.str("quantity", required=True, choices=QUANTITIES)
+        channels.append(ChannelSpec(
+            name=t.str("name", required=True), input=t.int("input", required=True, lo=0, hi=31),
+            dof=t.str("dof", required=True), quantity=q,
+            sensitivity_mv_per_unit=t.num("sensitivity_mv_per_unit", required=True, lo=0.0, lo_open=True,
+                                          hi=1e6),
+            range_volt=t.num("range_volt", 10.0, lo=0.1, hi=10.0),
+            coupling=t.str("coupling", "DC", choices=COUPLINGS)))
+        t.done()
+    shakers = []
+    for t in _tables(src, doc, "shakers"):
+        shakers.append(ShakerSetup(
+            dof=t.str("dof", required=True), generator=t.str("generator", required=True),
+            channel=t.int("channel", 1, lo=1, hi=2), amplifier=t.str("amplifier", required=True),
+            force_channel=t.str("force_channel", required=True)))
+        t.done()
+    _check_wiring(src, generators, amplifiers, shakers, channels)
+
+    ex = _Table(src, "[excitation]", doc.get("excitation", {}))
+    excitation = ex.str("type", required=True, choices=("stepped_sine", "random"))
+    ex.done()
+    sine = _parse_sine(src, doc, channels) if excitation == "stepped_sine" else None
+    rnd = _parse_random(src, doc, daq) if excitation == "random" else None
+    if rnd is not None and rnd.estimator == "H2" and len(shakers) > 1:
+        raise InputError(f"{src}: [random] estimator: H2 needs a single shaker; use H1 or Hv with several")
+    if excitation == "stepped_sine" and "random" in doc:
+        raise InputError(f"{src}: [random]: given but [excitation] type is stepped_sine")
+    if excitation == "random" and "stepped_sine" in doc:
+        raise InputError(f"{src}: [stepped_sine]: given but [excitation] type is random")
+
+    lim = _Table(src, "[limits]", doc.get("limits", {}))
+    limits = Limits(
+        max_drive_vpp=lim.num("max_drive_vpp", 10.0, lo=0.002, hi=20.0),
+        max_force_n=lim.num("max_force_n", math.inf, lo=0.0, lo_open=True),
+        max_accel_m_per_s2=lim.num("max_accel_m_per_s2", math.inf, lo=0.0, lo_open=True),
+        max_reaction_n=lim.num("max_reaction_n", math.inf, lo=0.0, lo_open=True))
+    lim.done()
+    qual = _Table(src, "[quality]", doc.get("quality", {}))
+    min_coh = qual.num("min_coherence", 0.9, lo=0.0, hi=1.0)
+    qual.done()
+    sim = doc.get("sim", {})
+    if not isinstance(sim, dict):
+        raise InputError(f"{src}: [sim]: must be a table")
+    return TestSetup(
+        source=src, text=text, sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(), name=name,
+        output_file=output_file, uff_file=uff_file, raw_time=raw_time, daq=daq,
+        generators=generators, amplifiers=amplifiers, shakers=shakers, channels=channels,
+        excitation=excitation, sine=sine, random=rnd, limits=limits, min_coherence=min_coh, sim=sim)
+
+
+def _unique(src: str, table: str, key: str, values: list) -> None:
+    seen = set()
+    for i, v in enumerate(values):
+        if v in seen:
+            raise InputError(f"{src}: [[{table}]] #{i + 1} {key}: {v!r} used twice")
+        seen.add(v)
+
+
+def _check_wiring(src, generators, amplifiers, shakers, channels) -> None:
+    """Cross-references between tables: names exist, nothing is used twice."""
+    _unique(src, "generators", "name", [g.name for g in generators])
+    _unique(src, "amplifiers", "name", [a.name for a in amplifiers])
+    _unique(src, "channels", "name", [c.name for c in channels])
+    _unique(src, "channels", "input", [c.input for c in channels])
+    _unique(src, "shakers", "dof", [s.dof for s in shakers])
+    _unique(src, "shakers", "amplifier", [s.amplifier for s in shakers])
+    _unique(src, "shakers", "generator/channel", [(s.generator, s.channel) for s in shakers])
+    _unique(src, "shakers", "force_channel", [s.force_channel for s in shakers])
+    by_name = {c.name: c for c in channels}
+    for i, s in enumerate(shakers):
+        where = f"{src}: [[shakers]] #{i + 1}"
+        if s.generator not in {g.name for g in generators}:
+            raise InputError(f"{where} generator: no [[generators]] named {s.generator!r}")
+        if s.amplifier not in {a.name for a in amplifiers}:
+            raise InputError(f"{where} amplifier: no [[amplifiers]] named {s.amplifier!r}")
+        c = by_name.get(s.force_channel)
+        if c is None or c.quantity != "force":
+            raise InputError(f"{where} force_channel: no force channel named {s.force_channel!r}")
+        if c.dof != s.dof:
+            raise InputError(f"{where} force_channel: {c.name!r} is at {c.dof!r}, the shaker at {s.dof!r}")
+    outputs = [c.dof for c in channels if c.quantity == "acceleration"]
+    if not outputs:
+        raise InputError(f"{src}: [[channels]]: at least one acceleration channel is required")
+    _unique(src, "channels", "dof (acceleration)", outputs)
+    _unique(src, "channels", "dof (reaction)", [c.dof for c in channels if c.quantity == "reaction"])
+    forces = {s.force_channel for s in shakers}
+    for i, c in enumerate(channels):
+        if c.quantity == "force" and c.name not in forces:
+            raise InputError(f"{src}: [[channels]] #{i + 1} name: force channel {c.name!r} belongs to no shaker")
+    for i, s in enumerate(shakers):
+        if s.dof not in outputs:
+            raise InputError(f"{src}: [[shakers]] #{i + 1} dof: no acceleration channel at {s.dof!r} "
+                             "(each input must also be an output)")
+    for i, c in enumerate(channels):
+        if c.quantity == "reaction" and c.dof not in outputs:
+            raise InputError(f"{src}: [[channels]] #{i + 1} dof: reaction at {c.dof!r} needs an "
+                             "acceleration channel at the same DOF")
+
+
+def _parse_sine(src: str, doc: dict, channels: list[ChannelSpec]) -> SineSpec:
+    t = _Table(src, "[stepped_sine]", doc.get("stepped_sine", {}))
+    f_min = t.num("f_min_hz", required=True, lo=0.0, lo_open=True, hi=1e5)
+    f_max = t.num("f_max_hz", required=True, lo=0.0, lo_open=True, hi=1e5)
+    if f_max <= f_min:
+        raise t.error("f_max_hz", f"must be greater than f_min_hz ({f_min:g})")
+    control = t.str("control", "force")
+    if control != "force":
+        match = [c for c in channels if c.name == control]
+        if not match or match[0].quantity != "acceleration":
+            raise t.error("control", f"must be 'force' or the name of an acceleration channel, got {control!r}")
+    spec = SineSpec(
+        f_min_hz=f_min, f_max_hz=f_max, n_lines=t.int("n_lines", 50, lo=2, hi=100_000),
+        spacing=t.str("spacing", "log", choices=("log", "linear")),
+        refine=t.int("refine", 8, lo=1, hi=64),
+        max_change=t.num("max_change", 0.25, lo=0.01, hi=2.0),
+        force_n=t.num("force_n", 1.0, lo=0.0, lo_open=True),
+        control=control,
+        control_target=t.num("control_target", 0.0, lo=0.0),
+        tolerance=t.num("tolerance", 0.15, lo=0.001, hi=1.0),
+        compression=t.num("compression", 2.0, lo=1.0, hi=100.0, lo_open=True),
+        accuracy=t.num("accuracy", 1e-3, lo=1e-7, hi=0.5),
+        min_cycles=t.num("min_cycles", 8.0, lo=1.0, hi=1e5),
+        min_dwell_s=t.num("min_dwell_s", 0.05, lo=0.0, hi=600.0),
+        max_settle_s=t.num("max_settle_s", 20.0, lo=0.0, hi=3600.0, lo_open=True),
+        max_dwell_s=t.num("max_dwell_s", 10.0, lo=0.0, hi=3600.0, lo_open=True),
+        initial_vpp=t.num("initial_vpp", 0.05, lo=0.002, hi=20.0),
+        damping_guess=t.num("damping_guess", 0.01, lo=1e-5, hi=0.5))
+    if control != "force" and spec.control_target <= 0:
+        raise t.error("control_target", "must be > 0 (m/s^2) when control is an accelerometer")
+    t.done()
+    return spec
+
+
+def _parse_random(src: str, doc: dict, daq: DaqSpec) -> RandomSpec:
+    t = _Table(src, "[random]", doc.get("random", {}))
+    f_min = t.num("f_min_hz", required=True, lo=0.0, lo_open=True, hi=1e5)
+    f_max = t.num("f_max_hz", required=True, lo=0.0, lo_open=True, hi=daq.sample_rate_hz / 2)
+    if f_max <= f_min:
+        raise t.error("f_max_hz", f"must be greater than f_min_hz ({f_min:g})")
+    spec = RandomSpec(
+        kind=t.str("kind", required=True, choices=("random", "periodic", "burst")),
+        f_min_hz=f_min, f_max_hz=f_max,
+        block_size=t.int("block_size", 2048, lo=64, hi=262_144),
+        averages=t.int("averages", 16, lo=1, hi=100_000),
+        overlap=t.num("overlap", 0.5, lo=0.0, hi=0.9),
+        window=t.str("window", "hann", choices=("hann", "rect")),
+        drive_vpp=t.num("drive_vpp", 1.0, lo=0.002, hi=20.0),
+        estimator=t.str("estimator", "H1", choices=("H1", "H2", "Hv")),
+        burst_fraction=t.num("burst_fraction", 0.5, lo=0.05, hi=0.95),
+        settle_blocks=t.int("settle_blocks", 2, lo=0, hi=100),
+        seed=t.int("seed", 0, lo=0))
+    if spec.f_min_hz < daq.sample_rate_hz / spec.block_size:
+        raise t.error("f_min_hz", f"below the frequency resolution {daq.sample_rate_hz / spec.block_size:g} Hz "
+                      "(sample_rate_hz / block_size)")
+    t.done()
+    return spec

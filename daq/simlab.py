@@ -1,0 +1,243 @@
+"""Start the simulated lab for a setup (``ssidlab acquire --sim``).
+
+This is the only module of ``daq`` that imports ``sim_devices``. It builds a physics world
+that matches the setup - one simulated sensor per DAQ input, one shaker per ``[[shakers]]``
+entry on the named generator output, a test stand under the reaction DOFs - starts every
+simulated instrument on its real transport (:class:`sim_devices.lab.SimLab`) and returns a
+copy of the setup whose addresses point at them. The run logic then talks to the
+simulated instruments through the ordinary drivers, exactly as to real ones.
+
+``[sim]`` keys (all optional; ``docs/acquisition.md``):
+
+* ``structure``: ``"payload"`` (the payload simulator's 16 Z DOFs, Guyan-reduced, with modal
+  damping ``damping_ratio``) or ``"example"`` (the bundled 14-DOF example);
+* ``damping_ratio`` (payload only, default 0.02), ``noise`` (default true), ``seed``;
+* ``sensor_noise_volt_rms`` (default 2e-6), ``sensor_range_volt`` (default 5);
+* ``generator_transport``: ``"pty"`` or ``"tcp"`` (default ``"tcp"``);
+* ``oversample``: internal time steps per sample of the world (default 1; a structure with
+  modes near the sample rate needs 4 or more, see :class:`sim_devices.world.World`);
+* ``[sim.stand]``: ``stand_mass_kg``, ``stand_k_n_per_m``, ``stand_c_n_s_per_m``,
+  ``ground_k_n_per_m`` of the stand under each reaction DOF;
+* ``[[sim.effects]]``: hidden effects, ``type`` one of ``added_mass`` (``dof``,
+  ``mass_kg``), ``grounded_spring`` (``dof``, ``stiffness_n_per_m``), ``coupling_spring``
+  (``dof_a``, ``dof_b``, ``stiffness_n_per_m``), ``grounded_damper`` (``dof``,
+  ``damping_n_s_per_m``), ``attached_oscillator`` (``dof``, ``mass_kg``,
+  ``stiffness_n_per_m``, ``damping_n_s_per_m``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ssid.errors import InputError
+
+from .setup import TestSetup, _Table
+
+__all__ = ["SimHandle", "WorldRig", "build_world", "payload_substructure", "start_sim_lab"]
+
+EFFECT_KEYS = {
+    "added_mass": ("AddedMass", ["dof", "mass_kg"]),
+    "grounded_spring": ("GroundedSpring", ["dof", "stiffness_n_per_m"]),
+    "coupling_spring": ("CouplingSpring", ["dof_a", "dof_b", "stiffness_n_per_m"]),
+    "grounded_damper": ("GroundedDamper", ["dof", "damping_n_s_per_m"]),
+    "attached_oscillator": ("AttachedOscillator", ["dof", "mass_kg", "stiffness_n_per_m", "damping_n_s_per_m"]),
+}
+
+
+def payload_substructure(damping_ratio: float = 0.02) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    """The payload simulator reduced to its 16 Z DOFs (Guyan), with modal damping.
+
+    This is the nominal model of the ``"payload"`` structure (no hidden effects).
+    """
+    from ssid.models.payload import Z_DOFS, modal_damping, payload_simulator
+    from ssid.tam import guyan_reduce
+
+    p = payload_simulator()
+    sub = guyan_reduce(p.M, p.K, p.index(Z_DOFS))
+    M, K = (sub.M + sub.M.T) / 2, (sub.K + sub.K.T) / 2
+    return M, modal_damping(M, K, damping_ratio), K, list(Z_DOFS)
+
+
+def build_world(setup: TestSetup):
+    """The :class:`sim_devices.world.World` that matches ``setup`` (see the module docstring)."""
+    from sim_devices import effects as eff_mod
+    from sim_devices.components import SensorSpec, ShakerSpec, StandSpec
+    from ssid.models import example_system
+    from sim_devices.world import World, WorldError
+
+    src = setup.source
+    sim = dict(setup.sim)
+    stand_raw = sim.pop("stand", {})
+    effects_raw = sim.pop("effects", [])
+    t = _Table(src, "[sim]", sim)
+    structure = t.str("structure", "example", choices=("payload", "example"))
+    zeta = t.num("damping_ratio", 0.02, lo=0.0, hi=0.5)
+    noise = t.bool("noise", True)
+    seed = t.int("seed", 0, lo=0)
+    noise_v = t.num("sensor_noise_volt_rms", 2e-6, lo=0.0)
+    range_v = t.num("sensor_range_volt", 5.0, lo=0.01, lo_open=True)
+    t.str("generator_transport", "tcp", choices=("pty", "tcp"))
+    oversample = t.int("oversample", 1, lo=1, hi=64)
+    t.done()
+    st = _Table(src, "[sim.stand]", stand_raw)
+    stand_kw = {k: st.num(k, getattr(StandSpec, k), lo=0.0)
+                for k in ("stand_mass_kg", "stand_k_n_per_m", "stand_c_n_s_per_m", "ground_k_n_per_m")}
+    st.done()
+    if not isinstance(effects_raw, list):
+        raise InputError(f"{src}: [[sim.effects]]: must be an array of tables")
+    effects = []
+    for i, raw in enumerate(effects_raw):
+        e = _Table(src, f"[[sim.effects]] #{i + 1}", raw)
+        kind = e.str("type", required=True, choices=tuple(EFFECT_KEYS))
+        cls_name, keys = EFFECT_KEYS[kind]
+        args = [e.str(k, required=True) if k.startswith("dof") else e.num(k, required=True) for k in keys]
+        e.done()
+        effects.append(getattr(eff_mod, cls_name)(*args))
+
+    if structure == "payload":
+        M, C, K, dofs = payload_substructure(zeta)
+    else:
+        M, C, K, dofs = example_system(14, seed=1)
+    gen_index = {g.name: i for i, g in enumerate(setup.generators)}
+    used = {gen_index[s.generator] for s in setup.shakers}
+    if used != set(range(len(setup.generators))):
+        unused = [g.name for i, g in enumerate(setup.generators) if i not in used]
+        raise InputError(f"{src}: [[generators]]: {unused[0]!r} drives no shaker (the simulated lab "
+                         "builds one generator per shaker group)")
+    shakers = [ShakerSpec(s.dof, generator=gen_index[s.generator], channel=s.channel) for s in setup.shakers]
+    force_of = {s.force_channel: j for j, s in enumerate(setup.shakers)}
+    by_input = {c.input: c for c in setup.channels}
+    sensors = []
+    for k in range(max(by_input) + 1):
+        c = by_input.get(k)
+        if c is None:  # an unused input still needs something wired to it
+            sensors.append(SensorSpec(f"unused {k}", "acceleration", dofs[0], 0.01, range_v, noise_v))
+        elif c.quantity == "force":
+            sensors.append(SensorSpec(c.name, "force", force_of[c.name], c.sensitivity_mv_per_unit / 1e3, range_v, noise_v))
+        else:
+            sensors.append(SensorSpec(c.name, c.quantity, c.dof, c.sensitivity_mv_per_unit / 1e3, range_v, noise_v))
+    reactions = tuple(setup.reactions)
+    stand = StandSpec(reactions, **stand_kw) if reactions else None
+    try:
+        return World(M, C, K, dofs, shakers=shakers, sensors=sensors, stand=stand, effects=effects,
+                     sample_rate_hz=setup.daq.sample_rate_hz, noise=noise, seed=seed, oversample=oversample)
+    except (WorldError, ValueError) as exc:
+        raise InputError(f"{src}: [sim]: {exc}") from None
+
+
+@dataclasses.dataclass
+class SimHandle:
+    """A running simulated lab; :meth:`stop` ends it."""
+
+    lab: object
+    world: object
+
+    def stop(self) -> None:
+        self.lab.stop()
+
+
+def start_sim_lab(setup: TestSetup) -> tuple[SimHandle, TestSetup]:
+    """Start the simulated lab for ``setup``; the handle and the setup pointed at it."""
+    from sim_devices.lab import SimLab
+
+    world = build_world(setup)
+    transport = setup.sim.get("generator_transport", "tcp")
+    lab = SimLab(world, generator_transport=transport).start()
+    try:
+        ep = lab.endpoints()
+        gens = [dataclasses.replace(g, url=ep["generators"][i]) for i, g in enumerate(setup.generators)]
+        amp_of = {s.amplifier: j for j, s in enumerate(setup.shakers)}
+        amps = []
+        for a in setup.amplifiers:
+            if a.name not in amp_of:
+                raise InputError(f"{setup.source}: [[amplifiers]]: {a.name!r} feeds no shaker")
+            e = ep["amplifiers"][amp_of[a.name]]
+            amps.append(dataclasses.replace(a, host=e["host"], port=e["port"], device_id=e["device_id"]))
+        daq = dataclasses.replace(setup.daq, interface="virtual", channel=ep["daq"]["can_channel"])
+        new = dataclasses.replace(setup, generators=gens, amplifiers=amps, daq=daq)
+    except BaseException:
+        lab.stop()
+        raise
+    return SimHandle(lab, world), new
+
+
+class WorldRig:
+    """A :class:`daq.rig.Rig` on a world directly, without transports (benchmarks, fast tests).
+
+    Same channels, shakers and limits as the setup; the world's own sensor values (noise and
+    range included, no 24-bit quantisation) stand in for the DAQ. Generators and amplifiers
+    are the world's component models, switched directly.
+    """
+
+    def __init__(self, setup: TestSetup, world) -> None:
+        self.setup, self.world = setup, world
+        self.fs_hz = float(setup.daq.sample_rate_hz)
+        world.set_sample_rate(self.fs_hz)
+        self.names = [c.name for c in setup.channels]
+        self.rows = [c.input for c in setup.channels]
+        self.sens = np.array([world.sensors[k].sensitivity_v_per_unit for k in self.rows])[:, None]
+        gi = {g.name: i for i, g in enumerate(setup.generators)}
+        self.out = [(gi[s.generator], s.channel) for s in setup.shakers]
+        self.clock = 0
+
+    def _ch(self, j: int):
+        g, ch = self.out[j]
+        return self.world.generators[g].channels[ch - 1]
+
+    def prepare(self) -> None:
+        for j, a in enumerate(self.world.amplifiers):
+            a.gain_v_per_v = next(x.gain_v_per_v for x in self.setup.amplifiers
+                                  if x.name == self.setup.shakers[j].amplifier)
+            a.request_enable()
+
+    def sine(self, shaker: int, freq_hz: float, vpp: float) -> None:
+        with self.world.lock:
+            c = self._ch(shaker)
+            c.function, c.freq_hz, c.vpp, c.output_on = "SIN", float(freq_hz), float(vpp), True
+
+    def noise(self, shaker: int, vpp: float) -> None:
+        with self.world.lock:
+            c = self._ch(shaker)
+            c.function, c.vpp, c.output_on = "NOIS", float(vpp), True
+
+    def arb(self, shaker: int, samples: np.ndarray, vpp: float) -> float:
+        x = np.asarray(samples, float)
+        scale = 1.0 / np.max(np.abs(x))
+        with self.world.lock:
+            c = self._ch(shaker)
+            c.arb, c.arb_srate_hz, c.arb_pos = x * scale, self.fs_hz, 0.0
+            c.function, c.vpp, c.output_on = "ARB", float(vpp), True
+        return 0.5 * vpp * scale
+
+    def drive_off(self, shaker: int) -> None:
+        with self.world.lock:
+            self._ch(shaker).output_on = False
+
+    def acquire(self, n: int) -> tuple[np.ndarray, tuple[str, ...]]:
+        blk = self.world.advance(n)
+        self.clock += n
+        data = blk.volts[self.rows] / self.sens
+        return data, tuple(self.names[i] for i, k in enumerate(self.rows) if blk.overload[k])
+
+    def check(self) -> None:
+        pass
+
+    def line_check(self) -> None:
+        pass
+
+    def identities(self) -> dict:
+        return {"world": "direct (no transports)"}
+
+    def safe_state(self) -> list[str]:
+        with self.world.lock:
+            for g in self.world.generators:
+                for c in g.channels:
+                    c.output_on = False
+            for a in self.world.amplifiers:
+                a.disable()
+        return []
+
+    def close(self) -> None:
+        self.safe_state()

@@ -1,0 +1,310 @@
+"""One stepped-sine line: level, settle by the measured transient decay, dwell.
+
+The record after a change of frequency (or level) is the new steady state plus a free
+transient that decays like ``e^{-sigma t}`` (``sigma = zeta omega`` of the modes it excites).
+Windows of ``n_w`` samples (the dwell: ``min_cycles`` periods, at least ``min_dwell_s``)
+slide over the record in steps of ``n_w / 4``; each window gives the response vector per
+unit force ``Y_k``. With one dominant transient mode the window errors form a geometric
+sequence, ``e_k = q e_{k-1}``, and the differences ``D_k = Y_k - Y_{k-1}`` show it:
+
+    q ~= <D_{k-1}, D_k> / <D_{k-1}, D_{k-1}>,      |e_k| ~= |q| / |1 - q| |D_k|
+
+The line stops settling as soon as this remaining error is below ``accuracy`` (relative)
+or below the noise of the estimate itself. ``|q|`` is never taken below the decay of the
+lightest damping expected (``damping_guess``), so that a fast-decaying transient cannot
+hide a slow one. The time spent therefore follows the physics: a few windows far from
+resonances, longer where a lightly damped mode was just excited strongly.
+
+Level control: the force (or a control accelerometer) of the first window after a change
+is compared with the target; outside ``tolerance`` the drive is corrected (at most a factor
+``compression`` per step, ramped) and settling starts again. The first guess comes from
+the previous lines (log-log extrapolation of force per volt), so corrections are rare
+except where the force drops out at resonances.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .estimate import SineEstimate, SineFit
+from .rig import Rig
+from .safety import LineAborted, check_limits
+from .setup import Limits, SineSpec
+
+__all__ = ["LineResult", "SineLine", "TransientMonitor", "initial_drive", "noise_floor"]
+
+WINDOW_STEPS = 4  # window advance = n_w / WINDOW_STEPS
+
+
+@dataclass
+class LineResult:
+    """What one sub-line measured (a record row of the run file)."""
+
+    freq_hz: float
+    pattern: int
+    drive_vpp: float
+    est: SineEstimate
+    settle_s: float
+    dwell_s: float
+    transient: float  # estimated remaining relative error of the transient
+    decay: float  # |q| at the end (decay per window step)
+    raw: np.ndarray | None = None
+    corrections: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+def noise_floor(rig: Rig, ranges_volt: np.ndarray, sens_v_per_unit: np.ndarray, seconds: float = 0.25) -> np.ndarray:
+    """Per-sample noise variance of each channel with every drive off (the noise floor).
+
+    Never below the 24-bit quantisation step's variance (``(range / 2^23)^2 / 12``).
+    """
+    data, _ = rig.acquire(max(64, int(seconds * rig.fs_hz)))
+    data = data - data.mean(axis=1, keepdims=True)
+    q = (np.asarray(ranges_volt) / 2**23 / np.asarray(sens_v_per_unit)) ** 2 / 12
+    return np.maximum(np.var(data, axis=1), q)
+
+
+def initial_drive(history: list[tuple[float, float, float]], freq_hz: float, target: float,
+                  spec: SineSpec, max_vpp: float) -> float:
+    """First drive guess from ``history`` [(f, vpp, |control|), ...] of this shaker.
+
+    Control gain ``|control| / vpp`` extrapolated log-log from the last two lines, the
+    change from the last drive kept within ``compression``.
+    """
+    if not history:
+        return min(spec.initial_vpp, max_vpp)
+    f1, v1, a1 = history[-1]
+    g = a1 / v1
+    if len(history) >= 2:
+        f0, v0, a0 = history[-2]
+        g0 = a0 / v0
+        if f1 != f0 and g0 > 0 and g > 0:
+            slope = math.log(g / g0) / math.log(f1 / f0)
+            slope = max(-4.0, min(4.0, slope))
+            g = g * (freq_hz / f1) ** slope
+    want = target / max(g, 1e-30)
+    c = spec.compression
+    return float(min(max(want, v1 / c, 0.002), v1 * c, max_vpp))
+
+
+class TransientMonitor:
+    """Remaining transient error of a sequence of window estimates (module docstring).
+
+    Parameters
+    ----------
+    accuracy : float
+        Requested relative accuracy.
+    floor : float
+        Smallest decay per window step believed (lightest damping expected).
+    prior : float
+        Decay per step found at the end of the previous line (used until two differences
+        give an estimate of their own).
+    """
+
+    def __init__(self, accuracy: float, floor: float, prior: float, blocks: int = 1) -> None:
+        self.accuracy, self.floor, self.prior, self.blocks = accuracy, floor, prior, max(1, blocks)
+        self.ys: list[np.ndarray] = []
+        self.qs: list[float] = []
+        self.ds: list[float] = []
+        self.big: tuple[int, float] | None = None
+        self.r = max(floor, prior)
+        self.ehat = math.inf
+        self.noise = 0.0
+
+    def update(self, y: np.ndarray, noise: float) -> bool:
+        """Add the next window's vector ``y`` (and its noise); True when settled."""
+        self.ys.append(y)
+        self.noise = noise
+        k = len(self.ys) - 1
+        if k == 0:
+            return False
+        D = self.ys[-1] - self.ys[-2]
+        dn = float(np.linalg.norm(D))
+        self.ds.append(dn)
+        # Differences of windows overlapping by 3/4 carry about this much noise.
+        d_noise = noise * math.sqrt(2.0 / WINDOW_STEPS)
+        if k >= 2:
+            Dp = self.ys[-2] - self.ys[-3]
+            den = float(np.vdot(Dp, Dp).real)
+            if den > (3 * d_noise) ** 2:
+                self.qs.append(complex(np.vdot(Dp, D) / den))
+        # The decay per step, complex: e_k = q e_{k-1} gives |e_k| = |q| / |1 - q| |D_k|. A
+        # transient that turns between windows (a mode away from the drive frequency) is
+        # measured well by few differences. Of the last two estimates the one giving the
+        # larger error is used, never decaying faster than the lightest damping expected,
+        # so that a fast transient cannot hide a slower one.
+        if len(self.ds) >= 6 and max(self.ds[-6:-3]) > 0:
+            # Envelope decay over six steps: robust where two transients beat.
+            env = (max(self.ds[-3:]) / max(self.ds[-6:-3])) ** (1 / 3)
+        elif self.qs:
+            env = max(abs(q) for q in self.qs[-2:])
+        else:
+            env = self.prior
+        mag = min(max(env, self.floor), 0.99)
+        gains = [(mag / max(abs(1 - mag * np.exp(1j * np.angle(q))), 1 - mag), mag) for q in self.qs[-2:]]
+        gain, r = max(gains) if gains else (mag / (1 - mag), mag)
+        self.r = r
+        # Two transients can cancel in one difference (a turning point of the error vector):
+        # the last few differences, decayed to now, bound the current one.
+        recent_d = max(d * r ** m for m, d in enumerate(reversed(self.ds[-4:])))
+        if dn > 3 * d_noise:
+            self.big = (k, recent_d)
+            self.ehat = gain * recent_d
+        elif self.big is not None:
+            # Below the noise: bounded by the last visible difference, decayed since.
+            self.ehat = min(gain * max(recent_d, d_noise), self.big[1] * r ** (k - self.big[0]) * gain)
+        else:
+            self.ehat = noise  # nothing ever rose above the noise: noise-limited from the start
+        # y holds one unit-norm block per quantity (responses, reactions): the accuracy is
+        # asked of each block, not of their sum.
+        return self.ehat <= max(self.accuracy * float(np.linalg.norm(y)) / math.sqrt(self.blocks), noise)
+
+
+class SineLine:
+    """Measures sub-lines on a rig.
+
+    Parameters
+    ----------
+    rig : Rig
+    spec : SineSpec
+    limits : Limits
+    roles : dict
+        Channel indices: ``force`` (per shaker), ``response``, ``reaction``.
+    control : int or None
+        Channel index of the control accelerometer (None: control on the active force).
+    keep_raw : bool
+        Return the dwell window's samples.
+    """
+
+    def __init__(self, rig: Rig, spec: SineSpec, limits: Limits, roles: dict[str, list[int]],
+                 control: int | None = None, keep_raw: bool = False) -> None:
+        self.rig, self.spec, self.limits, self.roles = rig, spec, limits, roles
+        self.control = control
+        self.keep_raw = keep_raw
+        self.decay_prev = 0.0
+        self.noise_var: np.ndarray | None = None  # per-sample noise floor of each channel
+        self.group_ref = [0.0, 0.0]  # largest |y| of responses and reactions seen so far
+        self.resp = roles["response"]
+        self.react = roles["reaction"]
+
+    # ------------------------------------------------------------------ helpers
+    def _sizes(self, freq_hz: float) -> tuple[int, int]:
+        fs = self.rig.fs_hz
+        n_w = max(self.spec.min_cycles * fs / freq_hz, self.spec.min_dwell_s * fs, 16.0)
+        n_c = int(math.ceil(n_w / WINDOW_STEPS))
+        return n_c * WINDOW_STEPS, n_c
+
+    def _y(self, est: SineEstimate, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """Responses and reactions per unit active force, each group scaled to unit norm
+        by its own size (so m/s^2/N and N/N weigh alike), and the variance of that vector."""
+        F = est.X[self.roles["force"][j]]
+        vF = est.var[self.roles["force"][j]]
+        parts, var = [], []
+        for g, idx in enumerate((self.resp, self.react)):
+            if not idx:
+                continue
+            y = est.X[idx] / F
+            vy = (est.var[idx] + np.abs(y) ** 2 * vF) / max(abs(F) ** 2, 1e-300)
+            # Scale: the group's own size, but not below a tenth of its size on the lines so
+            # far - where reactions (or responses) nearly vanish, accuracy is asked relative
+            # to their usual level, not to their momentary near-zero.
+            s = max(float(np.linalg.norm(y)), 0.1 * self.group_ref[g], 1e-300)
+            parts.append(y / s)
+            var.append(vy / s**2)
+        return np.concatenate(parts), np.concatenate(var)
+
+    def remember_level(self, est: SineEstimate, j: int) -> None:
+        """Update the groups' usual levels with a finished line."""
+        F = est.X[self.roles["force"][j]]
+        for g, idx in enumerate((self.resp, self.react)):
+            if idx and abs(F) > 0:
+                self.group_ref[g] = max(self.group_ref[g], float(np.linalg.norm(est.X[idx] / F)))
+
+    def floor_decay(self, freq_hz: float, n_c: int) -> float:
+        """Decay per window step of the lightest damping expected at this frequency."""
+        sigma = self.spec.damping_guess * 2 * math.pi * freq_hz
+        return math.exp(-sigma * n_c / self.rig.fs_hz)
+
+    # ------------------------------------------------------------------ measurement
+    def measure(self, j: int, freq_hz: float, vpp: float, target: float) -> LineResult:
+        """Measure shaker ``j`` at ``freq_hz`` starting at drive ``vpp``.
+
+        Raises :class:`LineAborted` when a limit is exceeded (the caller ramps the drive down).
+        """
+        rig, spec = self.rig, self.spec
+        n_w, n_c = self._sizes(freq_hz)
+        fit = SineFit(freq_hz, rig.fs_hz, n_w)
+        max_vpp = self.limits.max_drive_vpp
+        ctl = self.control if self.control is not None else self.roles["force"][j]
+        rig.sine(j, freq_hz, vpp)
+        t_start = t_all = rig.clock  # every scan of this line counts as test time, discarded ones too
+        buf = np.zeros((len(rig.names), 0))
+        buf0 = rig.clock  # clock of buf[:, 0]
+        blocks = int(bool(self.resp)) + int(bool(self.react))
+        mon = TransientMonitor(spec.accuracy, self.floor_decay(freq_hz, n_c), self.decay_prev, blocks)
+        corrections = 0
+        level_checked = False
+        while True:
+            data, _ = rig.acquire(n_w if buf.shape[1] < n_w else n_c)
+            buf = np.hstack([buf, data])
+            reason = check_limits(self.limits, np.max(np.abs(data), axis=1), self.roles, vpp, rig.names)
+            if reason:
+                raise LineAborted(reason)
+            start = buf0 + buf.shape[1] - n_w
+            est = fit.fit(buf[:, -n_w:], start=start - t_start, noise_var=self.noise_var)
+            if not level_checked:
+                level_checked = True
+                level = abs(est.X[ctl])
+                if abs(level / target - 1) > spec.tolerance and corrections < 4:
+                    want = vpp * target / max(level, 1e-30)
+                    if want > max_vpp * (1 + 1e-9):
+                        raise LineAborted(f"drive limit: the target needs {want:.4g} Vpp, more than "
+                                          f"max_drive_vpp {max_vpp:g}")
+                    vpp = float(min(max(want, vpp / spec.compression, 0.002), vpp * spec.compression))
+                    rig.sine(j, freq_hz, vpp)
+                    corrections += 1
+                    level_checked = False
+                    buf, buf0 = np.zeros((len(rig.names), 0)), rig.clock
+                    mon = TransientMonitor(spec.accuracy, self.floor_decay(freq_hz, n_c), self.decay_prev, blocks)
+                    continue
+            y, vy = self._y(est, j)
+            if mon.update(y, float(np.sqrt(np.sum(vy)))):
+                break
+            if (buf.shape[1] - n_w) / rig.fs_hz >= spec.max_settle_s:
+                break
+        self.decay_prev = mon.r
+        self.remember_level(est, j)
+        est, rec = self._dwell(fit, est, buf, buf0, t_start, j, n_w, freq_hz, vpp)
+        n_used = rec.shape[1]
+        norm_y = max(float(np.linalg.norm(y)), 1e-300)
+        return LineResult(
+            freq_hz=freq_hz, pattern=j, drive_vpp=vpp, est=est,
+            settle_s=(rig.clock - t_all - n_used) / rig.fs_hz, dwell_s=n_used / rig.fs_hz,
+            # Only the part of the transient bound above the noise is extra uncertainty: when
+            # the line stopped because the transient sank into the noise, the noise says it all.
+            transient=float(min(math.sqrt(max(mon.ehat**2 - mon.noise**2, 0.0)) / norm_y, 1.0)), decay=mon.r,
+            raw=rec if self.keep_raw else None, corrections=corrections)
+
+    def _dwell(self, fit: SineFit, est: SineEstimate, buf: np.ndarray, buf0: int, t_start: int, j: int,
+               n_w: int, freq_hz: float, vpp: float) -> tuple[SineEstimate, np.ndarray]:
+        """Lengthen the dwell when noise, not the transient, limits the accuracy."""
+        y, vy = self._y(est, j)
+        rel = float(np.sqrt(np.sum(vy))) / max(float(np.linalg.norm(y)), 1e-300)
+        if rel <= self.spec.accuracy:
+            return est, buf[:, -n_w:]
+        fs = self.rig.fs_hz
+        n_need = int(min(n_w * (rel / self.spec.accuracy) ** 2, self.spec.max_dwell_s * fs))
+        if n_need <= n_w:
+            return est, buf[:, -n_w:]
+        more, _ = self.rig.acquire(n_need - n_w)
+        peaks = np.max(np.abs(more), axis=1)
+        reason = check_limits(self.limits, peaks, self.roles, vpp, self.rig.names)
+        if reason:
+            raise LineAborted(reason)
+        rec = np.hstack([buf[:, -n_w:], more])
+        start = buf0 + buf.shape[1] - n_w - t_start
+        long_fit = SineFit(freq_hz, fs, rec.shape[1])
+        return long_fit.fit(rec, start=start, noise_var=self.noise_var), rec

@@ -1,0 +1,226 @@
+"""The stepped-sine run: schedule -> sub-lines on the rig -> FRF lines in the run file.
+
+Each sub-line (one shaker, one frequency) is measured by :class:`daq.sine_line.SineLine`
+and written to the run file's records and committed before the next one starts. When
+every shaker has measured a line, its FRFs follow from the multi-input solve
+``H = X_A X_F^-1`` (:func:`daq.estimate.multi_input_frf`, all gauges' forces, so the
+passive force of an undriven shaker is accounted for) and are written to the contract
+view with their variance and a coherence-like quality ``|H|^2 / (|H|^2 + var H)``, where
+``var H`` holds the noise of the fit and the transient left at the end of the settling.
+Values whose quality is below ``[quality] min_coherence`` are blanked (``valid`` False).
+
+Resume: the records of the interrupted run are fed back to the schedule in order (each
+must be the line the schedule asks for), which rebuilds its decisions and the level
+controller's history exactly; measuring then continues with the first line not recorded.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from ssid.errors import InputError
+from ssid.frf import FRFData
+
+from .estimate import multi_input_frf
+from .rig import Rig
+from .safety import LineAborted
+from .schedule import frequency_grid, sweep_plan
+from .setup import TestSetup
+from .sine_line import LineResult, SineLine, initial_drive, noise_floor
+from .storage import STATUS_ABORTED, STATUS_OK, RunFile
+
+__all__ = ["SteppedSineRun", "sine_grid"]
+
+
+def sine_grid(setup: TestSetup) -> np.ndarray:
+    s = setup.sine
+    return frequency_grid(s.f_min_hz, s.f_max_hz, s.n_lines, s.spacing, s.refine)
+
+
+class SteppedSineRun:
+    """One stepped-sine run (new or resumed) on ``rig``, stored in ``runfile``."""
+
+    def __init__(self, setup: TestSetup, rig: Rig, runfile: RunFile, echo: Callable[[str], None] = print) -> None:
+        self.setup, self.rig, self.rf, self.echo = setup, rig, runfile, echo
+        self.spec = setup.sine
+        self.roles = setup.roles()
+        self.grid = sine_grid(setup)
+        control = None if self.spec.control == "force" else setup.channel_index(self.spec.control)
+        self.ctl_channel = control
+        self.line = SineLine(rig, self.spec, setup.limits, self.roles, control, keep_raw=setup.raw_time)
+        self.target = self.spec.force_n if control is None else self.spec.control_target
+        self.n_pat = len(setup.shakers)
+        self.rows: dict[tuple[int, int], dict] = {}
+        self.history: dict[int, list[tuple[float, float, float]]] = {p: [] for p in range(self.n_pat)}
+        self.replay = list(self._recorded_rows())
+        self.replayed = 0
+        self.n_done = runfile.n_done
+        self.active: int | None = None
+        self.test_time_s = float(sum(r["settle_s"] + r["dwell_s"] for r in self.replay))
+
+    def _recorded_rows(self):
+        rec = self.rf.records()
+        n = len(rec.get("grid_index", []))
+        for i in range(n):
+            yield {k: v[i] for k, v in rec.items()}
+
+    # ------------------------------------------------------------------ per sub-line
+    def _y(self, X: np.ndarray, p: int) -> np.ndarray:
+        return X[self.roles["response"]] / X[self.roles["force"][p]]
+
+    def _control_level(self, X: np.ndarray, p: int) -> float:
+        ch = self.ctl_channel if self.ctl_channel is not None else self.roles["force"][p]
+        return float(abs(X[ch]))
+
+    def measure(self, p: int, k: int) -> np.ndarray | None:
+        """Callback of the schedule: the response vector per unit force, or None (aborted)."""
+        if self.replayed < len(self.replay):
+            row = self.replay[self.replayed]
+            if int(row["pattern"]) != p or int(row["grid_index"]) != k:
+                raise InputError(
+                    f"{self.rf.path}: record {self.replayed} is shaker {int(row['pattern'])} line "
+                    f"{int(row['grid_index'])}, but the schedule asks for shaker {p} line {k}: "
+                    "the file does not belong to this setup and schedule")
+            self.replayed += 1
+            return self._accept(p, k, row, live=False)
+        return self._measure_live(p, k)
+
+    def _measure_live(self, p: int, k: int) -> np.ndarray | None:
+        self.rig.line_check()
+        f = float(self.grid[k])
+        if self.active is not None and self.active != p:
+            self.rig.drive_off(self.active)
+        self.active = p
+        vpp = initial_drive(self.history[p], f, self.target, self.spec, self.setup.limits.max_drive_vpp)
+        nch = len(self.rig.names)
+        t0 = self.rig.clock
+        try:
+            res = self.line.measure(p, f, vpp, self.target)
+            row = self._row(k, res, STATUS_OK, "")
+        except LineAborted as exc:
+            self.rig.drive_off(p)  # the drive goes to zero before anything else
+            dt = (self.rig.clock - t0) / self.rig.fs_hz
+            row = {"grid_index": k, "pattern": p, "freq_hz": f, "drive_vpp": vpp, "status": STATUS_ABORTED,
+                   "settle_s": dt, "dwell_s": 0.0, "transient": 1.0, "decay": 0.0, "wall_time": time.time(),
+                   "X": np.full(nch, np.nan + 0j), "X_var": np.zeros(nch), "thd": np.zeros(nch),
+                   "reason": str(exc)}
+            res = None
+            self.echo(f"  line {k} shaker {p} {f:.2f} Hz aborted: {exc}")
+        self.rf.append_record(row)
+        if res is not None and res.raw is not None:
+            self.rf.append_raw(res.raw)
+        y = self._accept(p, k, row, live=True)
+        self.n_done += 1
+        self.rf.commit(self.n_done)
+        return y
+
+    def _row(self, k: int, res: LineResult, status: int, reason: str) -> dict:
+        return {"grid_index": k, "pattern": res.pattern, "freq_hz": res.freq_hz, "drive_vpp": res.drive_vpp,
+                "status": status, "settle_s": res.settle_s, "dwell_s": res.dwell_s,
+                "transient": res.transient, "decay": res.decay, "wall_time": time.time(),
+                "X": res.est.X, "X_var": res.est.var, "thd": res.est.thd, "reason": reason}
+
+    def _accept(self, p: int, k: int, row: dict, live: bool) -> np.ndarray | None:
+        """Book a sub-line (live or replayed): history, FRF line when complete, progress."""
+        self.rows[(p, k)] = row
+        if live:
+            self.test_time_s += float(row["settle_s"] + row["dwell_s"])
+        if int(row["status"]) != STATUS_OK:
+            return None
+        X = np.asarray(row["X"])
+        self.history[p].append((float(row["freq_hz"]), float(row["drive_vpp"]), self._control_level(X, p)))
+        self.line.decay_prev = float(row["decay"])
+        if not live:
+            F = X[self.roles["force"][p]]
+            for g, idx in enumerate((self.roles["response"], self.roles["reaction"])):
+                if idx and abs(F) > 0:
+                    self.line.group_ref[g] = max(self.line.group_ref[g], float(np.linalg.norm(X[idx] / F)))
+        if live:
+            F = abs(X[self.roles["force"][p]])
+            self.echo(f"  shaker {p} {row['freq_hz']:9.3f} Hz  drive {row['drive_vpp']:.3f} Vpp  "
+                      f"|F| {F:.3g} N  settle {row['settle_s']:.3f} s  dwell {row['dwell_s']:.3f} s  "
+                      f"[{self.n_done + 1} sub-lines, {self.test_time_s:.1f} s test time]")
+        if all((q, k) in self.rows for q in range(self.n_pat)):
+            self._write_line(k)
+        return self._y(X, p)
+
+    # ------------------------------------------------------------------ FRF lines
+    def line_frf(self, k: int) -> dict:
+        """H, variance, quality and validity of grid line ``k`` from its sub-lines."""
+        rows = [self.rows[(p, k)] for p in range(self.n_pat)]
+        r, a, fi = self.roles["reaction"], self.roles["response"], self.roles["force"]
+        n_out, n_r = len(a), len(r)
+        if any(int(x["status"]) != STATUS_OK for x in rows):
+            return {"H": np.full((n_out, self.n_pat), np.nan + 0j), "var": np.zeros((n_out, self.n_pat)),
+                    "coh": np.zeros((n_out, self.n_pat)), "valid": np.zeros((n_out, self.n_pat), bool),
+                    "Hr": np.zeros((n_r, self.n_pat), complex)}
+        X = np.stack([np.asarray(x["X"]) for x in rows], axis=1)  # (n_ch, n_pat)
+        # The transient left at the end of settling counts as uncertainty, like noise.
+        V = np.stack([np.asarray(x["X_var"]) + (float(x["transient"]) * np.abs(np.asarray(x["X"]))) ** 2
+                      for x in rows], axis=1)
+        H, var = multi_input_frf(X[a], X[fi], V[a], V[fi])
+        Hr = multi_input_frf(X[r], X[fi], V[r], V[fi])[0] if n_r else np.zeros((0, self.n_pat), complex)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            coh = np.abs(H) ** 2 / (np.abs(H) ** 2 + var)
+        coh = np.nan_to_num(coh)
+        valid = (coh >= self.setup.min_coherence) & np.isfinite(H)
+        return {"H": H, "var": var, "coh": coh, "valid": valid, "Hr": Hr}
+
+    def _write_line(self, k: int) -> None:
+        d = self.line_frf(k)
+        self.rf.write_line(k, d["H"], d["var"], d["coh"], d["valid"], d["Hr"] if self.roles["reaction"] else None)
+
+    # ------------------------------------------------------------------ the run
+    def run(self) -> dict:
+        s = self.spec
+        if self.replay:
+            self.echo(f"resuming: {len(self.replay)} sub-lines on file, replaying the schedule")
+        # The noise floor (all drives off) sets the noise of every estimate: the residual of
+        # a fit would also hold the transient still decaying while settling.
+        ch = self.setup.channels
+        nf = noise_floor(self.rig, np.array([c.range_volt for c in ch]),
+                         np.array([c.sensitivity_mv_per_unit / 1e3 for c in ch]))
+        self.line.noise_var = nf
+        self.rf.write_arrays("noise_floor", {f"session{len(self.rf.meta.get('sessions', []))}": nf})
+        self.test_time_s += 0.25
+        sweep_plan(self.measure, self.n_pat, len(self.grid), s.refine, s.max_change)
+        if self.replayed < len(self.replay):
+            raise InputError(f"{self.rf.path}: {len(self.replay) - self.replayed} records beyond the end of "
+                             "the schedule: the file does not belong to this setup")
+        if self.active is not None:
+            self.rig.drive_off(self.active)
+            self.active = None
+        return self.summary()
+
+    def frf(self) -> FRFData:
+        """The compact FRF of every completed line (blanked values: NaN, valid False)."""
+        lines = sorted({k for (_, k) in self.rows if all((q, k) in self.rows for q in range(self.n_pat))})
+        parts = [self.line_frf(k) for k in lines]
+        setup = self.setup
+        frf = FRFData(
+            freq_hz=self.grid[lines], H=np.array([np.where(d["valid"], d["H"], np.nan) for d in parts]),
+            outputs=setup.outputs, inputs=setup.inputs,
+            coherence=np.array([d["coh"] for d in parts]), valid=np.array([d["valid"] for d in parts]),
+            H_var=np.array([np.where(np.isfinite(d["var"]), d["var"], 0.0) for d in parts]))
+        if setup.reactions:
+            frf.H_reaction = np.array([np.nan_to_num(d["Hr"]) for d in parts])
+            frf.reactions = setup.reactions
+        return frf
+
+    def summary(self) -> dict:
+        rows = list(self.rows.values())
+        ok = [r for r in rows if int(r["status"]) == STATUS_OK]
+        frf = self.frf()
+        return {
+            "excitation": "stepped_sine", "n_grid": int(len(self.grid)), "n_lines": int(frf.n_freq),
+            "n_sub_lines": len(rows), "n_aborted": len(rows) - len(ok),
+            "n_values_blanked": int(np.count_nonzero(~frf.valid_mask())),
+            "test_time_s": self.test_time_s,
+            "settle_time_s": float(sum(r["settle_s"] for r in rows)),
+            "dwell_time_s": float(sum(r["dwell_s"] for r in rows)),
+            "max_thd": float(max((np.nanmax(r["thd"]) for r in ok), default=0.0)),
+        }
+

@@ -1,0 +1,272 @@
+"""The run file: one HDF5 file per run that never loses a completed line.
+
+Layout (``docs/acquisition.md``): the contract's FRF datasets at the root (readable by
+:func:`ssid.io.read_frf` at every moment of the run), and under ``/acq`` everything the run
+needs to continue or to be audited: the setup file's text and SHA-256, metadata
+(instrument identities, software version, timestamps, channels), and the *records* - one
+row per measured sub-line (stepped sine) in acquisition order, or the running spectral sums
+(random).
+
+Crash safety without SWMR: SWMR leaves a file that only SWMR readers can open after a
+``kill -9`` (the superblock's "open for writing" flag stays set), so the file is written in
+the default HDF5 format and flushed after every line instead. The contract datasets are
+pre-created at full size, so writing a line changes no metadata there; the record datasets
+are chunked and resizable and grow by one row per line. A line is written in this order:
+record row, contract rows, then the commit counter ``/acq/n_done``, then ``flush()``. After
+a crash, rows beyond ``n_done`` are ignored (and trimmed on resume).
+
+When the run ends, :meth:`RunFile.finalize` writes the compact FRF file (only measured
+lines) with :func:`ssid.io.write_frf` under a temporary name, copies ``/acq`` into it and
+renames it over the run file - so the finished file replaces the running one atomically.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from ssid.errors import InputError
+from ssid.frf import FRFData
+from ssid.io import write_frf
+
+__all__ = ["RunFile", "STATUS_ABORTED", "STATUS_OK", "SINE_FIELDS"]
+
+STATUS_OK, STATUS_ABORTED = 0, 1
+
+#: Per-sub-line record of a stepped-sine run: name -> (dtype, per channel?).
+SINE_FIELDS = {
+    "grid_index": ("i4", False), "pattern": ("i2", False), "freq_hz": ("f8", False),
+    "drive_vpp": ("f8", False), "status": ("i1", False), "settle_s": ("f8", False),
+    "dwell_s": ("f8", False), "transient": ("f8", False), "decay": ("f8", False),
+    "wall_time": ("f8", False),
+    "X": ("c16", True), "X_var": ("f8", True), "thd": ("f8", True), "reason": ("S160", False),
+}
+_STR = h5py.string_dtype()
+
+
+class RunFile:
+    """An open run file (create with :meth:`create`, reopen with :meth:`open`)."""
+
+    def __init__(self, path: str | Path, f: h5py.File) -> None:
+        self.path = Path(path)
+        self.f = f
+        self.acq = f["acq"]
+
+    # ------------------------------------------------------------------ create / open
+    @classmethod
+    def create(cls, path: str | Path, *, kind: str, setup_text: str, setup_sha256: str,
+               freq_hz: np.ndarray, outputs: list[str], inputs: list[str], reactions: list[str],
+               channel_names: list[str], meta: dict, attrs: dict) -> RunFile:
+        """A new run file with the contract view over ``freq_hz`` (nothing measured yet)."""
+        path = Path(path)
+        if path.exists():
+            raise InputError(f"{path}: exists already (use --resume to continue it, or another name)")
+        try:
+            f = h5py.File(path, "w")
+        except OSError as exc:
+            raise OSError(f"{path}: cannot create the run file ({exc})") from exc
+        try:
+            nf, no, ni, nr = len(freq_hz), len(outputs), len(inputs), len(reactions)
+            for k, v in attrs.items():
+                f.attrs[k] = v
+            f.attrs["format"] = "ssidlab-frf"
+            f.attrs["format_version"] = 1
+            f.attrs["quantity"] = "accelerance"
+            f.create_dataset("freq_hz", data=np.asarray(freq_hz, float))
+            f.create_dataset("H", shape=(nf, no, ni), dtype="c16", fillvalue=complex(np.nan, 0.0))
+            f.create_dataset("valid", shape=(nf, no, ni), dtype=bool, fillvalue=False)
+            f.create_dataset("coherence", shape=(nf, no, ni), dtype="f8", fillvalue=0.0)
+            f.create_dataset("H_var", shape=(nf, no, ni), dtype="f8", fillvalue=0.0)
+            f.create_dataset("outputs", data=outputs, dtype=_STR)
+            f.create_dataset("inputs", data=inputs, dtype=_STR)
+            if nr:
+                f.create_dataset("H_reaction", shape=(nf, nr, ni), dtype="c16", fillvalue=0j)
+                f.create_dataset("reactions", data=reactions, dtype=_STR)
+            acq = f.create_group("acq")
+            acq.attrs["kind"] = kind
+            acq.attrs["setup_sha256"] = setup_sha256
+            acq.attrs["state"] = "running"
+            acq.create_dataset("setup_toml", data=setup_text, dtype=_STR)
+            acq.create_dataset("meta_json", data=json.dumps(meta), dtype=_STR)
+            acq.create_dataset("channels", data=channel_names, dtype=_STR)
+            acq.create_dataset("n_done", data=np.zeros(1, "i8"))
+            acq.create_dataset("line_done", shape=(nf,), dtype=bool, fillvalue=False)
+            nch = len(channel_names)
+            rec = acq.create_group("records")
+            if kind == "stepped_sine":
+                for name, (dt, per_ch) in SINE_FIELDS.items():
+                    shape, chunks = ((0, nch), (64, nch)) if per_ch else ((0,), (256,))
+                    rec.create_dataset(name, shape=shape, maxshape=(None,) + shape[1:], chunks=chunks, dtype=dt)
+            f.flush()
+        except BaseException:
+            f.close()
+            path.unlink(missing_ok=True)
+            raise
+        return cls(path, f)
+
+    @classmethod
+    def open(cls, path: str | Path) -> RunFile:
+        """Reopen an unfinished run file for resuming; rows past the last commit are dropped."""
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"{path}: no such run file")
+        if not h5py.is_hdf5(path):
+            raise InputError(f"{path}: not an HDF5 file")
+        try:
+            f = h5py.File(path, "r+")
+        except OSError as exc:
+            raise InputError(f"{path}: cannot open the run file for resuming ({exc})") from None
+        if "acq" not in f or "n_done" not in f["acq"] or "setup_toml" not in f["acq"]:
+            f.close()
+            raise InputError(f"{path}: not an ssidlab run file (no /acq records)")
+        rf = cls(path, f)
+        n = rf.n_done
+        rec = rf.acq["records"]
+        for name in rec:
+            if rec[name].shape[0] > n and rec[name].maxshape[0] is None:
+                rec[name].resize(n, axis=0)
+        return rf
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def kind(self) -> str:
+        return str(self.acq.attrs["kind"])
+
+    @property
+    def state(self) -> str:
+        return str(self.acq.attrs["state"])
+
+    @property
+    def setup_text(self) -> str:
+        v = self.acq["setup_toml"][()]
+        return v.decode("utf-8") if isinstance(v, bytes) else str(v)
+
+    @property
+    def setup_sha256(self) -> str:
+        return str(self.acq.attrs["setup_sha256"])
+
+    @property
+    def n_done(self) -> int:
+        return int(self.acq["n_done"][0])
+
+    @property
+    def meta(self) -> dict:
+        v = self.acq["meta_json"][()]
+        return json.loads(v.decode("utf-8") if isinstance(v, bytes) else v)
+
+    @property
+    def freq_hz(self) -> np.ndarray:
+        return self.f["freq_hz"][()]
+
+    # ------------------------------------------------------------------ records
+    def records(self) -> dict[str, np.ndarray]:
+        """All committed stepped-sine records (acquisition order)."""
+        n = self.n_done
+        return {name: ds[:n] for name, ds in self.acq["records"].items()}
+
+    def append_record(self, row: dict) -> None:
+        """Write one stepped-sine record row (not yet committed)."""
+        rec = self.acq["records"]
+        n = self.n_done
+        for name, (dt, _) in SINE_FIELDS.items():
+            ds = rec[name]
+            ds.resize(n + 1, axis=0)
+            v = row.get(name, 0)
+            if name == "reason":
+                v = str(v or "").encode("utf-8")[:160]
+            ds[n] = v
+
+    def write_line(self, k: int, H: np.ndarray, H_var: np.ndarray, coherence: np.ndarray, valid: np.ndarray,
+                   H_reaction: np.ndarray | None) -> None:
+        """Contract rows of grid line ``k`` (all its sub-lines are measured)."""
+        f = self.f
+        f["H"][k] = np.where(valid, H, np.nan + 0j) if np.iscomplexobj(H) else H
+        f["H_var"][k] = np.where(np.isfinite(H_var), H_var, 0.0)
+        f["coherence"][k] = np.clip(np.nan_to_num(coherence), 0.0, 1.0)
+        if H_reaction is not None and "H_reaction" in f:
+            f["H_reaction"][k] = np.nan_to_num(H_reaction)
+        f["valid"][k] = valid
+        self.acq["line_done"][k] = True
+
+    def write_view(self, H, H_var, coherence, valid, H_reaction=None) -> None:
+        """The whole contract view at once (random runs: every average refines every bin)."""
+        f = self.f
+        f["H"][...] = np.where(valid, H, np.nan + 0j)
+        f["H_var"][...] = np.where(np.isfinite(H_var), H_var, 0.0)
+        f["coherence"][...] = np.clip(np.nan_to_num(coherence), 0.0, 1.0)
+        if H_reaction is not None and "H_reaction" in f:
+            f["H_reaction"][...] = np.nan_to_num(H_reaction)
+        f["valid"][...] = valid
+        self.acq["line_done"][...] = True
+
+    def write_arrays(self, group: str, arrays: dict[str, np.ndarray]) -> None:
+        """Fixed-shape arrays under ``/acq/<group>`` (created on first use, then overwritten)."""
+        g = self.acq.require_group(group)
+        for name, a in arrays.items():
+            if name in g and g[name].shape == np.shape(a):
+                g[name][...] = a
+            else:
+                if name in g:
+                    del g[name]
+                g.create_dataset(name, data=a)
+
+    def read_arrays(self, group: str) -> dict[str, np.ndarray]:
+        if group not in self.acq:
+            return {}
+        return {name: ds[()] for name, ds in self.acq[group].items()}
+
+    def append_raw(self, data: np.ndarray) -> None:
+        """Raw time samples (n_ch, n) of the line just measured (float32, gzip)."""
+        g = self.acq.require_group("raw")
+        nch, n = data.shape
+        if "samples" not in g:
+            g.create_dataset("samples", shape=(0, nch), maxshape=(None, nch), chunks=(4096, nch),
+                             dtype="f4", compression="gzip", compression_opts=1)
+            g.create_dataset("offset", shape=(0,), maxshape=(None,), chunks=(256,), dtype="i8")
+        s, o = g["samples"], g["offset"]
+        k = self.n_done
+        o.resize(k + 1, axis=0)
+        o[k] = s.shape[0]
+        s.resize(s.shape[0] + n, axis=0)
+        s[-n:] = data.T
+
+    def commit(self, n_done: int) -> None:
+        """Mark everything written so far as complete and push it to disk."""
+        self.acq["n_done"][0] = n_done
+        self.f.flush()
+
+    def set_state(self, state: str) -> None:
+        self.acq.attrs["state"] = state
+        self.f.flush()
+
+    def set_meta(self, meta: dict) -> None:
+        del self.acq["meta_json"]
+        self.acq.create_dataset("meta_json", data=json.dumps(meta), dtype=_STR)
+        self.f.flush()
+
+    # ------------------------------------------------------------------ finish
+    def finalize(self, frf: FRFData, state: str = "complete") -> None:
+        """Replace the run file by the compact FRF file plus ``/acq``, atomically; closes."""
+        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.final")
+        self.acq.attrs["state"] = state
+        self.acq.attrs["finished_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        self.f.flush()
+        try:
+            write_frf(tmp, frf)
+            with h5py.File(tmp, "a") as g:
+                self.f.copy(self.acq, g, name="acq")
+            self.f.close()
+            os.replace(tmp, self.path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+
+    def close(self) -> None:
+        if self.f.id.valid:
+            self.f.flush()
+            self.f.close()

@@ -1,0 +1,87 @@
+"""``ssidlab acquire``: run a vibration test described by a setup file.
+
+    ssidlab acquire SETUP.toml [--sim] [--out RUN.h5] [--quiet]
+    ssidlab acquire --resume RUN.h5 [SETUP.toml] [--sim] [--quiet]
+
+``--sim`` starts the simulated lab (``daq.simlab``) and runs against it through the real
+drivers. ``--resume`` continues an interrupted run from its first incomplete line; with a
+setup file given, its SHA-256 must equal the one stored in the run file (without one, the
+stored setup is used).
+
+Exit status: 0 the run is complete; 2 bad input (setup file, run file, options; one line
+``ssidlab acquire: error: ...``); 3 the run was stopped safely by a fault (one line
+``ssidlab acquire: stopped: <why>``; the file is resumable); 130 interrupted (Ctrl-C or
+SIGTERM; the file is resumable). In every case all generator outputs are off and all
+amplifiers disabled when the command ends.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+from typing import Any
+
+from ssid.errors import InputError
+
+__all__ = ["EXIT_STOPPED", "add_acquire_subcommand", "run_acquire"]
+
+HELP = "Run a stepped-sine or random vibration test from a setup file (real or simulated lab)."
+EXIT_STOPPED = 3
+
+
+def add_acquire_subcommand(sub: Any) -> argparse.ArgumentParser:
+    """Add the ``acquire`` subparser to ``sub`` (an argparse subparsers action); returns it."""
+    p = sub.add_parser("acquire", prog="ssidlab acquire", help=HELP, description=HELP, allow_abbrev=False)
+    p.add_argument("setup", nargs="?", metavar="SETUP.toml",
+                   help="test setup (TOML, see docs/acquisition.md); optional with --resume")
+    p.add_argument("--sim", action="store_true", help="start the simulated lab and run against it")
+    p.add_argument("--out", metavar="RUN.h5", help="run file (default: the setup's [output] file)")
+    p.add_argument("--resume", metavar="RUN.h5", help="continue this unfinished run file")
+    p.add_argument("--json", metavar="SUMMARY.json", help="write the run summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(run=run_acquire)
+    return p
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: safe state, file kept resumable."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise _Terminated()
+
+
+def run_acquire(args: argparse.Namespace) -> int:
+    from daq.run import load_resume_setup, run_test
+    from daq.safety import RunStopped
+    from daq.setup import load_setup
+
+    if args.resume and args.out:
+        raise InputError("--out and --resume exclude each other (the resumed file is written in place)")
+    if args.resume:
+        setup = load_resume_setup(args.resume, args.setup)
+        out = args.resume
+    else:
+        if not args.setup:
+            raise InputError("a setup file is required (or --resume RUN.h5)")
+        setup = load_setup(args.setup)
+        out = args.out
+    echo = (lambda m: None) if args.quiet else (lambda m: print(m, flush=True))
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        summary = run_test(setup, out=out, resume=bool(args.resume), sim=args.sim, echo=echo)
+    except RunStopped as exc:
+        print(f"ssidlab acquire: stopped: {' '.join(str(exc).splitlines())}", file=sys.stderr)
+        return EXIT_STOPPED
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump(summary, f, indent=2, default=str)
+            f.write("\n")
+    if not args.quiet and "n_lines" in summary:
+        print(f"done: {summary['file']} ({summary['state']}; {summary['n_lines']} lines, "
+              f"{summary['test_time_s']:.1f} s test time)")
+    return 0

@@ -1,0 +1,279 @@
+"""``ssidlab demo``: the main job on the simulated lab, end to end.
+
+1. Start the simulated lab - the payload simulator (16 Z DOFs) on a three-post test stand,
+   shakers at two interior DOFs (11+Z, 16+Z) fed by one two-channel generator and two
+   amplifiers, 16 accelerometers, load cells at the interface DOFs (4+Z, 8+Z, 18+Z), all on
+   a CAN FD DAQ, and a hidden effect the nominal model lacks (0.25 kg at 6+Z) - and run a
+   stepped-sine test with coherence blanking through the real drivers (``daq``).
+2. Identify the substructure's M, C, K with SSID from the accelerances and the measured
+   reaction forces (``ssid.identify.identify_mck``).
+3. Correlate the identified model with the FE model (the nominal payload model: MAC,
+   frequency errors, orthogonality) and with the truth of the simulated world.
+4. Write FRF (HDF5 and UFF 58), models, JSON summaries and PNG plots to the output folder.
+
+The test setup is :func:`demo_setup_text` (also ``examples/setup_sim.toml``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["DEMO_SHAKERS", "demo_setup_text", "run_lab_demo"]
+
+DEMO_SHAKERS = ("11+Z", "16+Z")
+HIDDEN = {"type": "added_mass", "dof": "6+Z", "mass_kg": 0.25}
+
+
+def demo_setup_text() -> str:
+    """The demo's test setup (TOML)."""
+    from ssid.models.payload import INTERFACE_DOFS, Z_DOFS
+
+    out = ['''# Example test setup for the simulated lab: the payload simulator on a three-post test stand.
+#
+#     ssidlab acquire examples/setup_sim.toml --sim --out run.h5
+#
+# Keys: docs/acquisition.md. Instrument addresses below are placeholders: with --sim they are
+# replaced by the simulated instruments' endpoints; without it they must point at real ones.
+
+[test]
+name = "payload simulator on test stand, stepped sine"
+operator = "ssidlab demo"
+
+[output]
+file = "run.h5"
+uff = "run.uff"
+raw_time = false
+
+[daq]
+interface = "socketcan"
+channel = "can0"
+sample_rate_hz = 4096          # 21 channels: 77 % of a 1/5 Mbit/s CAN FD bus
+
+[[generators]]
+name = "gen0"
+url = "/dev/ttyUSB0"
+max_vpp = 8.0
+ramp_time_s = 0.05
+''']
+    for j in range(len(DEMO_SHAKERS)):
+        out.append(f'''[[amplifiers]]
+name = "amp{j}"
+host = "192.168.0.{10 + j}"
+port = 502
+gain_v_per_v = 2.0
+''')
+    for j, d in enumerate(DEMO_SHAKERS):
+        out.append(f'''[[shakers]]
+dof = "{d}"
+generator = "gen0"
+channel = {j + 1}
+amplifier = "amp{j}"
+force_channel = "force {d}"
+''')
+    chans = ([(f"force {d}", d, "force", 22.5, 2.0) for d in DEMO_SHAKERS]
+             + [(f"acc {d}", d, "acceleration", 10.0, 5.0) for d in Z_DOFS]
+             + [(f"load {d}", d, "reaction", 22.5, 5.0) for d in INTERFACE_DOFS])
+    for k, (name, d, q, sens, rng) in enumerate(chans):
+        out.append(f'''[[channels]]
+name = "{name}"
+input = {k}
+dof = "{d}"
+quantity = "{q}"
+sensitivity_mv_per_unit = {sens}
+range_volt = {rng}
+''')
+    out.append(f'''[excitation]
+type = "stepped_sine"
+
+[stepped_sine]
+f_min_hz = 20.0
+f_max_hz = 1500.0
+n_lines = 40                   # coarse lines; the sweep refines near resonances
+spacing = "log"
+refine = 8                     # up to 8 finer lines per coarse step
+max_change = 0.25              # target relative change of the response between lines
+force_n = 2.0                  # force amplitude (peak) held by the level control
+tolerance = 0.15
+compression = 2.0
+accuracy = 1e-3                # requested relative accuracy of each line
+min_cycles = 8.0
+min_dwell_s = 0.04
+damping_guess = 0.01
+max_settle_s = 10.0
+
+[limits]
+max_drive_vpp = 8.0
+max_force_n = 50.0
+max_accel_m_per_s2 = 400.0
+max_reaction_n = 300.0
+
+[quality]
+min_coherence = 0.9
+
+[sim]
+structure = "payload"
+damping_ratio = 0.02
+noise = true
+seed = 1
+oversample = 4                 # the payload's modes reach 2.6 kHz: finer internal steps
+
+[sim.stand]
+stand_mass_kg = 20.0
+stand_k_n_per_m = 2.0e6
+stand_c_n_s_per_m = 400.0
+ground_k_n_per_m = 5.0e6
+
+[[sim.effects]]                # the hidden effect the nominal model lacks
+type = "{HIDDEN['type']}"
+dof = "{HIDDEN['dof']}"
+mass_kg = {HIDDEN['mass_kg']}
+''')
+    return "\n".join(out)
+
+
+def _progress(echo, every_s: float = 2.0):
+    """Progress lines of the run, at most one every ``every_s`` seconds (plus notes)."""
+    last = [0.0]
+
+    def show(msg: str) -> None:
+        now = time.monotonic()
+        if not msg.startswith("  shaker") or now - last[0] >= every_s:
+            last[0] = now
+            echo("      " + msg.strip())
+
+    return show
+
+
+def run_lab_demo(out_dir: str, echo=print) -> dict:
+    """Run the demo, write its files to ``out_dir`` and return the JSON summary."""
+    from daq.run import run_test
+    from daq.setup import parse_setup
+    from daq.simlab import build_world, payload_substructure
+    from ssid.correlate_models import correlate_models
+    from ssid.frf import accelerance, selection_matrix
+    from ssid.identify import identify_mck
+    from ssid.io import Model, read_frf, write_model
+    from ssid.modal import complex_modes, root_frequency_damping
+    from ssid.plots_correlation import plot_frf_overlay, plot_frequency_errors, plot_mac_matrix
+    from ssidlab.cli_correlate import jsonable
+
+    t0 = time.monotonic()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    frf_path, uff_path = out / "frf.h5", out / "frf.uff"
+    for p in (frf_path, uff_path):
+        p.unlink(missing_ok=True)
+    setup = parse_setup(demo_setup_text(), "demo setup")
+    setup = dataclasses.replace(setup, output_file=str(frf_path), uff_file=str(uff_path))
+    (out / "setup.toml").write_text(setup.text, encoding="utf-8")
+
+    echo("[1/4] simulated lab: payload simulator on a 3-post stand, shakers at 11+Z and 16+Z, "
+         "16 accelerometers, load cells at 4+Z 8+Z 18+Z, hidden effect; stepped sine 20-1500 Hz")
+    acq = run_test(setup, sim=True, echo=_progress(echo))
+    t_acq = time.monotonic() - t0
+    echo(f"      {acq['n_lines']} lines x {len(setup.shakers)} shakers, {acq['n_values_blanked']} values "
+         f"blanked, {acq['test_time_s']:.0f} s of test time in {t_acq:.0f} s; wrote {frf_path}, {uff_path}")
+    frf = read_frf(frf_path)
+
+    echo("[2/4] identifying the substructure (SSID, accelerances + measured reactions) ...")
+    res = identify_mck(frf)
+    ident = Model(M=res.M, K=res.K, C=res.C, dofs=list(res.dofs))
+    write_model(out / "model.h5", ident)
+    (out / "result.json").write_text(json.dumps(res.to_json_dict(), indent=2) + "\n", encoding="utf-8")
+
+    echo("[3/4] correlating with the FE model (nominal payload model) and with the simulated truth")
+    M, C, K, dofs = payload_substructure(0.02)
+    fe = Model(M=M, K=K, C=C, dofs=dofs)
+    write_model(out / "fe_model.h5", fe)
+    study = correlate_models(ident, fe)
+    world = build_world(setup)
+    lam, _ = complex_modes(world.M_s, world.C_s, world.K_s)
+    f_true = root_frequency_damping(lam)[0] / (2 * np.pi)
+    f_fe = root_frequency_damping(complex_modes(M, C, K)[0])[0] / (2 * np.pi)
+    f_id = res.natural_freq_hz
+    n = min(f_true.size, f_id.size)
+    err_true = 100 * (f_id[:n] - f_true[:n]) / f_true[:n]
+    echo(f"      {'mode':>4} {'FE Hz':>9} {'true Hz':>9} {'ident Hz':>9} {'id-true %':>9} {'id-FE %':>8} "
+         f"{'zeta %':>6}")
+    for k in range(n):
+        echo(f"      {k + 1:>4} {f_fe[k]:>9.2f} {f_true[k]:>9.2f} {f_id[k]:>9.2f} {err_true[k]:>9.3f} "
+             f"{100 * (f_id[k] - f_fe[k]) / f_fe[k]:>8.3f} {100 * res.damping_ratio[k]:>6.2f}")
+    in_band = (f_true[:n] >= frf.freq_hz[0]) & (f_true[:n] <= frf.freq_hz[-1])
+    corr = jsonable(study.summary)
+    (out / "correlation.json").write_text(json.dumps(corr, indent=2) + "\n", encoding="utf-8")
+    pairs = corr["paired_modes"]
+    shifted = [p for p in pairs if abs(p["freq_error_percent"]) > 1.0]
+    echo(f"      identified vs truth: max |error| {np.max(np.abs(err_true[in_band])):.3f} % over the "
+         f"{int(in_band.sum())} modes in the band {frf.freq_hz[0]:g}-{frf.freq_hz[-1]:g} Hz, "
+         f"{np.max(np.abs(err_true)):.2f} % over all {n} (suspension modes below and modes above the band)")
+    echo(f"      identified vs FE model: {len(pairs)} modes paired by MAC; {len(shifted)} shifted by more "
+         f"than 1 % (the hidden effect): " + ", ".join(
+             f"mode {p['analysis_mode']} {p['freq_error_percent']:+.2f} %" for p in shifted))
+    for w in res.warnings:
+        echo(f"      warning: {w}")
+
+    echo("[4/4] writing plots and summary.json")
+    # The identified model is the free substructure; on the stand it also feels the measured
+    # reactions: a = H_free (e_j + D_r r_j).
+    i_drv = frf.outputs.index(frf.inputs[0])
+    H_all = accelerance(res.M, res.C, res.K, frf.omega, selection_matrix(res.dofs, frf.outputs))
+    load = np.zeros((frf.n_freq, frf.n_out), complex)
+    load[:, i_drv] = 1.0
+    load[:, frf.reaction_index()] += frf.H_reaction[:, :, 0]
+    H_id = np.einsum("koi,ki->ko", H_all, load)[:, i_drv]
+    plot_frf_overlay(frf.freq_hz, frf.H[:, i_drv, 0], H_id, out / "frf_overlay.png",
+                     title=f"drive point {frf.inputs[0]} on the stand: measured vs identified",
+                     labels=("measured (simulated lab)", "identified model + measured reactions"),
+                     valid=frf.valid[:, i_drv, 0])
+    plot_mac_matrix(study.mac, out / "mac.png", study.test_freq_hz, study.analysis_freq_hz,
+                    title="MAC: identified (rows) vs FE model (columns)")
+    plot_frequency_errors(pairs, out / "freq_errors.png", title="identified vs FE model: frequency error")
+    _plot_sweep(frf_path, out / "sweep.png")
+    summary = {
+        "acquisition": acq,
+        "identification": {
+            "natural_freq_hz": [float(v) for v in f_id], "damping_ratio": [float(v) for v in res.damping_ratio],
+            "true_natural_freq_hz": [float(v) for v in f_true], "fe_natural_freq_hz": [float(v) for v in f_fe],
+            "freq_error_vs_truth_percent": [float(v) for v in err_true],
+            "max_abs_freq_error_in_band_percent": float(np.max(np.abs(err_true[in_band]))),
+            "M_rel_error": float(np.linalg.norm(res.M - world.M_s) / np.linalg.norm(world.M_s)),
+            "K_rel_error": float(np.linalg.norm(res.K - world.K_s) / np.linalg.norm(world.K_s)),
+            "warnings": list(res.warnings),
+        },
+        "correlation": {"paired_modes": pairs, "shifted_modes": shifted},
+        "hidden_effect": HIDDEN,
+        "runtime_s": time.monotonic() - t0,
+        "files": sorted(p.name for p in out.iterdir()),
+    }
+    (out / "summary.json").write_text(json.dumps(jsonable(summary), indent=2) + "\n", encoding="utf-8")
+    echo(f"done in {summary['runtime_s']:.0f} s: {out}/ " + ", ".join(summary["files"]))
+    return summary
+
+
+def _plot_sweep(frf_path: Path, png: Path) -> None:
+    """Lines chosen by the sweep and the settle time spent on each."""
+    import h5py
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with h5py.File(frf_path, "r") as f:
+        r = {k: f["acq/records"][k][()] for k in ("freq_hz", "settle_s", "dwell_s", "pattern")}
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    for p in np.unique(r["pattern"]):
+        m = r["pattern"] == p
+        ax.semilogx(r["freq_hz"][m], r["settle_s"][m], ".", label=f"settle, shaker {p + 1}")
+    ax.semilogx(r["freq_hz"], r["dwell_s"], "k_", ms=4, label="dwell")
+    ax.set_xlabel("frequency, Hz")
+    ax.set_ylabel("time per line, s")
+    ax.set_title("stepped sine: settling follows the transient decay")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)

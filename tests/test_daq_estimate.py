@@ -1,0 +1,95 @@
+"""Estimators: harmonic fit, multi-input solve, spectral H1/H2/Hv and coherence, transient monitor."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daq.estimate import SineFit, SpectralSums, frf_from_spectra, multi_input_frf
+from daq.schedule import frequency_grid, sweep_plan
+from daq.sine_line import TransientMonitor
+
+
+def test_sine_fit_amplitude_harmonics_drift_and_start():
+    fs, f, n = 4096.0, 37.3, 3000
+    t = (500 + np.arange(n)) / fs  # the record starts 500 samples after the line's origin
+    X = np.array([1.5 - 0.5j, 0.02 + 0.3j])
+    x = np.real(X[:, None] * np.exp(2j * np.pi * f * t)) + 0.1 + 0.05 * t  # offset and drift
+    x[0] += 0.01 * np.cos(2 * 2 * np.pi * f * t)  # 2nd harmonic on channel 0
+    est = SineFit(f, fs, n).fit(x, start=500)
+    np.testing.assert_allclose(est.X, X, rtol=1e-9, atol=1e-12)
+    assert abs(est.thd[0] - 0.01 / abs(X[0])) < 1e-9
+    noise = np.random.default_rng(0).normal(0, 0.01, (2000, 2, n))
+    Xs = np.array([SineFit(f, fs, n).fit(x + e, start=500).X for e in noise[:200]])
+    var_pred = SineFit(f, fs, n).fit(x + noise[0], start=500, noise_var=np.full(2, 1e-4)).var
+    np.testing.assert_allclose(np.mean(np.abs(Xs - X) ** 2, axis=0), var_pred, rtol=0.25)
+
+
+def test_multi_input_frf_exact_and_variance():
+    rng = np.random.default_rng(1)
+    H = rng.normal(size=(5, 2)) + 1j * rng.normal(size=(5, 2))
+    XF = rng.normal(size=(2, 2)) + 1j * rng.normal(size=(2, 2))  # arbitrary phase per pattern
+    Hs, var = multi_input_frf(H @ XF, XF, np.zeros((5, 2)), np.zeros((2, 2)))
+    np.testing.assert_allclose(Hs, H, rtol=1e-12)
+    assert np.all(var == 0)
+    s = 1e-3
+    draws = [multi_input_frf(H @ XF + s * (rng.normal(size=(5, 2)) + 1j * rng.normal(size=(5, 2))) / np.sqrt(2),
+                             XF, np.full((5, 2), s**2), np.zeros((2, 2))) for _ in range(3000)]
+    emp = np.mean([np.abs(d[0] - H) ** 2 for d in draws], axis=0)
+    np.testing.assert_allclose(emp, draws[0][1], rtol=0.15)
+
+
+def test_h1_h2_hv_and_coherence_mimo():
+    rng = np.random.default_rng(2)
+    nf, na, n_in, n_y = 4, 4000, 2, 3
+    H = rng.normal(size=(nf, n_y, n_in)) + 1j * rng.normal(size=(nf, n_y, n_in))
+    Xf = rng.normal(size=(na, n_in, nf)) + 1j * rng.normal(size=(na, n_in, nf))
+    Xy = np.einsum("fyi,aif->ayf", H, Xf)
+    S = SpectralSums.empty(nf, n_in, n_y)
+    S.add(Xf, Xy)
+    for est in ("H1", "Hv"):
+        d = frf_from_spectra(S, est)
+        np.testing.assert_allclose(d["H"], H, rtol=1e-8)
+        np.testing.assert_allclose(d["coherence"], 1.0, atol=1e-9)
+    noise = 0.3 * (rng.normal(size=Xy.shape) + 1j * rng.normal(size=Xy.shape))
+    S2 = SpectralSums.empty(nf, n_in, n_y)
+    S2.add(Xf, Xy + noise)
+    d = frf_from_spectra(S2, "H1")
+    err2 = np.abs(d["H"] - H) ** 2
+    assert 0.6 < np.mean(err2 / d["var"]) < 1.6  # the variance the averages predict
+    assert np.all(d["coherence"] < 1) and np.all(d["coherence"] > 0.8)
+    S1 = SpectralSums.empty(nf, 1, n_y)
+    S1.add(Xf[:, :1], np.einsum("fy,af->ayf", H[:, :, 0], Xf[:, 0]))
+    np.testing.assert_allclose(frf_from_spectra(S1, "H2")["H"][:, :, 0], H[:, :, 0], rtol=1e-8)
+
+
+def test_transient_monitor_stops_when_the_geometric_tail_is_small():
+    rng = np.random.default_rng(3)
+    y_true = rng.normal(size=8) + 1j * rng.normal(size=8)
+    e0 = 0.5 * (rng.normal(size=8) + 1j * rng.normal(size=8))
+    q = 0.9 * np.exp(0.3j)
+    mon = TransientMonitor(1e-3, floor=0.5, prior=0.5)
+    k = 0
+    while not mon.update(y_true + e0 * q**k, noise=0.0):
+        k += 1
+    err = np.linalg.norm(e0 * q**k) / np.linalg.norm(y_true)
+    assert err <= 1e-3  # stopped only once the true error is below the accuracy
+    assert err > 1e-4  # but not much later (about one step per factor 0.9)
+
+
+def test_schedule_refines_near_a_resonance_and_covers_every_shaker():
+    grid = frequency_grid(10, 100, 10, "log", 8)
+    assert grid.size == 73 and np.all(np.diff(grid) > 0)
+    fr = 31.0
+
+    def measure(p, k):
+        f = grid[k]
+        h = 1 / (fr**2 - f**2 + 2j * 0.01 * fr * f)
+        return np.array([h, 0.5 * h + 1e-4 * (1 + p)])
+
+    done = sweep_plan(measure, 2, grid.size, 8, 0.25)
+    lines0 = sorted(done[0])
+    assert set(done[0]) == set(done[1])  # every line has a sub-line per shaker
+    near = [k for k in lines0 if abs(grid[k] / fr - 1) < 0.05]
+    steps = np.diff(lines0)
+    assert len(near) >= 3 and steps[np.searchsorted(lines0, near[0])] == 1  # every grid line at the peak
+    assert steps[0] == 8 and max(steps[-4:]) >= 3 and len(lines0) < grid.size / 2  # coarse far from it

@@ -1,0 +1,54 @@
+"""Every instrument fault mid-run stops the run safely and says why; the file stays readable
+and resumable; the simulated instruments end with all outputs off and amplifiers disabled."""
+
+from __future__ import annotations
+
+import h5py
+import pytest
+
+from daq.run import run_test
+from daq.safety import RunStopped
+from daq.setup import parse_setup
+from daq.simlab import start_sim_lab
+from ssid.io import read_frf
+
+from test_daq_helpers import all_safe, sine_setup
+
+FAULTS = {
+    "interlock": (lambda lab: lab.amplifiers[0].set_interlock(False), "interlock open"),
+    "over_temperature": (lambda lab: lab.amplifiers[0].inject_over_temperature(), "amplifier fault"),
+    "heartbeat": (lambda lab: lab.amplifiers[0].inject("heartbeat_stall"), "heartbeat lost"),
+    "overload": (lambda lab: lab.daq.inject("overload", channel=1), "DAQ overload"),
+    "frame_gap": (lambda lab: lab.daq.inject("drop", channel=2, seq=1), "frame"),
+    "bus_off": (lambda lab: lab.daq.inject("bus_off", duration_s=2.5), "bus-off"),
+    "generator_lost": (lambda lab: lab.generators[0].inject("silent", count=2), "instrument lost"),
+}
+
+
+@pytest.mark.parametrize("fault", list(FAULTS))
+def test_fault_mid_run_ends_in_the_safe_state(tmp_path, fault):
+    inject, words = FAULTS[fault]
+    n = 16 if fault == "heartbeat" else 6  # a stalled heartbeat shows only after 1 s
+    setup = parse_setup(sine_setup(n_lines=n, refine=2), str(tmp_path / "s.toml"))
+    handle, inst = start_sim_lab(setup)
+    seen = []
+
+    def echo(msg):
+        seen.append(msg)
+        if len(seen) == 3:
+            inject(handle.lab)
+
+    try:
+        with pytest.raises(RunStopped) as e:
+            run_test(inst, out=str(tmp_path / "run.h5"), echo=echo)
+        world = handle.world
+        assert all_safe(world), f"not safe after {fault}"
+    finally:
+        handle.stop()
+    msg = str(e.value)
+    assert words in msg and msg.startswith("run stopped safely") and "\n" not in msg
+    with h5py.File(tmp_path / "run.h5") as f:
+        state = f["acq"].attrs["state"]
+        assert state.startswith("stopped:") and words in state
+        assert f["acq/n_done"][0] >= 2
+    assert read_frf(tmp_path / "run.h5").n_freq > 0  # every completed line is on file

@@ -1,0 +1,75 @@
+"""Setup files: the example parses, bad files get one precise line naming the key (exit 2)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from daq.setup import load_setup, parse_setup
+from ssid.errors import InputError
+
+from test_daq_helpers import cli, sine_setup
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_example_setup_is_the_demo_setup():
+    from ssidlab.lab_demo import demo_setup_text
+
+    text = (ROOT / "examples" / "setup_sim.toml").read_text()
+    assert text == demo_setup_text()
+    s = load_setup(ROOT / "examples" / "setup_sim.toml")
+    assert len(s.channels) == 21 and s.inputs == ["11+Z", "16+Z"] and s.reactions == ["4+Z", "8+Z", "18+Z"]
+    assert len(s.outputs) == 16 and s.roles()["force"] == [0, 1]
+
+
+@pytest.mark.parametrize("edit, key", [
+    (("f_max_hz = 200.0", "f_max_hz = 50.0"), "[stepped_sine] f_max_hz"),
+    (("force_n = 1.0", "force_n = -1"), "[stepped_sine] force_n"),
+    (("sample_rate_hz = 4096", "sample_rate_hz = 4096.5"), "[daq] sample_rate_hz"),
+    (("sensitivity_mv_per_unit = 22.5", "sensitivity_mv_per_unit = 0"), "[[channels]] #1 sensitivity_mv_per_unit"),
+    (('quantity = "force"', 'quantity = "forse"'), "[[channels]] #1 quantity"),
+    (('force_channel = "force 1+Z"', 'force_channel = "acc 1+Z"'), "[[shakers]] #1 force_channel"),
+    (('amplifier = "amp0"\nforce', 'amplifier = "amp9"\nforce'), "[[shakers]] #1 amplifier"),
+    (("refine = 3", "refine = 3\nrefien = 2"), "[stepped_sine] refien: unknown key"),
+    (('type = "stepped_sine"', 'type = "chirp"'), "[excitation] type"),
+    (('structure = "example"', "structure = 3"), "[sim] structure"),
+])
+def test_bad_setup_names_the_key(tmp_path, edit, key):
+    text = sine_setup()
+    assert edit[0] in text
+    p = tmp_path / "bad.toml"
+    p.write_text(text.replace(edit[0], edit[1], 1))
+    if key.startswith("[sim]"):
+        from daq.simlab import build_world
+
+        with pytest.raises(InputError) as e:
+            build_world(load_setup(p))
+    else:
+        with pytest.raises(InputError) as e:
+            load_setup(p)
+    msg = str(e.value)
+    assert key in msg and str(p) in msg and "\n" not in msg
+
+
+def test_cli_bad_input_is_one_line_exit_2(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text("[excitation]\ntype = 'stepped_sine'\n[output\n")
+    status, err = cli([str(p)])
+    assert status == 2 and "not valid TOML" in err and "\n" not in err
+    status, err = cli([str(tmp_path / "missing.toml")])
+    assert status == 2 and "no such file" in err
+    status, err = cli([])
+    assert status == 2 and "setup file is required" in err
+    status, err = cli(["--resume", str(tmp_path / "nothing.h5")])
+    assert status == 2 and "no such run file" in err
+
+
+def test_missing_required_and_cross_checks():
+    with pytest.raises(InputError, match=r"\[output\] file: missing"):
+        parse_setup(sine_setup().replace('file = "run.h5"', ""), "s.toml")
+    with pytest.raises(InputError, match=r"\[\[shakers\]\] #1 dof: no acceleration channel"):
+        parse_setup(sine_setup().replace('dof = "1+Z"\nquantity = "acceleration"', 'dof = "2+Z"\nquantity = "acceleration"'), "s.toml")
+    with pytest.raises(InputError, match=r"\[stepped_sine\] control"):
+        parse_setup(sine_setup(extra='control = "force 1+Z"'), "s.toml")

@@ -1,0 +1,165 @@
+"""Stepped sine on the simulated lab (real drivers, real transports): accuracy, blanking,
+limits, storage, resume after Ctrl-C and after kill -9, UFF export."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from daq.run import run_test
+from daq.setup import parse_setup
+from daq.simlab import build_world, start_sim_lab
+from ssid.io import read_frf
+
+from test_daq_helpers import all_safe, cli, frf_error, sine_setup
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_on_sim(setup, out, **kw):
+    """Run against a simulated lab started here, so the test can read the instruments' state."""
+    handle, inst = start_sim_lab(setup)
+    try:
+        return run_test(inst, out=str(out), echo=kw.pop("echo", lambda m: None), **kw), handle.world
+    finally:
+        handle.stop()
+
+
+def test_noise_free_stepped_sine_matches_the_world(tmp_path):
+    """Two shakers (full 2-column FRF matrix from one-shaker-at-a-time sweeps), a reaction."""
+    setup = parse_setup(sine_setup(two=True, reaction=True), str(tmp_path / "s.toml"))
+    summary, world = run_on_sim(setup, tmp_path / "run.h5")
+    assert summary["state"] == "complete" and all_safe(world)
+    frf = read_frf(tmp_path / "run.h5")
+    assert frf.n_in == 2 and frf.reactions == ["14+Z"] and frf.valid_mask().mean() > 0.95
+    err = frf_error(frf, build_world(setup))
+    assert np.max(err) < 5e-3, np.max(err)  # the issue: within 0.5 %
+    ref = build_world(setup).frf(frf.freq_hz, outputs=frf.outputs, inputs=frf.inputs)
+    # Reactions: relative to their level over the band (they pass through zero near 200 Hz).
+    er = np.abs(frf.H_reaction - ref.H_reaction) / np.max(np.abs(ref.H_reaction), axis=0)
+    assert np.max(er) < 5e-3
+    with h5py.File(tmp_path / "run.h5") as f:
+        assert f["acq"].attrs["state"] == "complete" and f["acq/n_done"][0] == 2 * frf.n_freq
+        assert f["acq"].attrs["setup_sha256"] == setup.sha256 and "sessions" in f["acq/meta_json"][()].decode()
+        settle = f["acq/records/settle_s"][()]
+    assert settle.max() > 4 * settle.min()  # settling follows the transient, not a fixed count
+
+
+def test_noise_on_errors_within_predicted_variance(tmp_path):
+    setup = parse_setup(sine_setup(noise=True, sim_extra="sensor_noise_volt_rms = 3e-3\nseed = 4",
+                                   extra="max_dwell_s = 0.5"), str(tmp_path / "s.toml"))
+    summary, world = run_on_sim(setup, tmp_path / "run.h5")
+    frf = read_frf(tmp_path / "run.h5")
+    ref = build_world(setup).frf(frf.freq_hz, outputs=frf.outputs, inputs=frf.inputs)
+    ok = frf.valid_mask()
+    z = np.abs(frf.H - ref.H)[ok] ** 2 / frf.H_var[ok]
+    assert 0.2 < np.mean(z) < 3.0, np.mean(z)  # E|dH|^2 = var: the errors the estimate predicts
+    assert np.mean(z > 9) < 0.05
+    assert np.all(frf.coherence[ok] >= 0.9) and np.all(frf.coherence <= 1)
+
+
+def test_coherence_blanking_and_limit_abort(tmp_path):
+    """A response limit aborts lines (drive ramped to zero, line marked), the run goes on;
+    lines whose quality is below min_coherence are blanked in `valid`."""
+    text = sine_setup(limits="max_accel_m_per_s2 = 1.2")
+    text = text.replace("[stepped_sine]", "[quality]\nmin_coherence = 0.9\n[stepped_sine]")
+    setup = parse_setup(text, str(tmp_path / "s.toml"))
+    summary, world = run_on_sim(setup, tmp_path / "run.h5")
+    assert summary["state"] == "complete" and summary["n_aborted"] >= 1 and all_safe(world)
+    with h5py.File(tmp_path / "run.h5") as f:
+        st = f["acq/records/status"][()]
+        reason = [r.decode() for r in f["acq/records/reason"][()][st == 1]]
+    assert all("acceleration" in r and "above the limit 1.2" in r for r in reason)
+    frf = read_frf(tmp_path / "run.h5")
+    bad = ~frf.valid_mask()[:, 0, 0]
+    assert bad.sum() == summary["n_aborted"] and np.all(np.isnan(frf.H[bad]))
+    assert frf.valid_mask()[~bad].all()
+
+
+def _same_frf(a, b, rtol=3e-3):
+    assert np.array_equal(a.freq_hz, b.freq_hz)
+    assert np.array_equal(a.valid_mask(), b.valid_mask())
+    ok = a.valid_mask()
+    assert np.max(np.abs(a.H[ok] - b.H[ok]) / np.abs(b.H[ok])) < rtol
+
+
+def test_ctrl_c_leaves_a_readable_file_and_resume_gives_the_same_frf(tmp_path):
+    setup = parse_setup(sine_setup(two=True), str(tmp_path / "s.toml"))
+    run_on_sim(setup, tmp_path / "full.h5")
+    count = {"n": 0}
+
+    def echo(msg):
+        count["n"] += 1
+        if count["n"] == 12:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_on_sim(setup, tmp_path / "cut.h5", echo=echo)
+    part = read_frf(tmp_path / "cut.h5")  # readable mid-run: every completed line, rest invalid
+    with h5py.File(tmp_path / "cut.h5") as f:
+        assert f["acq"].attrs["state"] == "interrupted" and 5 <= f["acq/n_done"][0] <= 12
+    assert part.valid_mask().sum() < read_frf(tmp_path / "full.h5").valid_mask().sum()
+    summary = run_test(setup, out=str(tmp_path / "cut.h5"), resume=True, sim=True, echo=lambda m: None)
+    assert summary["state"] == "complete"
+    _same_frf(read_frf(tmp_path / "cut.h5"), read_frf(tmp_path / "full.h5"))
+    # Resuming with a different setup file is refused (hash check).
+    other = tmp_path / "other.toml"
+    other.write_text(setup.text.replace("force_n = 1.0", "force_n = 1.5"))
+    status, err = cli(["--resume", str(tmp_path / "full.h5"), str(other), "--sim"])
+    assert status == 2 and "differs from the setup" in err
+
+
+def test_kill_9_mid_run_then_resume_gives_the_same_file(tmp_path):
+    """A separate process runs `ssidlab acquire --sim` and is killed with SIGKILL mid-run."""
+    text = sine_setup(two=True)
+    (tmp_path / "s.toml").write_text(text)
+    setup = parse_setup(text, str(tmp_path / "s.toml"))
+    code = ("import sys; sys.path.insert(0, %r); sys.path.insert(0, %r); from test_daq_helpers import cli; "
+            "sys.exit(cli(sys.argv[1:])[0])" % (str(ROOT), str(ROOT / "tests")))
+    proc = subprocess.Popen([sys.executable, "-u", "-c", code, str(tmp_path / "s.toml"), "--sim",
+                             "--out", str(tmp_path / "killed.h5")], stdout=subprocess.PIPE, text=True,
+                            cwd=tmp_path)
+    try:
+        n = 0
+        for line in proc.stdout:
+            n += line.startswith("  shaker")
+            if n == 9:
+                os.kill(proc.pid, signal.SIGKILL)
+                break
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL
+    part = read_frf(tmp_path / "killed.h5")  # the killed run's file opens and validates
+    with h5py.File(tmp_path / "killed.h5") as f:
+        assert f["acq"].attrs["state"] == "running" and f["acq/n_done"][0] >= 8
+    assert part.n_freq > 0
+    status, _ = cli(["--resume", str(tmp_path / "killed.h5"), "--sim", "--quiet"])
+    assert status == 0
+    run_on_sim(setup, tmp_path / "full.h5")
+    _same_frf(read_frf(tmp_path / "killed.h5"), read_frf(tmp_path / "full.h5"))
+
+
+def test_uff58_export(tmp_path):
+    from ssid.exchange import read_uff_frf
+
+    text = sine_setup(n_lines=3, refine=2).replace('file = "run.h5"', 'file = "run.h5"\nuff = "run.uff"')
+    setup = parse_setup(text, str(tmp_path / "s.toml"))
+    summary, _ = run_on_sim(setup, tmp_path / "run.h5")
+    frf = read_frf(tmp_path / "run.h5")
+    back = read_uff_frf(str(tmp_path / "run.uff"))
+    assert back.outputs == frf.outputs and back.inputs == frf.inputs
+    np.testing.assert_allclose(back.freq_hz, frf.freq_hz, rtol=5e-6)  # UFF 58 abscissa: 6 digits
+    ok = frf.valid_mask()
+    np.testing.assert_array_equal(back.valid_mask(), ok)
+    np.testing.assert_allclose(back.H[ok], frf.H[ok], rtol=1e-10)

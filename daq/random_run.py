@@ -28,7 +28,7 @@ import numpy as np
 
 from ssid.frf import FRFData
 
-from .estimate import SpectralSums, frf_from_spectra, spectra_of_blocks, welch_blocks
+from .estimate import SpectralSums, frf_from_spectra, spectra_of_blocks
 from .rig import Rig
 from .safety import RunStopped, check_limits
 from .setup import TestSetup

@@ -319,13 +319,19 @@ def _add_acquire(sub: Any) -> None:
     add_acquire_subcommand(sub)
 
 
+def _add_tui(sub: Any) -> None:
+    from tui.cli import add_tui_subcommand
+
+    add_tui_subcommand(sub)
+
+
 # Each subcommand is an _add_<name>(sub) that builds its parser with _add_subcommand() (or
 # sub.add_parser) and sets `run=...`; errors follow the same rules through main().
 # Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
 # `run=_run_<name>`; list it here. Errors follow the same rules through main().
 _SUBCOMMANDS = (
     _add_identify, _add_demo, _add_correlate, _add_sim_lab, _add_convert, _add_export_model,
-    _add_discrepancy, _add_acquire,
+    _add_discrepancy, _add_acquire, _add_tui,
 )
 
 

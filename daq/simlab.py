@@ -32,6 +32,7 @@ import dataclasses
 import numpy as np
 
 from ssid.errors import InputError
+from ssid.io import Model
 
 from .setup import TestSetup, _Table
 
@@ -241,3 +242,15 @@ class WorldRig:
 
     def close(self) -> None:
         self.safe_state()
+
+
+def nominal_mounted_model(setup: TestSetup) -> Model:
+    """The analyst's model of the structure as mounted: the setup's structure and stand with
+    every hidden ``[[sim.effects]]`` removed (what a nominal FE model plus a known stand gives).
+
+    DOFs are the structure's followed by one ``"stand@<dof>"`` per stand mass.
+    """
+    sim = {k: v for k, v in setup.sim.items() if k != "effects"}
+    world = build_world(dataclasses.replace(setup, sim=sim))
+    M, C, K, dofs = world.coupled_model()
+    return Model(M=M, K=K, C=C, dofs=dofs)

@@ -185,6 +185,16 @@ class World:
             Kc[n:, n:] += st.ground_k_n_per_m * np.eye(nr)
         return Mc, Cc, Kc
 
+    def coupled_model(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+        """M, C, K of structure (with its effects) plus stand, and DOF labels.
+
+        The stand mass under reaction DOF ``d`` is labelled ``"stand@<d>"``. This is the model
+        an analyst would write for the structure as mounted in the lab.
+        """
+        Mc, Cc, Kc = self._structure_with_stand()
+        reactions = list(self.stand.reactions) if self.stand else []
+        return Mc, Cc, Kc, list(self.dofs) + [f"stand@{r}" for r in reactions]
+
     def _assemble(self) -> None:
         """State-space A, B and the output matrix of sensors and shaker monitors."""
         Mc, Cc, Kc = self._structure_with_stand()

@@ -65,3 +65,11 @@ def test_lab_demo_end_to_end(tmp_path):
     frf = read_frf(str(out / "frf.h5"))
     assert frf.H_reaction is not None and frf.n_in == 2 and frf.n_out == 16
     assert "Traceback" not in p.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    ident = summary["identification"]
+    assert ident["max_abs_freq_error_in_band_percent"] < 0.1  # low sensor noise: see docs
+    # The discrepancy workflow names the effect hidden in the simulated lab (0.25 kg at 6+Z).
+    disc = summary["discrepancy"]
+    assert disc["effect"] == "added_mass" and disc["dofs"] == ["6+Z"]
+    assert abs(disc["parameters"]["mass_kg"] - 0.25) < 0.05
+    assert disc["gap_after"] < 0.5 * disc["gap_before"]

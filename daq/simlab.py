@@ -244,13 +244,16 @@ class WorldRig:
         self.safe_state()
 
 
-def nominal_mounted_model(setup: TestSetup) -> Model:
-    """The analyst's model of the structure as mounted: the setup's structure and stand with
-    every hidden ``[[sim.effects]]`` removed (what a nominal FE model plus a known stand gives).
+def nominal_model(setup: TestSetup, mounted: bool = True) -> Model:
+    """The analyst's model of a simulated-lab setup: its structure with every hidden
+    ``[[sim.effects]]`` removed (what a nominal FE model gives).
 
-    DOFs are the structure's followed by one ``"stand@<dof>"`` per stand mass.
+    With ``mounted`` the stand is included as the lab has it (taken as known): DOFs are the
+    structure's followed by one ``"stand@<dof>"`` per stand mass. Without, the structure alone.
     """
     sim = {k: v for k, v in setup.sim.items() if k != "effects"}
     world = build_world(dataclasses.replace(setup, sim=sim))
+    if not mounted:
+        return Model(M=world.M_s, K=world.K_s, C=world.C_s, dofs=list(world.dofs))
     M, C, K, dofs = world.coupled_model()
     return Model(M=M, K=K, C=C, dofs=dofs)

@@ -319,6 +319,31 @@ def _add_acquire(sub: Any) -> None:
     add_acquire_subcommand(sub)
 
 
+def _add_sim_model(sub: Any) -> None:
+    p = _add_subcommand(
+        sub, "sim-model",
+        "Write the nominal model of a simulated-lab setup (no hidden effects) as a model file.",
+    )
+    p.add_argument("setup", metavar="SETUP.toml", help="test setup with a [sim] section")
+    p.add_argument("--out", metavar="MODEL.h5", required=True, help="model file to write")
+    p.add_argument(
+        "--substructure", action="store_true",
+        help="the structure alone (the FE model to correlate with), not as mounted on its stand",
+    )
+    p.set_defaults(run=_run_sim_model)
+
+
+def _run_sim_model(args: argparse.Namespace) -> int:
+    from daq.setup import load_setup
+    from daq.simlab import nominal_model
+
+    _check_outputs(args.setup, [args.out])
+    model = nominal_model(load_setup(args.setup), mounted=not args.substructure)
+    write_model(args.out, model)
+    print(f"wrote {args.out}: {len(model.dofs)} DOFs")
+    return EXIT_OK
+
+
 def _add_tui(sub: Any) -> None:
     from tui.cli import add_tui_subcommand
 
@@ -331,7 +356,7 @@ def _add_tui(sub: Any) -> None:
 # `run=_run_<name>`; list it here. Errors follow the same rules through main().
 _SUBCOMMANDS = (
     _add_identify, _add_demo, _add_correlate, _add_sim_lab, _add_convert, _add_export_model,
-    _add_discrepancy, _add_acquire, _add_tui,
+    _add_discrepancy, _add_acquire, _add_tui, _add_sim_model,
 )
 
 

@@ -158,7 +158,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
     """Run the demo, write its files to ``out_dir`` and return the JSON summary."""
     from daq.run import run_test
     from daq.setup import parse_setup
-    from daq.simlab import build_world, nominal_mounted_model, payload_substructure
+    from daq.simlab import build_world, nominal_model, payload_substructure
     from ssid.discrepancy import find_discrepancy
     from ssid.discrepancy.plots import write_plots
     from ssid.correlate_models import correlate_models
@@ -226,7 +226,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
 
     echo("[4/5] discrepancy workflow: the measured FRFs against the nominal model as mounted "
          "(FE payload + stand), never told the hidden effect")
-    nominal = nominal_mounted_model(setup)
+    nominal = nominal_model(setup)
     write_model(out / "nominal_mounted.h5", nominal)
     measured = dataclasses.replace(frf, H_reaction=None, reactions=None)
     disc = find_discrepancy(nominal, measured)

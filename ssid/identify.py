@@ -15,6 +15,7 @@ import numpy as np
 
 from .errors import IdentificationError
 from .frf import FRFData
+from .jsonutil import to_jsonable
 from .modal import (
     modal_damping_matrix,
     modal_phase_collinearity,
@@ -89,7 +90,7 @@ class SSIDResult:
 
     def to_json_dict(self) -> dict:
         """The result as plain JSON types (the contract's keys first); NaN/Inf become None."""
-        return _jsonable({
+        return to_jsonable({
             "natural_freq_hz": [float(v) for v in self.natural_freq_hz],
             "damping_ratio": [float(v) for v in self.damping_ratio],
             "dofs": list(self.dofs),
@@ -114,21 +115,6 @@ class SSIDResult:
         })
 
 
-def _jsonable(obj):
-    """Numpy scalars/arrays to Python types, non-finite floats to None (strict JSON)."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.bool_, bool)):
-        return bool(obj)
-    if isinstance(obj, (np.integer, int)):
-        return int(obj)
-    if isinstance(obj, (np.floating, float)):
-        return float(obj) if np.isfinite(obj) else None
-    return obj
 
 
 def _residual_weights(d: Step1Data, est: Step1Estimate, valid: np.ndarray) -> np.ndarray:

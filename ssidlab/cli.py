@@ -31,7 +31,7 @@ import numpy as np
 from ssid.errors import IdentificationError, InputError
 from ssid.io import Model, read_frf, write_model
 from ssidlab import __version__
-from ssidlab.argtypes import frequency_hz
+from ssidlab.argtypes import check_output_paths, frequency_hz
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -178,7 +178,7 @@ def _run_identify(args: argparse.Namespace) -> int:
     # Cheap checks first, so a typo does not cost an identification run.
     if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
         raise InputError(f"--fmin ({args.fmin:g} Hz) must be below --fmax ({args.fmax:g} Hz)")
-    _check_outputs(args.frf, [args.out, args.json])
+    check_output_paths([args.frf], [args.out, args.json])
     frf = read_frf(args.frf)
     _check_band(args.frf, frf, args.fmin, args.fmax)
 
@@ -207,24 +207,6 @@ def _run_identify(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(_mode_table(summary))
     return EXIT_OK
-
-
-def _check_outputs(source: str, paths: list[str]) -> None:
-    """Refuse output paths that cannot be written or would overwrite the input."""
-    src = os.path.realpath(source)
-    seen: set[str] = set()
-    for path in paths:
-        real = os.path.realpath(path)
-        if real == src:
-            raise InputError(f"{path}: output would overwrite the input file")
-        if real in seen:
-            raise InputError(f"{path}: given for two different outputs")
-        seen.add(real)
-        if os.path.isdir(path):
-            raise InputError(f"{path}: is a directory, expected a file name")
-        parent = Path(path).parent
-        if not parent.is_dir():
-            raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")
 
 
 def _check_band(source: str, frf, f_min: float | None, f_max: float | None) -> None:
@@ -337,7 +319,7 @@ def _run_sim_model(args: argparse.Namespace) -> int:
     from daq.setup import load_setup
     from daq.simlab import nominal_model
 
-    _check_outputs(args.setup, [args.out])
+    check_output_paths([args.setup], [args.out])
     model = nominal_model(load_setup(args.setup), mounted=not args.substructure)
     write_model(args.out, model)
     print(f"wrote {args.out}: {len(model.dofs)} DOFs")

@@ -19,9 +19,8 @@ import re
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ssid.errors import InputError
+from ssid.jsonutil import to_jsonable
 from ssid.tam import TAM_METHODS
 from ssidlab.argtypes import frequency_hz
 
@@ -233,19 +232,5 @@ def pair_table(summary: dict) -> str:
 
 
 def jsonable(obj: Any) -> Any:
-    """Numpy values as plain JSON types; NaN and Inf as None (strict JSON)."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
+    """Kept for callers of this module: see :func:`ssid.jsonutil.to_jsonable`."""
+    return to_jsonable(obj)

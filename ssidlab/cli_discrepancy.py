@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from ssid.errors import InputError
+from ssidlab.argtypes import check_output_paths, frequency_hz
 
 __all__ = ["add_discrepancy_subcommand", "run_discrepancy", "summary_text"]
 
@@ -42,8 +43,8 @@ def add_discrepancy_subcommand(sub: Any) -> argparse.ArgumentParser:
                    help="effect found, gaps before and after, ranked candidates")
     p.add_argument("--out", metavar="UPDATED.h5", help="write the nominal model with the effect added")
     p.add_argument("--plots", metavar="DIR", help="directory for PNG plots (created if needed)")
-    p.add_argument("--fmin", type=_frequency, metavar="HZ", help="lowest line used")
-    p.add_argument("--fmax", type=_frequency, metavar="HZ", help="highest line used")
+    p.add_argument("--fmin", type=frequency_hz, metavar="HZ", help="lowest line used")
+    p.add_argument("--fmax", type=frequency_hz, metavar="HZ", help="highest line used")
     p.add_argument("--max-effects", type=int, choices=(1, 2), default=1,
                    help="1: one effect (default); 2: also add a second effect if the second "
                    "round finds one")
@@ -54,34 +55,6 @@ def add_discrepancy_subcommand(sub: Any) -> argparse.ArgumentParser:
     return p
 
 
-def _frequency(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite frequency >= 0 Hz, got {text!r}")
-    return value
-
-
-def _check_outputs(inputs: list[str], outputs: list[str | None]) -> None:
-    """Refuse output paths that cannot be written, collide, or would overwrite an input."""
-    sources = {os.path.realpath(s) for s in inputs}
-    seen: set[str] = set()
-    for path in outputs:
-        if path is None:
-            continue
-        real = os.path.realpath(path)
-        if real in sources:
-            raise InputError(f"{path}: output would overwrite an input file")
-        if real in seen:
-            raise InputError(f"{path}: given for two different outputs")
-        seen.add(real)
-        if os.path.isdir(path):
-            raise InputError(f"{path}: is a directory, expected a file name")
-        parent = Path(path).parent
-        if not parent.is_dir():
-            raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")
 
 
 def _check_plot_dir(path: str, inputs: list[str]) -> None:
@@ -98,7 +71,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
     inputs = [args.model, args.measured]
     if os.path.realpath(args.model) == os.path.realpath(args.measured):
         raise InputError(f"{args.model}: given as both --model and --measured")
-    _check_outputs(inputs, [args.json, args.out])
+    check_output_paths(inputs, [args.json, args.out])
     if args.plots is not None:
         _check_plot_dir(args.plots, inputs)
 

@@ -15,11 +15,12 @@ reported beside it for engineers who read FRF plots.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from itertools import pairwise
 
 import numpy as np
+
+from ssid.jsonutil import to_jsonable
 
 from ..correlate import modal_assurance, pair_modes_by_mac, real_mode_from_complex
 from ..correlate_frf import (
@@ -142,21 +143,6 @@ def paired_modes(frf: FRFData, valid: np.ndarray, models: dict[str, Model],
     return rows
 
 
-def _jsonable(obj):
-    """Numpy values as plain JSON types; NaN/Inf as None (strict JSON)."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if math.isfinite(obj) else None
-    return obj
 
 
 @dataclass
@@ -203,7 +189,7 @@ class DiscrepancyResult:
 
     def to_json_dict(self) -> dict:
         """The result as plain JSON types, the contract's keys first; NaN/Inf become None."""
-        return _jsonable({
+        return to_jsonable({
             "effect": self.effect.name,
             "dofs": list(self.effect.dofs),
             "parameters": dict(self.effect.parameters),

@@ -21,7 +21,7 @@ from ssid.io import Model, write_frf, write_model
 from ssid.modal import complex_modes, root_frequency_damping
 from ssid.models import example_system
 from ssid.noise import report_noise_frf
-from ssid.plots import plot_frf_overlay
+from ssid.plots_correlation import plot_frf_overlay
 
 __all__ = ["example_frf", "run_demo"]
 
@@ -87,9 +87,9 @@ def run_demo(out_dir: str, echo=print) -> dict:
     H_id = accelerance(result.M, result.C, result.K, frf.omega,
                        selection_matrix(result.dofs, frf.inputs[:1]))[:, i, 0]
     plot_frf_overlay(
-        str(out / "frf_overlay.png"), frf.freq_hz,
-        {"measured (noisy)": frf.H[:, i, 0], "identified model": H_id},
-        f"drive point {frf.outputs[i]} / {frf.inputs[0]}",
+        frf.freq_hz, frf.H[:, i, 0], H_id, out / "frf_overlay.png",
+        title=f"drive point {frf.outputs[i]} / {frf.inputs[0]}",
+        labels=("measured (noisy)", "identified model"),
     )
     echo(f"done: {out}/frf.h5, model.h5, result.json, frf_overlay.png")
     return summary

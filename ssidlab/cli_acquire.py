@@ -70,6 +70,10 @@ def run_acquire(args: argparse.Namespace) -> int:
         out = args.out
     echo = (lambda m: None) if args.quiet else (lambda m: print(m, flush=True))
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    # A process started in the background by a non-interactive shell (or by a CI runner)
+    # inherits SIGINT as ignored, and Python then installs no KeyboardInterrupt handler: a
+    # SIGINT (Ctrl-C, the TUI's abort) would be lost and the drive would keep running.
+    previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         summary = run_test(setup, out=out, resume=bool(args.resume), sim=args.sim, echo=echo)
     except RunStopped as exc:
@@ -77,6 +81,7 @@ def run_acquire(args: argparse.Namespace) -> int:
         return EXIT_STOPPED
     finally:
         signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGINT, previous_int)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump(summary, f, indent=2, default=str)

@@ -162,3 +162,31 @@ def test_uff58_export(tmp_path):
     ok = frf.valid_mask()
     np.testing.assert_array_equal(back.valid_mask(), ok)
     np.testing.assert_allclose(back.H[ok], frf.H[ok], rtol=1e-10)
+
+
+def test_sigint_stops_a_run_started_with_sigint_ignored(tmp_path):
+    """A run started in the background by a non-interactive shell inherits SIGINT as ignored;
+    Ctrl-C (or the TUI's abort) must still stop it safely, not be lost while the drive runs."""
+    text = sine_setup(two=True)
+    (tmp_path / "s.toml").write_text(text)
+    proc = subprocess.Popen(
+        [sys.executable, "-u", "-m", "ssidlab", "acquire", str(tmp_path / "s.toml"), "--sim",
+         "--out", str(tmp_path / "run.h5")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)),
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        for line in proc.stdout:
+            if line.startswith("  shaker"):
+                proc.send_signal(signal.SIGINT)
+                break
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stdout.close()
+        err = proc.stderr.read()
+        proc.stderr.close()
+    assert proc.returncode == 130, err
+    with h5py.File(tmp_path / "run.h5") as f:
+        assert f["acq"].attrs["state"] == "interrupted"

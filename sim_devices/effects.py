@@ -23,6 +23,8 @@ from typing import Union
 
 import numpy as np
 
+from ssid.models.effects import add_effect
+
 __all__ = [
     "AddedMass",
     "AttachedOscillator",
@@ -89,21 +91,6 @@ class AttachedOscillator:
 Effect = Union[AddedMass, GroundedSpring, CouplingSpring, GroundedDamper, AttachedOscillator]
 
 
-def _index(dofs: list[str], label: str) -> int:
-    try:
-        return dofs.index(label)
-    except ValueError:
-        raise ValueError(f"hidden effect at unknown DOF {label!r}") from None
-
-
-def _add_element(A: np.ndarray, i: int, j: int, value: float) -> None:
-    """Add a two-node element ``value * [[1, -1], [-1, 1]]`` between ``i`` and ``j``."""
-    A[i, i] += value
-    A[j, j] += value
-    A[i, j] -= value
-    A[j, i] -= value
-
-
 def apply_effects(
     M: np.ndarray,
     C: np.ndarray | None,
@@ -130,25 +117,13 @@ def apply_effects(
     K = np.array(K, dtype=float)
     C = np.zeros_like(M) if C is None else np.array(C, dtype=float)
     dofs = list(dofs)
-    n_osc = 0
     for eff in effects:
-        if isinstance(eff, AddedMass):
-            M[_index(dofs, eff.dof), _index(dofs, eff.dof)] += eff.mass_kg
-        elif isinstance(eff, GroundedSpring):
-            K[_index(dofs, eff.dof), _index(dofs, eff.dof)] += eff.stiffness_n_per_m
-        elif isinstance(eff, GroundedDamper):
-            C[_index(dofs, eff.dof), _index(dofs, eff.dof)] += eff.damping_n_s_per_m
-        elif isinstance(eff, CouplingSpring):
-            _add_element(K, _index(dofs, eff.dof_a), _index(dofs, eff.dof_b), eff.stiffness_n_per_m)
-        elif isinstance(eff, AttachedOscillator):
-            i = _index(dofs, eff.dof)
-            n = M.shape[0]
-            M, C, K = (np.pad(A, ((0, 1), (0, 1))) for A in (M, C, K))
-            M[n, n] = eff.mass_kg
-            _add_element(K, i, n, eff.stiffness_n_per_m)
-            _add_element(C, i, n, eff.damping_n_s_per_m)
-            n_osc += 1
-            dofs.append(f"{eff.dof}~osc{n_osc}")
+        if isinstance(eff, CouplingSpring):
+            at, params = (eff.dof_a, eff.dof_b), {"stiffness_n_per_m": eff.stiffness_n_per_m}
+        elif isinstance(eff, (AddedMass, GroundedSpring, GroundedDamper, AttachedOscillator)):
+            at = (eff.dof,)
+            params = {k: v for k, v in vars(eff).items() if k != "dof"}
         else:
             raise TypeError(f"unknown hidden effect {eff!r}")
+        M, C, K, dofs = add_effect(M, C, K, dofs, eff.effect, at, params)
     return M, C, K, dofs

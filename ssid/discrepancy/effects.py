@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ssid.models.effects import add_effect
+
 from ..io import Model
 
 __all__ = [
@@ -162,29 +164,6 @@ def effect_dynamic_stiffness(effect: Effect, omega: np.ndarray) -> np.ndarray:
     return float(effect.values()[0]) * unit_shape(effect.name, w)
 
 
-def _index(dofs: list[str], label: str) -> int:
-    try:
-        return dofs.index(label)
-    except ValueError:
-        raise ValueError(f"effect at unknown DOF {label!r}") from None
-
-
-def _add_element(A: np.ndarray, i: int, j: int, value: float) -> None:
-    """Add ``value * [[1, -1], [-1, 1]]`` between DOFs ``i`` and ``j``."""
-    A[i, i] += value
-    A[j, j] += value
-    A[i, j] -= value
-    A[j, i] -= value
-
-
-def _oscillator_label(dofs: list[str], base: str) -> str:
-    """A unique label for an oscillator's own DOF: ``"<dof>~osc<k>"`` as in ``sim_devices``."""
-    k = 1
-    while f"{base}~osc{k}" in dofs:
-        k += 1
-    return f"{base}~osc{k}"
-
-
 def apply_effect(
     M: np.ndarray,
     C: np.ndarray | None,
@@ -197,32 +176,7 @@ def apply_effect(
     ``C`` stays None when it was None and the effect adds no damping. An attached
     oscillator appends one DOF (labelled ``"<dof>~osc<k>"``) to the end.
     """
-    M = np.array(M, dtype=float)
-    K = np.array(K, dtype=float)
-    C = None if C is None else np.array(C, dtype=float)
-    dofs = list(dofs)
-    p = effect.parameters
-    if effect.name == "none":
-        return M, C, K, dofs
-    i = _index(dofs, effect.dofs[0])
-    if effect.name == "added_mass":
-        M[i, i] += p["mass_kg"]
-    elif effect.name == "grounded_spring":
-        K[i, i] += p["stiffness_n_per_m"]
-    elif effect.name == "grounded_damper":
-        C = np.zeros_like(M) if C is None else C
-        C[i, i] += p["damping_n_s_per_m"]
-    elif effect.name == "coupling_spring":
-        _add_element(K, i, _index(dofs, effect.dofs[1]), p["stiffness_n_per_m"])
-    elif effect.name == "attached_oscillator":
-        n = M.shape[0]
-        C = np.zeros_like(M) if C is None else C
-        M, C, K = (np.pad(A, ((0, 1), (0, 1))) for A in (M, C, K))
-        M[n, n] = p["mass_kg"]
-        _add_element(K, i, n, p["stiffness_n_per_m"])
-        _add_element(C, i, n, p["damping_n_s_per_m"])
-        dofs.append(_oscillator_label(dofs, effect.dofs[0]))
-    return M, C, K, dofs
+    return add_effect(M, C, K, dofs, effect.name, effect.dofs, effect.parameters)
 
 
 def apply_effect_to_model(model: Model, effect: Effect, C: np.ndarray | None = None) -> Model:

@@ -30,7 +30,8 @@ from ssid.frf import FRFData
 
 from .estimate import SpectralSums, frf_from_spectra, spectra_of_blocks
 from .rig import Rig
-from .safety import RunStopped, check_limits
+from .control import RunControl, RunEvents, hold_if_paused
+from .safety import RunStopped, check_limits, limit_usage
 from .setup import TestSetup
 from .storage import RunFile
 
@@ -60,8 +61,11 @@ def multisine(n: int, band: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 class RandomRun:
     """One random run (new or resumed) on ``rig``, stored in ``runfile``."""
 
-    def __init__(self, setup: TestSetup, rig: Rig, runfile: RunFile, echo: Callable[[str], None] = print) -> None:
+    def __init__(self, setup: TestSetup, rig: Rig, runfile: RunFile, echo: Callable[[str], None] = print,
+                 control: RunControl | None = None, events: RunEvents | None = None) -> None:
         self.setup, self.rig, self.rf, self.echo = setup, rig, runfile, echo
+        self.control, self.events = control, events or RunEvents()
+        self.peaks: np.ndarray | None = None  # largest |sample| per channel since the last commit
         self.spec = setup.random
         roles = setup.roles()
         self.fi = roles["force"]
@@ -84,8 +88,9 @@ class RandomRun:
         self.rig.line_check()
         data, _ = self.rig.acquire(n)
         self.test_time_s += n / self.rig.fs_hz
-        reason = check_limits(self.setup.limits, np.max(np.abs(data), axis=1), self.roles,
-                              self.spec.drive_vpp, self.rig.names)
+        peaks = np.max(np.abs(data), axis=1)
+        self.peaks = peaks if self.peaks is None else np.maximum(self.peaks, peaks)
+        reason = check_limits(self.setup.limits, peaks, self.roles, self.spec.drive_vpp, self.rig.names)
         if reason:
             for j in range(len(self.fi)):
                 self.rig.drive_off(j)
@@ -105,27 +110,56 @@ class RandomRun:
         self.rf.commit(self.S.n_avg)
         self.echo(f"  average {self.S.n_avg}/{self.spec.averages}  min coherence "
                   f"{np.min(d['coherence']):.3f}  [{self.test_time_s:.1f} s test time]")
+        if self.events:
+            self._spectrum_event(d)
+        self.peaks = None
+
+    #: At most this many bins go into a ``spectrum`` event (a terminal plot has fewer columns).
+    EVENT_BINS = 400
+
+    def _spectrum_event(self, d: dict) -> None:
+        step = max(1, int(np.ceil(self.freq.size / self.EVENT_BINS)))
+        lim = {} if self.peaks is None else limit_usage(self.setup.limits, self.peaks, self.roles, self.spec.drive_vpp)
+        self.events.emit("spectrum", n_avg=int(self.S.n_avg), averages=int(self.spec.averages),
+                         freq_hz=self.freq[::step], H_abs=np.where(d["valid"], np.abs(d["H"]), np.nan)[::step],
+                         coherence=d["coherence"][::step], limit_use=lim, test_time_s=self.test_time_s,
+                         instruments=self.rig.status())
+
+    def _hold(self) -> bool:
+        """Pause point between averages (see :mod:`daq.control`); True if the run was held."""
+        return hold_if_paused(self.control, self.rig, self.rf, self.echo, self.events,
+                              f"after average {self.S.n_avg}/{self.spec.averages}")
 
     def run(self) -> dict:
         r, n = self.spec, self.spec.block_size
         n_sh = len(self.fi)
         if r.kind == "random":
-            for j in range(n_sh):
-                self.rig.noise(j, r.drive_vpp)
-            self._acquire(r.settle_blocks * n) if r.settle_blocks else None
             hop = max(1, int(round(n * (1 - r.overlap))))
-            buf = self._acquire(n)
-            blocks = [buf]
+
+            def start() -> tuple[np.ndarray, list[np.ndarray]]:
+                # Drive on, settle, first block: at the start and after a pause (the
+                # overlapped blocks must come from one unbroken record).
+                for j in range(n_sh):
+                    self.rig.noise(j, r.drive_vpp)
+                self._acquire(r.settle_blocks * n) if r.settle_blocks else None
+                first = self._acquire(n)
+                return first, [first]
+
+            self._hold()
+            buf, blocks = start()
             while self.S.n_avg + len(blocks) < r.averages:
                 buf = np.hstack([buf, self._acquire(hop)])[:, -n:]
                 blocks.append(buf)
                 if len(blocks) >= 4:  # commit in small groups: few flushes, little at risk
                     self._add(blocks, r.window)
                     blocks = []
+                    if self.S.n_avg < r.averages and self._hold():
+                        buf, blocks = start()
             if blocks:
                 self._add(blocks, r.window)
         else:
             while self.S.n_avg < r.averages:
+                self._hold()
                 a = self.S.n_avg
                 for j in range(n_sh):
                     rng = np.random.default_rng([r.seed, a, j])

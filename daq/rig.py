@@ -84,6 +84,11 @@ class Rig:
     def identities(self) -> dict:
         return {}
 
+    def status(self) -> dict:
+        """The instruments' state as last read (for display): per amplifier ``enabled``,
+        ``interlock_closed``, ``fault`` (``""`` when none)."""
+        return {}
+
     def safe_state(self) -> list[str]:
         """Every output off, every amplifier disabled, acquisition stopped; the problems met."""
         raise NotImplementedError
@@ -112,6 +117,7 @@ class InstrumentRig(Rig):
         self._stack = contextlib.ExitStack()
         self._function: dict[int, str] = {}
         self._beats: dict[str, tuple[int, float]] = {}
+        self._status: dict[str, dict] = {}
         try:
             self._open()
         except BaseException:
@@ -205,6 +211,8 @@ class InstrumentRig(Rig):
         for name, amp in self.amps.items():
             amp.check()
             st = amp.read_status()
+            self._status[name] = {"enabled": st.enabled, "interlock_closed": st.interlock_closed,
+                                  "fault": st.fault_name if st.fault_latched else ""}
             if not st.enabled or st.fault_latched:
                 if st.fault_code == 1 or not st.interlock_closed:
                     raise InterlockOpen(f"{name}: interlock open (door or E-stop): amplifier disabled")
@@ -222,6 +230,9 @@ class InstrumentRig(Rig):
                "daq": {k: (int(v) if isinstance(v, (int, np.integer)) else str(v))
                        for k, v in (self.daq.identity or {}).items()} if self.daq else {}}
         return out
+
+    def status(self) -> dict:
+        return {"amplifiers": {k: dict(v) for k, v in self._status.items()}}
 
     def safe_state(self) -> list[str]:
         problems = []

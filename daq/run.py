@@ -24,6 +24,7 @@ import numpy as np
 from drivers.errors import InstrumentError
 from ssid.errors import InputError
 
+from .control import RunControl, RunEvents
 from .rig import InstrumentRig, Rig
 from .safety import RunStopped, describe_fault
 from .setup import TestSetup, load_setup, parse_setup
@@ -83,7 +84,8 @@ def _create_runfile(setup: TestSetup, path: Path) -> RunFile:
 
 
 def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, sim: bool = False,
-             echo: Callable[[str], None] = print, rig_factory: Callable[[TestSetup], Rig] | None = None) -> dict:
+             echo: Callable[[str], None] = print, rig_factory: Callable[[TestSetup], Rig] | None = None,
+             control: RunControl | None = None, events: Callable[[dict], None] | None = None) -> dict:
     """Run (or resume) the test of ``setup``; returns a summary dict.
 
     Parameters
@@ -97,6 +99,12 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         Start the simulated lab (:mod:`daq.simlab`) and run against it.
     rig_factory : callable, optional
         Builds the rig from the (possibly re-addressed) setup; default :class:`InstrumentRig`.
+    control : RunControl, optional
+        Pause / resume requests, honoured between lines (:mod:`daq.control`).
+    events : callable, optional
+        Receives the run's events as JSON-able dicts: ``instruments`` (identities, once the
+        instruments answer), ``sub_line`` / ``line`` (stepped sine), ``spectrum`` (random),
+        ``paused``, ``resumed``.
 
     Raises
     ------
@@ -123,6 +131,7 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         if not path.parent.is_dir():
             raise InputError(f"{path}: directory {str(path.parent)!r} does not exist")
         rf = _create_runfile(setup, path)
+    ev = RunEvents(events)
     handle = None
     rig = None
     state = "failed"
@@ -141,15 +150,16 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "instruments": rig.identities(),
             "simulated": bool(sim), "resumed_at_record": rf.n_done})
         rf.set_meta(meta)
+        ev.emit("instruments", identities=rig.identities(), simulated=bool(sim))
         rig.prepare()
         if setup.excitation == "stepped_sine":
             from .stepped_sine import SteppedSineRun
 
-            runner = SteppedSineRun(setup, rig, rf, echo)
+            runner = SteppedSineRun(setup, rig, rf, echo, control, ev)
         else:
             from .random_run import RandomRun
 
-            runner = RandomRun(setup, rig, rf, echo)
+            runner = RandomRun(setup, rig, rf, echo, control, ev)
         summary = runner.run()
         frf = runner.frf()
         frf.attrs = {k: v for k, v in rf.f.attrs.items() if k not in ("format", "format_version", "quantity", "n_avg")}

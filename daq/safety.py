@@ -31,7 +31,7 @@ from drivers.errors import (
 
 from .setup import Limits
 
-__all__ = ["LineAborted", "RunStopped", "check_limits", "describe_fault"]
+__all__ = ["LineAborted", "RunStopped", "check_limits", "describe_fault", "limit_usage"]
 
 
 class LineAborted(Exception):
@@ -69,15 +69,19 @@ def describe_fault(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
+_LIMITED = (("response", "max_accel_m_per_s2", "m/s^2", "acceleration"),
+            ("force", "max_force_n", "N", "force"),
+            ("reaction", "max_reaction_n", "N", "reaction load"))
+
+
 def check_limits(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]], drive_vpp: float,
                  names: list[str]) -> str | None:
     """The first limit exceeded by a record (``peaks``: largest |sample| per channel), or None."""
     if drive_vpp > limits.max_drive_vpp * (1 + 1e-9):
         return f"drive {drive_vpp:.4g} Vpp above the limit {limits.max_drive_vpp:g} Vpp"
-    for role, lim, unit, what in (("response", limits.max_accel_m_per_s2, "m/s^2", "acceleration"),
-                                  ("force", limits.max_force_n, "N", "force"),
-                                  ("reaction", limits.max_reaction_n, "N", "reaction load")):
+    for role, attr, unit, what in _LIMITED:
         idx = roles.get(role, [])
+        lim = getattr(limits, attr)
         if not idx or not np.isfinite(lim):
             continue
         p = peaks[idx]
@@ -85,3 +89,19 @@ def check_limits(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]],
         if p[k] > lim:
             return f"{what} {p[k]:.4g} {unit} on {names[idx[k]]!r} above the limit {lim:g} {unit}"
     return None
+
+
+def limit_usage(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]], drive_vpp: float) -> dict[str, float]:
+    """How much of each limit a record used: largest peak / limit per kind (1.0 = at the limit).
+
+    Keys ``drive``, ``acceleration``, ``force``, ``reaction load``; a kind without channels
+    or without a finite limit is left out. What an engineer watches to see a line coming
+    close to a limit before it aborts.
+    """
+    used = {"drive": float(drive_vpp / limits.max_drive_vpp)}
+    for role, attr, _unit, what in _LIMITED:
+        idx = roles.get(role, [])
+        lim = getattr(limits, attr)
+        if idx and np.isfinite(lim) and lim > 0:
+            used[what] = float(np.max(np.asarray(peaks)[idx]) / lim)
+    return used

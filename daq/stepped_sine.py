@@ -24,9 +24,10 @@ import numpy as np
 from ssid.errors import InputError
 from ssid.frf import FRFData
 
+from .control import RunControl, RunEvents, frf_line_event, hold_if_paused
 from .estimate import multi_input_frf
 from .rig import Rig
-from .safety import LineAborted
+from .safety import LineAborted, limit_usage
 from .schedule import frequency_grid, sweep_plan
 from .setup import TestSetup
 from .sine_line import LineResult, SineLine, initial_drive, noise_floor
@@ -43,8 +44,10 @@ def sine_grid(setup: TestSetup) -> np.ndarray:
 class SteppedSineRun:
     """One stepped-sine run (new or resumed) on ``rig``, stored in ``runfile``."""
 
-    def __init__(self, setup: TestSetup, rig: Rig, runfile: RunFile, echo: Callable[[str], None] = print) -> None:
+    def __init__(self, setup: TestSetup, rig: Rig, runfile: RunFile, echo: Callable[[str], None] = print,
+                 control: RunControl | None = None, events: RunEvents | None = None) -> None:
         self.setup, self.rig, self.rf, self.echo = setup, rig, runfile, echo
+        self.control, self.events = control, events or RunEvents()
         self.spec = setup.sine
         self.roles = setup.roles()
         self.grid = sine_grid(setup)
@@ -89,8 +92,11 @@ class SteppedSineRun:
         return self._measure_live(p, k)
 
     def _measure_live(self, p: int, k: int) -> np.ndarray | None:
-        self.rig.line_check()
         f = float(self.grid[k])
+        if hold_if_paused(self.control, self.rig, self.rf, self.echo, self.events,
+                          f"before shaker {p} {f:.3f} Hz"):
+            self.active = None  # the safe state switched every output off
+        self.rig.line_check()
         if self.active is not None and self.active != p:
             self.rig.drive_off(self.active)
         self.active = p
@@ -115,7 +121,22 @@ class SteppedSineRun:
         y = self._accept(p, k, row, live=True)
         self.n_done += 1
         self.rf.commit(self.n_done)
+        if self.events:
+            self._sub_line_event(row, res)
         return y
+
+    def _sub_line_event(self, row: dict, res: LineResult | None) -> None:
+        """The sub-line as the engineer watches it: level, distortion, limit use, amplifiers."""
+        fields = {"shaker": int(row["pattern"]), "grid_index": int(row["grid_index"]),
+                  "freq_hz": float(row["freq_hz"]), "drive_vpp": float(row["drive_vpp"]),
+                  "ok": res is not None, "reason": row["reason"], "n_sub_lines": self.n_done,
+                  "test_time_s": self.test_time_s, "instruments": self.rig.status()}
+        if res is not None:
+            X = res.est.X
+            fields.update(force_n=float(abs(X[self.roles["force"][res.pattern]])),
+                          thd_max=float(np.max(res.est.thd[self.roles["response"]])) if self.roles["response"] else 0.0,
+                          limit_use=limit_usage(self.setup.limits, res.est.peak, self.roles, res.drive_vpp))
+        self.events.emit("sub_line", **fields)
 
     def _row(self, k: int, res: LineResult, status: int, reason: str) -> dict:
         return {"grid_index": k, "pattern": res.pattern, "freq_hz": res.freq_hz, "drive_vpp": res.drive_vpp,
@@ -172,6 +193,8 @@ class SteppedSineRun:
     def _write_line(self, k: int) -> None:
         d = self.line_frf(k)
         self.rf.write_line(k, d["H"], d["var"], d["coh"], d["valid"], d["Hr"] if self.roles["reaction"] else None)
+        if self.events:
+            self.events.emit("line", grid_index=int(k), **frf_line_event(self.grid[k], d["H"], d["coh"], d["valid"]))
 
     # ------------------------------------------------------------------ the run
     def run(self) -> dict:

@@ -2,11 +2,19 @@
 
     ssidlab acquire SETUP.toml [--sim] [--out RUN.h5] [--quiet]
     ssidlab acquire --resume RUN.h5 [SETUP.toml] [--sim] [--quiet]
+    ... [--events] [--control-stdin]     (for a controlling program such as ``ssidlab tui``)
 
 ``--sim`` starts the simulated lab (``daq.simlab``) and runs against it through the real
 drivers. ``--resume`` continues an interrupted run from its first incomplete line; with a
 setup file given, its SHA-256 must equal the one stored in the run file (without one, the
 stored setup is used).
+
+``--events`` adds one line per run event to stdout, ``@event {json}`` (``daq.control``:
+instrument identities, each sub-line's level, distortion, limit use and amplifier state,
+each FRF line's |H| and coherence, pause and resume). ``--control-stdin`` takes commands
+from stdin, one per line: ``pause`` (after the current line: outputs off, amplifiers
+disabled), ``resume``, ``abort`` (as Ctrl-C). End of input also aborts: if the controlling
+program dies, however it dies, the run stops safely instead of driving on unattended.
 
 Exit status: 0 the run is complete; 2 bad input (setup file, run file, options; one line
 ``ssidlab acquire: error: ...``); 3 the run was stopped safely by a fault (one line
@@ -19,13 +27,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
+import threading
 from typing import Any
 
 from ssid.errors import InputError
 
-__all__ = ["EXIT_STOPPED", "add_acquire_subcommand", "run_acquire"]
+__all__ = ["EVENT_PREFIX", "EXIT_STOPPED", "add_acquire_subcommand", "run_acquire"]
 
 HELP = "Run a stepped-sine or random vibration test from a setup file (real or simulated lab)."
 EXIT_STOPPED = 3
@@ -41,8 +51,38 @@ def add_acquire_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--resume", metavar="RUN.h5", help="continue this unfinished run file")
     p.add_argument("--json", metavar="SUMMARY.json", help="write the run summary as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--events", action="store_true", help="also print run events as '@event {json}' lines")
+    p.add_argument("--control-stdin", action="store_true",
+                   help="read pause/resume/abort from stdin; end of input aborts safely")
     p.set_defaults(run=run_acquire)
     return p
+
+
+#: Prefix of an event line on stdout (``--events``).
+EVENT_PREFIX = "@event "
+
+
+def _print_event(event: dict) -> None:
+    print(EVENT_PREFIX + json.dumps(event, separators=(",", ":")), flush=True)
+
+
+def _read_control(control, stream) -> None:
+    """Thread: stdin commands to ``control``; ``abort`` or end of input -> SIGINT to ourselves,
+    which the run handles as Ctrl-C (safe state, resumable file)."""
+    for line in stream:
+        cmd = line.strip().lower()
+        if cmd == "pause":
+            control.request_pause()
+        elif cmd == "resume":
+            control.request_resume()
+        elif cmd == "abort":
+            break
+        elif cmd:
+            print(f"ssidlab acquire: ignored control command {cmd!r} (pause, resume, abort)", file=sys.stderr,
+                  flush=True)
+    # No resume first: the SIGINT interrupts the pause's wait itself, so a held run never
+    # re-arms its amplifiers on the way out.
+    os.kill(os.getpid(), signal.SIGINT)
 
 
 class _Terminated(KeyboardInterrupt):
@@ -54,6 +94,7 @@ def _on_sigterm(signum, frame) -> None:
 
 
 def run_acquire(args: argparse.Namespace) -> int:
+    from daq.control import RunControl
     from daq.run import load_resume_setup, run_test
     from daq.safety import RunStopped
     from daq.setup import load_setup
@@ -74,8 +115,12 @@ def run_acquire(args: argparse.Namespace) -> int:
     # inherits SIGINT as ignored, and Python then installs no KeyboardInterrupt handler: a
     # SIGINT (Ctrl-C, the TUI's abort) would be lost and the drive would keep running.
     previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
+    control = RunControl() if args.control_stdin else None
+    if control is not None:
+        threading.Thread(target=_read_control, args=(control, sys.stdin), name="acquire-control", daemon=True).start()
     try:
-        summary = run_test(setup, out=out, resume=bool(args.resume), sim=args.sim, echo=echo)
+        summary = run_test(setup, out=out, resume=bool(args.resume), sim=args.sim, echo=echo, control=control,
+                           events=_print_event if args.events else None)
     except RunStopped as exc:
         print(f"ssidlab acquire: stopped: {' '.join(str(exc).splitlines())}", file=sys.stderr)
         return EXIT_STOPPED

@@ -1,0 +1,101 @@
+"""Run control and run events: pause / resume between lines, and what a run reports as it goes.
+
+A test engineer pausing a run wants the structure at rest while they look at it or touch
+it, so a pause is not a "hold the drive": when the current line has finished, every
+generator output goes off and every amplifier is disabled (the rig's safe state), the run
+file says ``paused``, and the run waits. Resume re-arms the amplifiers and continues with
+the next line exactly as if there had been no pause (the simulated world does not advance
+while nothing is acquired; a real structure simply rests). Abort stays what it always was:
+Ctrl-C / SIGINT / SIGTERM, at once, mid-line.
+
+:class:`RunControl` holds plain flags, no locks: its methods may be called from a signal
+handler or from another thread (``ssidlab acquire --control-stdin`` reads commands on a
+thread). :class:`RunEvents` turns what the run measures into small JSON-able dicts for a
+user interface (``ssidlab acquire --events``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ssid.jsonutil import to_jsonable
+
+from .safety import RunStopped
+
+__all__ = ["RunControl", "RunEvents", "hold_if_paused"]
+
+
+class RunControl:
+    """Pause and resume requests for a running test, honoured between lines.
+
+    The flags are read by the run's own thread between lines (:func:`hold_if_paused`); a
+    pause asked for mid-line takes effect when the line is finished and stored.
+    """
+
+    def __init__(self) -> None:
+        self._pause = False
+        self.paused = False  # True while the run is actually held
+
+    def request_pause(self) -> None:
+        self._pause = True
+
+    def request_resume(self) -> None:
+        self._pause = False
+
+    @property
+    def pause_requested(self) -> bool:
+        return self._pause
+
+
+class RunEvents:
+    """Calls ``sink(event)`` with JSON-able dicts (``{"event": kind, ...}``); no sink, no cost."""
+
+    def __init__(self, sink: Callable[[dict], None] | None = None) -> None:
+        self.sink = sink
+
+    def __bool__(self) -> bool:
+        return self.sink is not None
+
+    def emit(self, kind: str, **fields: Any) -> None:
+        if self.sink is not None:
+            self.sink(to_jsonable({"event": kind, **fields}))
+
+
+def frf_line_event(freq_hz: float, H: np.ndarray, coh: np.ndarray, valid: np.ndarray) -> dict:
+    """Fields of a ``line`` event: |H| (blanked values None) and coherence, (n_out, n_in)."""
+    return {"freq_hz": float(freq_hz), "H_abs": np.where(valid, np.abs(H), np.nan), "coherence": coh}
+
+
+def hold_if_paused(control: RunControl | None, rig, runfile, echo: Callable[[str], None],
+                   events: RunEvents, where: str, poll_s: float = 0.05) -> bool:
+    """Between lines: if a pause is requested, go safe, wait for resume, re-arm.
+
+    Returns True if the run was held (the caller must treat every drive as off). Raises
+    :class:`~daq.safety.RunStopped` if the safe state could not be confirmed: a pause must
+    not leave a drive on behind the engineer's back. Ctrl-C while paused raises
+    KeyboardInterrupt from the wait, as anywhere else in the run.
+    """
+    if control is None or not control.pause_requested:
+        return False
+    problems = rig.safe_state()
+    if problems:
+        raise RunStopped(f"pause: safe state not confirmed: {'; '.join(problems)}")
+    control.paused = True
+    runfile.set_state("paused")
+    echo(f"paused {where}: generator outputs off, amplifiers disabled; waiting for resume")
+    events.emit("paused", where=where)
+    t0 = time.monotonic()
+    try:
+        while control.pause_requested:
+            time.sleep(poll_s)
+    finally:
+        control.paused = False
+    runfile.set_state("running")
+    rig.prepare()
+    echo(f"resumed after {time.monotonic() - t0:.1f} s: amplifiers enabled")
+    events.emit("resumed")
+    return True

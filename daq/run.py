@@ -13,8 +13,11 @@ before the function returns or raises, and the run file holds every completed li
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import platform
+import signal
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -61,6 +64,29 @@ def load_resume_setup(path: str | Path, setup_path: str | None = None) -> TestSe
     if setup.sha256 != sha:
         raise InputError(f"{path}: the stored setup does not match its SHA-256 (damaged run file)")
     return setup
+
+
+@contextlib.contextmanager
+def _interrupts_deferred():
+    """Hold SIGINT / SIGTERM back while the run reaches the safe state and closes its file.
+
+    A second Ctrl-C (an impatient operator, or a UI that both signals and closes the run's
+    input) would otherwise raise inside the cleanup and leave a drive on or the file's state
+    unwritten. Signals that arrive meanwhile are logged and dropped: the run is stopping
+    anyway. Only the main thread can own signal handlers; elsewhere this does nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    previous = {s: signal.signal(s, lambda signum, frame: held.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+        if held:
+            log.warning("%d interrupt(s) held back while reaching the safe state", len(held))
 
 
 def _create_runfile(setup: TestSetup, path: Path) -> RunFile:
@@ -177,24 +203,25 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         state = f"failed: {type(exc).__name__}: {exc}"
         raise
     finally:
-        problems: list[str] = []
-        if rig is not None:
-            problems = rig.safe_state()
-            try:
-                rig.close()
-            except Exception as exc:  # closing must not hide the first error
-                problems.append(str(exc))
-        if handle is not None:
-            handle.stop()
-        if state == "complete" and not problems:
-            rf.finalize(frf)
-        else:
-            if problems:
-                state = f"{state}; safe state not confirmed: {'; '.join(problems)}"
-            rf.set_state(state[:500])
-            rf.close()
-        if problems and state.startswith("complete"):
-            raise RunStopped(f"run finished but the safe state was not confirmed: {'; '.join(problems)}")
+        with _interrupts_deferred():
+            problems: list[str] = []
+            if rig is not None:
+                problems = rig.safe_state()
+                try:
+                    rig.close()
+                except Exception as exc:  # closing must not hide the first error
+                    problems.append(str(exc))
+            if handle is not None:
+                handle.stop()
+            if state == "complete" and not problems:
+                rf.finalize(frf)
+            else:
+                if problems:
+                    state = f"{state}; safe state not confirmed: {'; '.join(problems)}"
+                rf.set_state(state[:500])
+                rf.close()
+            if problems and state.startswith("complete"):
+                raise RunStopped(f"run finished but the safe state was not confirmed: {'; '.join(problems)}")
     summary.update({"state": state, "file": str(path), "resumed": bool(resume)})
     if setup.uff_file:
         from ssid.exchange import write_uff_frf

@@ -133,7 +133,11 @@ class SteppedSineRun:
                   "test_time_s": self.test_time_s, "instruments": self.rig.status()}
         if res is not None:
             X = res.est.X
-            fields.update(force_n=float(abs(X[self.roles["force"][res.pattern]])),
+            F = X[self.roles["force"][res.pattern]]
+            # The response per unit force of this shaker alone: what the line's FRF column
+            # will be, up to the other shakers' passive forces (solved once all have run).
+            fields["Y_abs"] = np.abs(X[self.roles["response"]] / F) if abs(F) > 0 else None
+            fields.update(force_n=float(abs(F)),
                           thd_max=float(np.max(res.est.thd[self.roles["response"]])) if self.roles["response"] else 0.0,
                           limit_use=limit_usage(self.setup.limits, res.est.peak, self.roles, res.drive_vpp))
         self.events.emit("sub_line", **fields)
@@ -204,11 +208,12 @@ class SteppedSineRun:
         # The noise floor (all drives off) sets the noise of every estimate: the residual of
         # a fit would also hold the transient still decaying while settling.
         ch = self.setup.channels
+        t0 = self.rig.clock
         nf = noise_floor(self.rig, np.array([c.range_volt for c in ch]),
                          np.array([c.sensitivity_mv_per_unit / 1e3 for c in ch]))
         self.line.noise_var = nf
         self.rf.write_arrays("noise_floor", {f"session{len(self.rf.meta.get('sessions', []))}": nf})
-        self.test_time_s += 0.25
+        self.test_time_s += (self.rig.clock - t0) / self.rig.fs_hz
         sweep_plan(self.measure, self.n_pat, len(self.grid), s.refine, s.max_change)
         if self.replayed < len(self.replay):
             raise InputError(f"{self.rf.path}: {len(self.replay) - self.replayed} records beyond the end of "

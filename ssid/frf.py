@@ -191,3 +191,21 @@ def accelerance_from_model(
     S = selection_matrix(dofs, outputs).T
     H = accelerance(M, C, K, 2 * np.pi * freq_hz, D, S)
     return FRFData(freq_hz=freq_hz, H=H, outputs=list(outputs), inputs=list(inputs))
+
+
+def accelerance_under_test_loads(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: list[str],
+                                 frf: FRFData) -> np.ndarray:
+    """Accelerance a model predicts for a test, under the test's own loads, (n_freq, n_out, n_in).
+
+    Input ``j`` applies a unit force at its DOF; on a test stand the substructure also feels
+    the measured interface reactions ``frf.H_reaction[:, :, j]`` at the reaction DOFs (the
+    coupling of the report's section 3.3), so the response is ``a_j = H (e_j + D_r r_j)``
+    with ``H`` the model's accelerance between the output DOFs. Without reactions this is
+    the plain accelerance. Inputs and reactions must be among ``frf.outputs`` (collocated).
+    """
+    H = accelerance(M, C, K, frf.omega, selection_matrix(dofs, frf.outputs), selection_matrix(dofs, frf.outputs).T)
+    load = np.zeros((frf.n_freq, frf.n_out, frf.n_in), complex)
+    load[:, frf.input_index(), np.arange(frf.n_in)] = 1.0
+    if frf.H_reaction is not None and frf.reactions:
+        load[:, frf.reaction_index(), :] += frf.H_reaction
+    return np.einsum("koi,kij->koj", H, load)

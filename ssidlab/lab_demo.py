@@ -162,7 +162,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
     from ssid.discrepancy import find_discrepancy
     from ssid.discrepancy.plots import write_plots
     from ssid.correlate_models import correlate_models
-    from ssid.frf import accelerance, selection_matrix
+    from ssid.frf import accelerance_under_test_loads
     from ssid.identify import identify_mck
     from ssid.io import Model, read_frf, write_model
     from ssid.modal import complex_modes, root_frequency_damping
@@ -242,13 +242,9 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
 
     echo("[5/5] writing plots and summary.json")
     # The identified model is the free substructure; on the stand it also feels the measured
-    # reactions: a = H_free (e_j + D_r r_j).
+    # reactions.
     i_drv = frf.outputs.index(frf.inputs[0])
-    H_all = accelerance(res.M, res.C, res.K, frf.omega, selection_matrix(res.dofs, frf.outputs))
-    load = np.zeros((frf.n_freq, frf.n_out), complex)
-    load[:, i_drv] = 1.0
-    load[:, frf.reaction_index()] += frf.H_reaction[:, :, 0]
-    H_id = np.einsum("koi,ki->ko", H_all, load)[:, i_drv]
+    H_id = accelerance_under_test_loads(res.M, res.C, res.K, list(res.dofs), frf)[:, i_drv, 0]
     plot_frf_overlay(frf.freq_hz, frf.H[:, i_drv, 0], H_id, out / "frf_overlay.png",
                      title=f"drive point {frf.inputs[0]} on the stand: measured vs identified",
                      labels=("measured (simulated lab)", "identified model + measured reactions"),

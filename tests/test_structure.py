@@ -108,3 +108,20 @@ def test_step2_structured_normal_equations(small, weights, monkeypatch):
     v = np.linalg.lstsq(A, b, rcond=None)[0]
     assert np.allclose(u, T @ v, rtol=1e-7)
     assert np.allclose(u[m:], u[:m].conj())
+
+
+def test_accelerance_under_test_loads_reproduces_the_stand_frf():
+    """The free substructure's model loaded by the measured reactions gives back what was
+    measured on the stand (coupled model, exact), and without reactions the free FRF."""
+    from ssid.frf import accelerance_from_model, accelerance_under_test_loads
+
+    M, C, K, dofs = example_system(5, seed=3)
+    f = np.linspace(5, 400, 41)
+    on_stand = frf_on_test_stand(M, C, K, dofs, [dofs[1], dofs[4]], [dofs[0], dofs[3]], f)
+    H = accelerance_under_test_loads(M, C, K, dofs, on_stand)
+    assert H.shape == on_stand.H.shape
+    assert np.max(np.abs(H - on_stand.H)) < 1e-9 * np.max(np.abs(on_stand.H))
+    free = accelerance_from_model(M, C, K, dofs, f, dofs, [dofs[1], dofs[4]])
+    assert np.allclose(accelerance_under_test_loads(M, C, K, dofs, free), free.H, rtol=1e-10, atol=0)
+    # and the stand matters: the free FRF is far from the measured one
+    assert np.max(np.abs(free.H - on_stand.H)) > 0.1 * np.max(np.abs(on_stand.H))

@@ -1,16 +1,20 @@
-"""``ssidlab tui``: a keyboard-first Textual UI for a lab run (issue 8, first slice).
+"""``ssidlab tui``: a keyboard-first Textual UI for a lab run (issue 8).
 
 Three tabs:
 
-* **Setup** - a setup TOML path, its channels and excitation (``daq.setup.load_setup``), the
-  run file, a "simulated lab" switch; a bad file gives one line.
-* **Run** - start / abort, a progress bar and the acquisition's log. The run is
-  ``python -m ssidlab acquire SETUP [--sim] --out FILE`` in a subprocess, watched by a
-  thread worker; abort sends it SIGINT (what Ctrl-C does: safe state, resumable file).
-* **Results** - natural frequencies, damping ratios and MPC from
-  ``identify_mck(read_frf(FILE))`` after a complete run.
+* **Setup** - a setup TOML, its channels and excitation (``daq.setup.load_setup``), the run
+  file, an optional analysis-model file, the "simulated lab" switch, and the instruments
+  with their connection state and identity (F4: ``daq.check.check_instruments``).
+* **Run** - start, pause (after the current line), resume, abort (drive to zero at once); a
+  progress bar with ETA; the live FRF magnitude and coherence of a chosen channel as lines
+  arrive; the current line's level, distortion and limit use; amplifier interlock and fault
+  state; the acquisition's log. The run is ``python -m ssidlab acquire ... --events
+  --control-stdin`` in a subprocess owned by a thread worker (:mod:`tui.session` says why).
+* **Results** - identified frequencies and damping, MAC against the analysis model, an FRF
+  overlay (measured, SSID model, model with the discrepancy workflow's effect), the
+  discrepancy finding with the gap before and after, and exports (HDF5, UFF, PNG).
 
-No science or device logic lives here (see :mod:`tui.session`).
+No science or device logic lives here (:mod:`tui.session`, :mod:`tui.results`).
 """
 
 from __future__ import annotations
@@ -18,10 +22,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import ClassVar
 
+import numpy as np
 from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.containers import Horizontal
+from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.widgets import (
     Button,
     DataTable,
@@ -31,113 +36,189 @@ from textual.widgets import (
     Label,
     ProgressBar,
     RichLog,
+    Select,
     Static,
     Switch,
     TabbedContent,
     TabPane,
 )
 
-from .session import (
-    Acquisition,
-    ModeRow,
-    ProgressParser,
-    RunOutcome,
-    identify_file,
-    run_file_state,
-)
+from .results import RunResults, analyse_run, export_results
+from .session import Acquisition, LiveRun, ProgressParser, RunOutcome, parse_event, run_file_state
+from .widgets import FrfPlot
 
 __all__ = ["LabApp"]
 
 
 def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).splitlines()) or type(exc).__name__
-    return text
+    return " ".join(str(exc).splitlines()) or type(exc).__name__
 
 
 class LabApp(App):
-    """The lab-run TUI. ``setup_path``, ``out`` and ``sim`` pre-fill the Setup tab."""
+    """The lab-run TUI. ``setup_path``, ``out``, ``model`` and ``sim`` pre-fill the Setup tab."""
 
+    ENABLE_COMMAND_PALETTE = False  # every action has its key; the footer needs the room
     TITLE = "ssidlab"
     SUB_TITLE = "lab run"
     CSS = """
     TabPane { padding: 0 1; }
-    .row { height: 1; margin-bottom: 1; }
+    .row { height: 1; }
     .row Label { width: 14; }
     .row Input { width: 1fr; height: 1; border: none; padding: 0 1; }
     .row Switch { height: 1; border: none; padding: 0; width: 6; }
     #sim-state { width: 1fr; }
     #setup-error { color: $error; height: auto; }
     #excitation { height: auto; color: $text-muted; }
-    #channels { height: 1fr; }
+    #check-status { height: 1; }
+    #instruments { height: auto; max-height: 7; }
+    #channels { height: auto; max-height: 23; }
     #run-buttons { height: 1; margin-bottom: 1; }
-    #run-buttons Button { margin-right: 1; height: 1; border: none; min-width: 14; }
-    #run-status { height: auto; }
-    #progress { height: 1; margin: 0 0 1 0; }
-    #log { height: 1fr; border: round $panel; }
+    #run-buttons Button { margin-right: 1; height: 1; border: none; min-width: 11; }
+    #run-status { height: auto; max-height: 2; }
+    #progress { height: 1; }
+    #live { height: 1fr; min-height: 9; }
+    #live-plot { width: 1fr; }
+    #side { width: 32; padding-left: 1; }
+    #line-status { height: auto; }
+    #inst-status { height: auto; margin-top: 1; }
+    #log { height: 6; border: round $panel; }
     #results-status { height: auto; }
-    #modes { height: 1fr; }
+    #tables { height: 12; }
+    #modes { width: 1fr; }
+    #mac { width: 1fr; margin-left: 1; }
+    #discrepancy { height: auto; margin: 1 0; }
+    #result-channel { width: 44; }
+    #overlay { height: 16; }
+    #export-buttons { height: 1; margin-top: 1; }
+    #export-buttons Button { margin-right: 1; height: 1; border: none; min-width: 10; }
+    #export-status { height: auto; }
     """
     BINDINGS: ClassVar[list[Binding]] = [
-        Binding("f1", "show_tab('setup')", "Setup", priority=True),
-        Binding("f2", "show_tab('run')", "Run", priority=True),
-        Binding("f3", "show_tab('results')", "Results", priority=True),
+        # The tab titles carry F1-F3; the footer keeps its width for what applies now.
+        Binding("f1", "show_tab('setup')", "Setup", priority=True, show=False),
+        Binding("f2", "show_tab('run')", "Run", priority=True, show=False),
+        Binding("f3", "show_tab('results')", "Results", priority=True, show=False),
         Binding("ctrl+l", "load", "Load", priority=True),
+        Binding("f4", "check", "Check", priority=True),
         Binding("f5", "start", "Start", priority=True),
+        Binding("f6", "pause", "Pause", priority=True),
+        Binding("f7", "resume", "Resume", priority=True),
         Binding("f8", "abort", "Abort", priority=True),
+        Binding("h", "export('hdf5')", "HDF5"),
+        Binding("u", "export('uff')", "UFF"),
+        Binding("p", "export('png')", "PNG"),
         Binding("ctrl+q", "quit", "Quit", priority=True),
     ]
 
-    def __init__(self, setup_path: str | None = None, *, out: str | None = None, sim: bool = True) -> None:
+    def __init__(self, setup_path: str | None = None, *, out: str | None = None, sim: bool = True,
+                 model: str | None = None) -> None:
         super().__init__()
-        self._initial_path = setup_path or ""
-        self._initial_out = out or ""
+        self._initial = {"setup": setup_path or "", "out": out or "", "model": model or ""}
         self._initial_sim = sim
         self.setup = None  # daq.setup.TestSetup once loaded
         self.acquisition: Acquisition | None = None
         self.outcome: RunOutcome | None = None
-        self.modes: list[ModeRow] = []
+        self.live: LiveRun | None = None
+        self.results: RunResults | None = None
         self.results_message = ""
+        self.pause_pending = False
+        self.channel = (0, 0)  # (output, input) shown in the plots
+        self._plot_dirty = False
 
     # ------------------------------------------------------------------ layout
     def compose(self) -> ComposeResult:
         yield Header()
         with TabbedContent(initial="setup"):
-            with TabPane("Setup F1", id="setup"):
-                with Horizontal(classes="row"):
-                    yield Label("Setup")
-                    yield Input(self._initial_path, placeholder="SETUP.toml (Enter or Ctrl+L loads)",
-                                id="setup-path")
-                with Horizontal(classes="row"):
-                    yield Label("Run file")
-                    yield Input(self._initial_out, placeholder="RUN.h5 (default: the setup's [output] file)",
-                                id="out-path")
+            with TabPane("Setup F1", id="setup"), VerticalScroll():
+                for label, key, hint in (("Setup", "setup", "SETUP.toml (Enter or Ctrl+L loads)"),
+                                         ("Run file", "out", "RUN.h5 (default: the setup's [output] file)"),
+                                         ("Model", "model", "optional: model file (.h5/.mat/.op4)")):
+                    with Horizontal(classes="row"):
+                        yield Label(label)
+                        yield Input(self._initial[key], placeholder=hint, id=f"{key}-path")
                 with Horizontal(classes="row"):
                     yield Label("Simulated lab")
                     yield Switch(self._initial_sim, id="sim")
                     yield Static(self._sim_text(self._initial_sim), id="sim-state")
                 yield Static("", id="setup-error")
                 yield Static("no setup loaded", id="excitation")
+                yield Static("instruments (F4 checks the connections):", id="check-status")
+                yield DataTable(id="instruments", cursor_type="row", zebra_stripes=True)
                 yield DataTable(id="channels", cursor_type="row", zebra_stripes=True)
             with TabPane("Run F2", id="run"):
                 with Horizontal(id="run-buttons"):
-                    yield Button("Start (F5)", id="start", variant="success")
-                    yield Button("Abort (F8)", id="abort", variant="error", disabled=True)
+                    yield Button("Start F5", id="start", variant="success")
+                    yield Button("Pause F6", id="pause", disabled=True)
+                    yield Button("Resume F7", id="resume", disabled=True)
+                    yield Button("Abort F8", id="abort", variant="error", disabled=True)
                 yield Static("idle", id="run-status")
-                yield ProgressBar(total=1.0, show_eta=False, id="progress")
+                yield ProgressBar(total=1.0, show_eta=True, id="progress")
+                with Horizontal(id="live"):
+                    yield FrfPlot(id="live-plot")
+                    with Vertical(id="side"):
+                        yield Select([], prompt="channel", id="channel", allow_blank=True)
+                        yield Static("no line measured yet", id="line-status")
+                        yield Static("instruments: waiting for the run", id="inst-status")
                 yield RichLog(id="log", max_lines=5000, wrap=False, markup=False)
-            with TabPane("Results F3", id="results"):
+            with TabPane("Results F3", id="results"), VerticalScroll(id="results-scroll"):
                 yield Static("no results yet: run a test first", id="results-status")
-                yield DataTable(id="modes", cursor_type="row", zebra_stripes=True)
-        yield Footer()
+                with Horizontal(id="tables"):
+                    yield DataTable(id="modes", cursor_type="row", zebra_stripes=True)
+                    yield DataTable(id="mac", cursor_type="row", zebra_stripes=True)
+                yield Static("", id="discrepancy")
+                yield Select([], prompt="channel", id="result-channel", allow_blank=True)
+                yield FrfPlot(id="overlay")
+                with Horizontal(id="export-buttons"):
+                    yield Button("HDF5 h", id="export-hdf5", disabled=True)
+                    yield Button("UFF u", id="export-uff", disabled=True)
+                    yield Button("PNG p", id="export-png", disabled=True)
+                yield Static("", id="export-status")
+        yield Footer(compact=True)
 
     def on_mount(self) -> None:
-        ch = self.query_one("#channels", DataTable)
-        ch.add_columns("name", "in", "dof", "quantity", "mV/unit", "range V", "coupl.")
-        modes = self.query_one("#modes", DataTable)
-        modes.add_columns("mode", "f [Hz]", "damping [%]", "MPC", "note")
-        if self._initial_path:
+        self.query_one("#channels", DataTable).add_columns(
+            "name", "in", "dof", "quantity", "mV/unit", "range V", "coupl.")
+        self.query_one("#instruments", DataTable).add_columns("instrument", "kind", "address", "state", "identity")
+        self.query_one("#modes", DataTable).add_columns("mode", "f [Hz]", "zeta %", "MPC")
+        self.query_one("#mac", DataTable).add_columns("SSID", "model", "f [Hz]", "df %", "MAC")
+        self.query_one("#live-plot", FrfPlot).show_message("live FRF: start a run (F5)")
+        self.query_one("#overlay", FrfPlot).show_message("FRF overlay: after a run")
+        self.set_interval(0.25, self._redraw_live)
+        if self._initial["setup"]:
             self.action_load()
         self.query_one("#setup-path", Input).focus()
+
+    # ------------------------------------------------------------------ actions: which apply now
+    def check_action(self, action: str, parameters: tuple) -> bool | None:
+        """Which keys apply now: the footer shows only those (an 80-column footer has room
+        for about six), so the hints always say what can be done next."""
+        try:
+            tab = self.query_one(TabbedContent).active
+        except Exception:  # noqa: BLE001 -- before the layout exists
+            return True
+        if action in ("load", "check"):
+            return tab == "setup" and not self.running
+        if action == "start":
+            return not self.running
+        if action == "pause":
+            return self.running and not self.pause_pending
+        if action == "resume":
+            return self.running and self.pause_pending
+        if action == "abort":
+            return self.running
+        if action == "export":
+            return tab == "results" and self.results is not None
+        return True
+
+    def _refresh_controls(self) -> None:
+        running = self.running
+        self.query_one("#start", Button).disabled = running
+        self.query_one("#pause", Button).disabled = not running or self.pause_pending
+        self.query_one("#resume", Button).disabled = not (running and self.pause_pending)
+        self.query_one("#abort", Button).disabled = not running
+        for kind in ("hdf5", "uff", "png"):
+            self.query_one(f"#export-{kind}", Button).disabled = self.results is None
+        self.refresh_bindings()
 
     # ------------------------------------------------------------------ setup
     @staticmethod
@@ -150,9 +231,17 @@ class LabApp(App):
 
     def action_show_tab(self, tab: str) -> None:
         self.query_one(TabbedContent).active = tab
+        first = {"setup": "#setup-path", "run": "#start", "results": "#results-scroll"}[tab]
+        widget = self.query_one(first)
+        if not self.focused or tab not in {a.id for a in self.focused.ancestors_with_self if a.id}:
+            widget.focus() if widget.focusable and not getattr(widget, "disabled", False) else None
+        self.refresh_bindings()
+
+    def on_tabbed_content_tab_activated(self, event: TabbedContent.TabActivated) -> None:
+        self.refresh_bindings()
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
-        if event.input.id in ("setup-path", "out-path"):
+        if event.input.id in ("setup-path", "out-path", "model-path"):
             self.action_load()
 
     def action_load(self) -> None:
@@ -183,6 +272,24 @@ class LabApp(App):
         out = self.query_one("#out-path", Input)
         if not out.value.strip():
             out.value = setup.output_file
+        self._fill_instruments([(g.name, "generator", g.url, "not checked (F4)", "") for g in setup.generators]
+                               + [(a.name, "amplifier", f"{a.host}:{a.port}", "not checked (F4)", "")
+                                  for a in setup.amplifiers]
+                               + [("daq", "daq", f"{setup.daq.interface}:{setup.daq.channel}", "not checked (F4)",
+                                   "")])
+        options = [(f"{o} / {i}", (k, j)) for j, i in enumerate(setup.inputs) for k, o in enumerate(setup.outputs)]
+        drive = (setup.outputs.index(setup.inputs[0]), 0) if setup.inputs[0] in setup.outputs else (0, 0)
+        self.channel = drive
+        for sel_id in ("#channel", "#result-channel"):
+            sel = self.query_one(sel_id, Select)
+            sel.set_options(options)
+            sel.value = drive
+
+    def _fill_instruments(self, rows: list[tuple[str, str, str, str, str]]) -> None:
+        t = self.query_one("#instruments", DataTable)
+        t.clear()
+        for r in rows:
+            t.add_row(*r)
 
     @staticmethod
     def _describe(setup) -> str:
@@ -201,16 +308,65 @@ class LabApp(App):
                 f"accel {lim.max_accel_m_per_s2:g} m/s2, reaction {lim.max_reaction_n:g} N; "
                 f"min coherence {setup.min_coherence:g}")
 
+    def action_check(self) -> None:
+        if self.running:
+            self.notify("the run owns the instruments; their state is on the Run tab", severity="warning")
+            return
+        self.action_load()
+        if self.setup is None:
+            self.notify("load a valid setup first", severity="error")
+            return
+        self.query_one("#check-status", Static).update("checking instruments...")
+        self._check(self.setup, self.query_one("#sim", Switch).value)
+
+    @work(thread=True, exclusive=True, group="check")
+    def _check(self, setup, sim: bool) -> None:
+        from daq.check import check_instruments
+
+        try:
+            if sim:
+                from daq.simlab import start_sim_lab
+
+                handle, inst = start_sim_lab(setup)
+                try:
+                    states = check_instruments(inst)
+                finally:
+                    handle.stop()
+            else:
+                states = check_instruments(setup)
+        except Exception as exc:  # noqa: BLE001 -- e.g. a setup the simulated lab cannot build
+            self.call_from_thread(self.query_one("#setup-error", Static).update, f"error: {_one_line(exc)}")
+            return
+        rows = [(s.name, s.kind, s.address, ("ok: " if s.ok else "NO ANSWER: ") + s.detail, s.identity)
+                for s in states]
+        n_bad = sum(not s.ok for s in states)
+        msg = (f"instruments: all {len(states)} answered" if not n_bad else
+               f"instruments: {n_bad} of {len(states)} did not answer") + (" (simulated lab)" if sim else "")
+        self.call_from_thread(self._fill_instruments, rows)
+        self.call_from_thread(self.query_one("#check-status", Static).update, msg)
+
     # ------------------------------------------------------------------ run
     @property
     def running(self) -> bool:
         return self.acquisition is not None and self.acquisition.running
 
     def on_button_pressed(self, event: Button.Pressed) -> None:
-        if event.button.id == "start":
-            self.action_start()
-        elif event.button.id == "abort":
-            self.action_abort()
+        bid = event.button.id or ""
+        if bid in ("start", "pause", "resume", "abort"):
+            getattr(self, f"action_{bid}")()
+        elif bid.startswith("export-"):
+            self.action_export(bid.removeprefix("export-"))
+
+    def on_select_changed(self, event: Select.Changed) -> None:
+        if not isinstance(event.value, tuple):  # nothing chosen (Select.NULL) while options are set
+            return
+        self.channel = tuple(event.value)
+        for sel_id in ("#channel", "#result-channel"):
+            sel = self.query_one(sel_id, Select)
+            if sel.value != event.value:
+                sel.value = event.value
+        self._plot_dirty = True
+        self._draw_overlay()
 
     def _status(self, text: str) -> None:
         self.query_one("#run-status", Static).update(text)
@@ -231,22 +387,34 @@ class LabApp(App):
                 f"error: {out}: directory {str(out_path.parent)!r} does not exist")
             self.action_show_tab("setup")
             return
+        state = run_file_state(out_path) if out_path.exists() else None
+        if out_path.exists() and state in (None, "complete"):
+            why = "holds a complete run" if state == "complete" else "exists and is not a run file"
+            self.query_one("#setup-error", Static).update(f"error: {out} {why}: choose another run file")
+            self.action_show_tab("setup")
+            return
+        resume = state is not None  # an unfinished run of this setup: continue it
         sim = self.query_one("#sim", Switch).value
         self.outcome = None
-        self.modes = []
+        self.results = None
         self.results_message = ""
-        self.query_one("#modes", DataTable).clear()
+        self.pause_pending = False
+        self.live = LiveRun(self.setup.outputs, self.setup.inputs)
+        for t in ("#modes", "#mac"):
+            self.query_one(t, DataTable).clear()
+        self.query_one("#discrepancy", Static).update("")
+        self.query_one("#export-status", Static).update("")
         self.query_one("#results-status", Static).update("run in progress...")
         self.query_one("#log", RichLog).clear()
         self.query_one("#progress", ProgressBar).update(total=1.0, progress=0.0)
-        self.query_one("#start", Button).disabled = True
-        self.query_one("#abort", Button).disabled = False
-        self.acquisition = Acquisition(self.setup.source, out_path.resolve(), sim=sim)
+        self.acquisition = Acquisition(self.setup.source, out_path.resolve(), sim=sim, resume=resume)
         parser = ProgressParser.for_setup(self.setup)
-        self._status(f"running: {out} ({'simulated lab' if sim else 'lab hardware'})")
+        self._status(f"{'resuming' if resume else 'running'}: {out} ({'simulated lab' if sim else 'lab hardware'})")
+        self._log(f"$ ssidlab acquire {self.setup.source} {'--resume' if resume else '--out'} {out}"
+                  f"{' --sim' if sim else ''}")
+        self._watch(self.acquisition, parser, self.setup, sim, self.query_one("#model-path", Input).value.strip())
         self.action_show_tab("run")
-        self._log(f"$ ssidlab acquire {self.setup.source} --out {out}{' --sim' if sim else ''}")
-        self._watch(self.acquisition, parser)
+        self._refresh_controls()
 
     def _log(self, line: str) -> None:
         self.query_one("#log", RichLog).write(line)
@@ -254,8 +422,43 @@ class LabApp(App):
     def _progress(self, frac: float) -> None:
         self.query_one("#progress", ProgressBar).update(progress=frac)
 
+    def _event(self, ev: dict) -> None:
+        """One run event, in the UI thread."""
+        live = self.live
+        if live is None:
+            return
+        kind = live.feed(ev)
+        if kind in ("line", "spectrum"):
+            self._plot_dirty = True
+        if kind == "instruments":
+            rows = []
+            for group, items in ev.get("identities", {}).items():
+                if group == "daq":
+                    rows.append(("daq", "daq", "", "in use by the run", ", ".join(f"{k} {v}" for k, v in items.items())))
+                else:
+                    rows += [(name, group.rstrip("s"), "", "in use by the run", str(idn)) for name, idn in items.items()]
+            self._fill_instruments(rows)
+        if kind == "paused":
+            self.pause_pending = True
+            self._status("PAUSED: generator outputs off, amplifiers disabled - F7 resumes, F8 aborts")
+        elif kind == "resumed":
+            self.pause_pending = False
+            self._status("running (resumed)")
+        self.query_one("#line-status", Static).update(live.line_text())
+        self.query_one("#inst-status", Static).update(live.instrument_text())
+        self._refresh_controls()
+
+    def _redraw_live(self) -> None:
+        if not self._plot_dirty or self.live is None or self.setup is None:
+            return
+        self._plot_dirty = False
+        o, i = self.channel
+        f, h, c = self.live.curve(o, i)
+        name = f"{self.setup.outputs[o]} / {self.setup.inputs[i]}" if o < len(self.setup.outputs) else ""
+        self.query_one("#live-plot", FrfPlot).show_live(f"{name}: {len(f)} lines", f, h, c)
+
     @work(thread=True, exclusive=True, group="acquire")
-    def _watch(self, acq: Acquisition, parser: ProgressParser) -> None:
+    def _watch(self, acq: Acquisition, parser: ProgressParser, setup, sim: bool, model_path: str) -> None:
         """Worker thread: owns the acquisition subprocess until it has ended."""
         try:
             acq.start()
@@ -263,6 +466,10 @@ class LabApp(App):
             self.call_from_thread(self._finished, RunOutcome(-1, False, acq.out, None), _one_line(exc))
             return
         for line in acq.lines():
+            ev = parse_event(line)
+            if ev is not None:
+                self.call_from_thread(self._event, ev)
+                continue
             self.call_from_thread(self._log, line)
             frac = parser.feed(line)
             if frac is not None:
@@ -271,41 +478,91 @@ class LabApp(App):
         outcome = RunOutcome(code, acq.abort_requested, acq.out, run_file_state(acq.out))
         self.call_from_thread(self._finished, outcome, None)
         if outcome.complete:
-            self.call_from_thread(self._results_status, "identifying M, C, K (SSID)...")
+            self.call_from_thread(self._results_status, "identifying M, C, K (SSID), correlating, "
+                                                        "looking for the discrepancy...")
             try:
-                rows, desc = identify_file(acq.out)
+                results = analyse_run(acq.out, setup, sim=sim, model_path=model_path or None)
             except Exception as exc:  # noqa: BLE001 -- any identification failure is one line; the file is fine
-                self.call_from_thread(self._show_results, [], f"identification failed: {_one_line(exc)}")
+                self.call_from_thread(self._show_results, None, f"identification failed: {_one_line(exc)}")
             else:
-                self.call_from_thread(self._show_results, rows, desc)
+                self.call_from_thread(self._show_results, results, results.description)
 
     def _finished(self, outcome: RunOutcome, error: str | None) -> None:
         self.outcome = outcome
+        self.pause_pending = False
         text = outcome.summary() if error is None else f"could not start the run: {error}"
         self._status(text)
         self._log(text)
         if outcome.complete:
             self._progress(1.0)
         else:
+            resumable = outcome.state and outcome.state != "complete"
             self.query_one("#results-status", Static).update(
-                f"no results: {text}" + ("; resume with: ssidlab acquire --resume " + outcome.file
-                                         if outcome.state and outcome.state != "complete" else ""))
-        self.query_one("#start", Button).disabled = False
-        self.query_one("#abort", Button).disabled = True
+                f"no results: {text}" + ("; F5 resumes the run file" if resumable else ""))
+            if resumable:
+                self._status(f"{text} - F5 resumes it")
+        self._refresh_controls()
 
     def _results_status(self, text: str) -> None:
         self.query_one("#results-status", Static).update(text)
 
-    def _show_results(self, rows: list[ModeRow], message: str) -> None:
-        table = self.query_one("#modes", DataTable)
-        table.clear()
-        for r in rows:
-            table.add_row(str(r.mode), f"{r.freq_hz:.3f}", f"{100 * r.damping_ratio:.3f}", f"{r.mpc:.3f}",
-                          "" if r.in_band else "outside band")
-        self.modes = rows
+    def _show_results(self, results: RunResults | None, message: str) -> None:
+        modes = self.query_one("#modes", DataTable)
+        mac = self.query_one("#mac", DataTable)
+        modes.clear()
+        mac.clear()
+        self.results = results
         self.results_message = message
+        if results is not None:
+            for r in results.modes:  # * marks a mode outside the measured band
+                modes.add_row(f"{r.mode}{'' if r.in_band else '*'}", f"{r.freq_hz:.2f}",
+                              f"{100 * r.damping_ratio:.2f}", f"{r.mpc:.2f}")
+            for p in results.pairs:
+                mac.add_row(str(p["test_mode"]), str(p["analysis_mode"]), f"{p['analysis_freq_hz']:.2f}",
+                            f"{p['freq_error_percent']:+.2f}", f"{p['mac']:.3f}")
+            notes = [n for n in results.notes if not n.startswith("discrepancy")]
+            message = (message + ("; * outside the band" if any(not r.in_band for r in results.modes) else "")
+                       + (f"\nMAC (right) vs the {results.model_source}" if results.pairs else "")
+                       + "".join(f"\n{n}" for n in notes))
+            self.query_one("#discrepancy", Static).update(results.discrepancy_text())
         self._results_status(message)
+        self._draw_overlay()
+        self._refresh_controls()
         self.action_show_tab("results")
+
+    def _draw_overlay(self) -> None:
+        res = self.results
+        if res is None:
+            return
+        o, i = self.channel
+        frf = res.frf
+        if o >= frf.n_out or i >= frf.n_in:
+            return
+        H = np.where(frf.valid_mask()[:, o, i], np.abs(frf.H[:, o, i]), np.nan)
+        curves = [("measured", H), ("SSID", np.abs(res.predicted[:, o, i]))]
+        if res.updated is not None:
+            curves.append(("model+effect", np.abs(res.updated[:, o, i])))
+        self.query_one("#overlay", FrfPlot).show_overlay(f"{frf.outputs[o]} / {frf.inputs[i]}", frf.freq_hz, curves)
+
+    def action_pause(self) -> None:
+        if self.acquisition is not None and self.acquisition.pause():
+            self.pause_pending = True
+            self._status("pause requested: finishing the current line, then outputs off and amplifiers "
+                         "disabled...")
+            self._log("pause requested")
+        else:
+            self.notify("no run in progress", severity="warning")
+        self._refresh_controls()
+
+    def action_resume(self) -> None:
+        if self.acquisition is not None and self.acquisition.resume():
+            self._log("resume requested")
+            if self.live is not None and not self.live.paused:
+                self.pause_pending = False  # asked back before the line had finished
+                self._status("running")
+        else:
+            self.notify("no run in progress", severity="warning")
+        self._refresh_controls()
 
     def action_abort(self) -> None:
         if self.acquisition is not None and self.acquisition.abort():
@@ -314,6 +571,17 @@ class LabApp(App):
             self.query_one("#abort", Button).disabled = True
         else:
             self.notify("no run in progress", severity="warning")
+
+    def action_export(self, kind: str) -> None:
+        if self.results is None:
+            self.notify("no results to export yet", severity="warning")
+            return
+        try:
+            paths = export_results(self.results, kind, *self.channel)
+        except Exception as exc:  # noqa: BLE001 -- an export failure is one line; nothing else is lost
+            self.query_one("#export-status", Static).update(f"export {kind} failed: {_one_line(exc)}")
+            return
+        self.query_one("#export-status", Static).update("wrote " + ", ".join(str(p) for p in paths))
 
     async def action_quit(self) -> None:
         self._stop_acquisition()
@@ -327,6 +595,6 @@ class LabApp(App):
         self._stop_acquisition()
 
 
-def main(setup_path: str | None = None, *, out: str | None = None, sim: bool = True) -> int:
-    LabApp(setup_path, out=out, sim=sim).run()
+def main(setup_path: str | None = None, *, out: str | None = None, sim: bool = True, model: str | None = None) -> int:
+    LabApp(setup_path, out=out, sim=sim, model=model).run()
     return 0

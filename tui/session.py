@@ -1,15 +1,22 @@
-"""What the TUI does besides drawing: start ``ssidlab acquire`` as a subprocess, stop it with
-SIGINT, turn its progress lines into a fraction, read the results.
+"""What the TUI does with a run besides drawing: start ``ssidlab acquire`` as a subprocess,
+steer it (pause, resume, abort), and turn its output into progress and live curves.
 
-No science or device logic here: the acquisition is ``python -m ssidlab acquire`` (``daq``),
-the identification ``ssid.identify.identify_mck`` on ``ssid.io.read_frf``. ``daq.run_test``
-has no stop hook a thread could use, so the run lives in its own process and an abort is the
-same SIGINT as Ctrl-C, which ``daq`` handles safely (instruments to the safe state, the run
-file kept readable and resumable).
+No device logic here: the acquisition is ``python -m ssidlab acquire --events
+--control-stdin`` (``daq``). It runs in its own process, owned by one TUI worker thread,
+because that is what makes "always reaches the safe state" hold whatever happens to the UI:
+
+* abort is SIGINT, exactly Ctrl-C of ``ssidlab acquire`` (drive to zero at once, instruments
+  safe, file resumable), effective mid-line;
+* pause / resume are lines on the run's stdin, honoured between lines (``daq.control``);
+* if the TUI dies - closed, killed, its terminal gone - the run's stdin reaches end of input
+  and the run stops safely by itself (``--control-stdin``); a thread in the UI's process
+  would die with it, drive on;
+* the simulated lab's physics does not share the UI's interpreter (and its GIL).
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -20,25 +27,28 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Acquisition", "ModeRow", "ProgressParser", "RunOutcome", "identify_file", "run_file_state"]
+__all__ = ["Acquisition", "LiveRun", "ProgressParser", "RunOutcome", "parse_event", "run_file_state"]
 
 #: Exit statuses of ``ssidlab acquire`` (docs/acquisition.md).
 EXIT_TEXT = {0: "complete", 2: "bad input", 3: "stopped safely by a fault", 130: "interrupted (safe)"}
 
 
 class Acquisition:
-    """One ``ssidlab acquire SETUP [--sim] --out FILE`` subprocess, stdout and stderr merged."""
+    """One ``ssidlab acquire SETUP [--sim] --out FILE --events --control-stdin`` subprocess,
+    stdout and stderr merged."""
 
-    def __init__(self, setup_path: str | Path, out: str | Path, *, sim: bool = True) -> None:
+    def __init__(self, setup_path: str | Path, out: str | Path, *, sim: bool = True, resume: bool = False) -> None:
         self.setup_path = str(setup_path)
         self.out = str(out)
         self.sim = sim
+        self.resume_file = resume  # continue the unfinished run file ``out`` (its setup must match)
         self.proc: subprocess.Popen[str] | None = None
         self.abort_requested = False
 
     @property
     def argv(self) -> list[str]:
-        argv = [sys.executable, "-m", "ssidlab", "acquire", self.setup_path, "--out", self.out]
+        where = ["--resume", self.out] if self.resume_file else ["--out", self.out]
+        argv = [sys.executable, "-m", "ssidlab", "acquire", self.setup_path, *where, "--events", "--control-stdin"]
         if self.sim:
             argv.append("--sim")
         return argv
@@ -47,8 +57,25 @@ class Acquisition:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         # Own session: a Ctrl-C typed into the terminal reaches the TUI only; the TUI decides.
         self.proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, text=True, bufsize=1, env=env,
+                                     stdin=subprocess.PIPE, text=True, bufsize=1, env=env,
                                      start_new_session=True)
+
+    def _send(self, command: str) -> bool:
+        if not self.running or self.proc is None or self.proc.stdin is None:
+            return False
+        try:
+            self.proc.stdin.write(command + "\n")
+            self.proc.stdin.flush()
+        except (BrokenPipeError, ValueError, OSError):  # the run has just ended
+            return False
+        return True
+
+    def pause(self) -> bool:
+        """Ask the run to pause after the current line (outputs off, amplifiers disabled)."""
+        return self._send("pause")
+
+    def resume(self) -> bool:
+        return self._send("resume")
 
     def lines(self) -> Iterator[str]:
         """The subprocess's output lines until it closes its output."""
@@ -81,14 +108,24 @@ class Acquisition:
         if self.proc is None:
             return
         if self.proc.poll() is None:
+            # One signal only: end of input would be a second interrupt while the run is
+            # already reaching its safe state (daq holds such signals back, but one is cleaner).
             self.abort()
             try:
                 self.proc.wait(grace_s)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+        self._close_stdin()
         if self.proc.stdout is not None:
             self.proc.stdout.close()
+
+    def _close_stdin(self) -> None:
+        if self.proc is not None and self.proc.stdin is not None and not self.proc.stdin.closed:
+            try:
+                self.proc.stdin.close()
+            except OSError:
+                pass
 
 
 _SINE = re.compile(r"^\s*shaker\s+(\d+)\s+([0-9.eE+-]+)\s+Hz\b")
@@ -164,25 +201,114 @@ def run_file_state(path: str | Path) -> str | None:
         return None
 
 
-@dataclass
-class ModeRow:
-    mode: int
-    freq_hz: float
-    damping_ratio: float
-    mpc: float
-    in_band: bool = True  # within the band of lines used for the fit
+EVENT_PREFIX = "@event "  # ssidlab.cli_acquire.EVENT_PREFIX (not imported: tui does not import the CLI)
 
 
-def identify_file(path: str | Path) -> tuple[list[ModeRow], str]:
-    """Identify M, C, K from a finished FRF file; the modes and a one-line description."""
-    from ssid.identify import identify_mck
-    from ssid.io import read_frf
+def parse_event(line: str) -> dict | None:
+    """The event of an ``@event {json}`` output line, or None for a plain (log) line."""
+    if not line.startswith(EVENT_PREFIX):
+        return None
+    try:
+        ev = json.loads(line[len(EVENT_PREFIX):])
+    except ValueError:
+        return None
+    return ev if isinstance(ev, dict) and "event" in ev else None
 
-    frf = read_frf(path)
-    res = identify_mck(frf)
-    lo, hi = res.band_hz
-    rows = [ModeRow(i + 1, float(f), float(z), float(m), bool(lo <= f <= hi))
-            for i, (f, z, m) in enumerate(zip(res.natural_freq_hz, res.damping_ratio, res.mpc, strict=False))]
-    desc = (f"{Path(path).name}: {frf.n_freq} lines, {frf.n_out} outputs x {frf.n_in} inputs; "
-            f"{len(rows)} modes ({res.solver}, {res.band_hz[0]:.4g}-{res.band_hz[1]:.4g} Hz)")
-    return rows, desc
+
+class LiveRun:
+    """What the run's events say so far: FRF lines for the live plot, the current line's
+    level, distortion and limit use, the instruments' state, paused or not.
+
+    ``H_abs`` / ``coherence`` of a line are (n_out, n_in) with None for blanked values.
+    """
+
+    def __init__(self, outputs: list[str], inputs: list[str]) -> None:
+        self.outputs, self.inputs = list(outputs), list(inputs)
+        self.lines: dict[float, tuple[list, list]] = {}  # freq_hz -> (H_abs, coherence)
+        # stepped sine, shaker -> freq_hz -> |response / own force| (n_out): the live view of
+        # a shaker's sweep before the other shakers have measured the line
+        self.sub_lines: dict[int, dict[float, list]] = {}
+        self.last_line: dict | None = None  # the latest sub_line / spectrum event
+        self.identities: dict = {}
+        self.instruments: dict = {}
+        self.paused = False
+        self.simulated: bool | None = None
+
+    def feed(self, ev: dict) -> str:
+        """Take one event; returns its kind."""
+        kind = str(ev.get("event"))
+        if kind == "line":
+            self.lines[float(ev["freq_hz"])] = (ev["H_abs"], ev["coherence"])
+        elif kind == "spectrum":
+            self.lines = {float(f): (h, c) for f, h, c in zip(ev["freq_hz"], ev["H_abs"], ev["coherence"],
+                                                              strict=False)}
+            self.last_line = ev
+        elif kind == "sub_line":
+            self.last_line = ev
+            if ev.get("ok") and ev.get("Y_abs") is not None:
+                self.sub_lines.setdefault(int(ev["shaker"]), {})[float(ev["freq_hz"])] = ev["Y_abs"]
+        elif kind == "instruments":
+            self.identities = ev.get("identities", {})
+            self.simulated = ev.get("simulated")
+        elif kind == "paused":
+            self.paused = True
+        elif kind == "resumed":
+            self.paused = False
+        if kind in ("sub_line", "spectrum") and ev.get("instruments"):
+            self.instruments = ev["instruments"]
+        return kind
+
+    def curve(self, out: int, inp: int) -> tuple[list[float], list[float], list[float]]:
+        """Frequency (Hz, ascending), |H| and coherence of one FRF; blanked values left out.
+
+        Stepped sine: where a line is not complete yet (other shakers still to come), the
+        shaker's own response per unit force stands in, with coherence 0 (not yet known).
+        """
+        pts: dict[float, tuple[float, float]] = {}
+        for freq, Y in self.sub_lines.get(inp, {}).items():
+            if out < len(Y) and Y[out] is not None and Y[out] > 0:
+                pts[freq] = (float(Y[out]), 0.0)
+        for freq, (H, coh) in self.lines.items():
+            try:
+                hv, cv = H[out][inp], coh[out][inp]
+            except (IndexError, TypeError):
+                continue
+            if hv is None or not hv > 0:  # blanked, or zero: nothing to show on a log scale
+                pts.pop(freq, None)
+                continue
+            pts[freq] = (float(hv), float(cv) if cv is not None else 0.0)
+        f = sorted(pts)
+        return f, [pts[x][0] for x in f], [pts[x][1] for x in f]
+
+    def line_text(self) -> str:
+        """The current line for the status panel: level, drive, distortion, limit use."""
+        ev = self.last_line
+        if not ev:
+            return "no line measured yet"
+        if ev["event"] == "spectrum":
+            head = f"average {ev['n_avg']}/{ev['averages']}"
+        else:
+            state = "ok" if ev.get("ok") else f"ABORTED: {ev.get('reason', '')}"
+            head = (f"shaker {ev['shaker']} {ev['freq_hz']:.2f} Hz, drive {ev['drive_vpp']:.3f} Vpp"
+                    + (f", |F| {ev['force_n']:.3g} N, THD {100 * ev['thd_max']:.2f} %" if ev.get("ok") else "")
+                    + f" ({state})")
+        use = ev.get("limit_use") or {}
+        lim = ", ".join(f"{k} {100 * v:.0f} %" for k, v in use.items() if v is not None)
+        return head + ("\nof limits: " + lim if lim else "")
+
+    def instrument_text(self) -> str:
+        """Amplifier interlock / enable / fault state for the status panel."""
+        amps = (self.instruments or {}).get("amplifiers", {})
+        if self.paused:
+            head = "PAUSED: outputs off, amplifiers disabled"
+        else:
+            head = ""
+        parts = []
+        for name, st in amps.items():
+            if st.get("fault"):
+                parts.append(f"{name} FAULT {st['fault']}")
+            elif not st.get("interlock_closed", True):
+                parts.append(f"{name} INTERLOCK OPEN")
+            else:
+                parts.append(f"{name} {'on' if st.get('enabled') else 'off'}, interlock ok")
+        return "; ".join(x for x in [head, ", ".join(parts)] if x) or "instruments: waiting for the run"

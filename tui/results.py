@@ -1,0 +1,170 @@
+"""The Results tab's content, computed from a finished run file; and its exports.
+
+Everything here calls ``ssid`` (identification, correlation, discrepancy, exchange, plots) or
+``daq.simlab`` (the nominal model of a simulated setup); nothing is computed here. Which
+analysis model the identified model is held against:
+
+* a model file given on the Setup tab (``ssid.matrix_io.read_analysis_model``: model HDF5,
+  MAT, OP4) - the structure as tested: MAC and the discrepancy workflow both use it;
+* otherwise, for the simulated lab, its nominal model (every hidden ``[[sim.effects]]``
+  removed): the structure alone for MAC (SSID with reactions identifies the free
+  substructure), the structure on its stand for the discrepancy workflow (the measured FRFs
+  are on the stand) - as in ``ssidlab demo``;
+* otherwise none: modes only, and the Results tab says how to give one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["ModeRow", "RunResults", "analyse_run", "export_results"]
+
+
+@dataclass
+class ModeRow:
+    mode: int
+    freq_hz: float
+    damping_ratio: float
+    mpc: float
+    in_band: bool = True  # within the band of lines used for the fit
+
+
+@dataclass
+class RunResults:
+    """What the Results tab shows, and what the exports write."""
+
+    path: Path
+    frf: object  # ssid.frf.FRFData
+    result: object  # ssid.identify.SSIDResult
+    modes: list[ModeRow]
+    description: str
+    model_source: str = ""  # which analysis model, in words ("" = none)
+    pairs: list[dict] = field(default_factory=list)  # MAC-paired modes (ssid.correlate_models)
+    discrepancy: dict | None = None  # DiscrepancyResult.to_json_dict()
+    notes: list[str] = field(default_factory=list)  # what could not be done, one line each
+    predicted: np.ndarray | None = None  # identified model's FRF under the test's loads (n_freq, n_out, n_in)
+    updated: np.ndarray | None = None  # the discrepancy-updated model's FRF, same shape
+    updated_model: object | None = None  # ssid.io.Model: the analysis model with the effect added
+
+    def discrepancy_text(self) -> str:
+        d = self.discrepancy
+        if d is None:
+            return "discrepancy workflow: " + ("; ".join(n for n in self.notes if "discrepancy" in n)
+                                               or "no analysis model")
+        if d["effect"] == "none":
+            return (f"discrepancy workflow: no missing effect: the model agrees with the data within noise "
+                    f"(gap {d['gap_before']:.3g})")
+        params = ", ".join(f"{k} {v:.4g}" for k, v in d["parameters"].items())
+        return (f"discrepancy workflow ({self.model_source}): {d['effect']} at {', '.join(d['dofs'])} "
+                f"({params}); gap {d['gap_before']:.3g} -> {d['gap_after']:.3g} (noise-normalised RMS)")
+
+
+def _models(setup, sim: bool, model_path: str | None):
+    """(model for MAC, model for the discrepancy workflow, words) or (None, None, why not)."""
+    if model_path:
+        from ssid.matrix_io import read_analysis_model
+
+        m = read_analysis_model(model_path)
+        return m, m, Path(model_path).name
+    if sim and setup is not None:
+        from daq.simlab import nominal_model
+
+        return (nominal_model(setup, mounted=False), nominal_model(setup, mounted=True),
+                "nominal model of the simulated lab")
+    return None, None, "no analysis model: give a model file on the Setup tab"
+
+
+def analyse_run(path: str | Path, setup=None, *, sim: bool = False, model_path: str | None = None) -> RunResults:
+    """Identify M, C, K from a finished run file; correlate and look for the discrepancy.
+
+    Identification failing raises (the caller shows one line); correlation or discrepancy
+    failing leaves a note instead, since the identified modes are still worth showing.
+    """
+    from ssid.frf import accelerance_under_test_loads
+    from ssid.identify import identify_mck
+    from ssid.io import Model, read_frf
+
+    path = Path(path)
+    frf = read_frf(path)
+    res = identify_mck(frf)
+    lo, hi = res.band_hz
+    rows = [ModeRow(i + 1, float(f), float(z), float(m), bool(lo <= f <= hi))
+            for i, (f, z, m) in enumerate(zip(res.natural_freq_hz, res.damping_ratio, res.mpc, strict=False))]
+    desc = (f"{path.name}: {frf.n_freq} lines, {frf.n_out} outputs x {frf.n_in} inputs; "
+            f"{len(rows)} modes ({res.solver}, {lo:.4g}-{hi:.4g} Hz)")
+    out = RunResults(path, frf, res, rows, desc)
+    out.predicted = accelerance_under_test_loads(res.M, res.C, res.K, list(res.dofs), frf)
+    try:
+        mac_model, disc_model, words = _models(setup, sim, model_path)
+    except Exception as exc:  # noqa: BLE001 -- a bad model file is a note, not a lost result
+        out.notes.append(f"analysis model: {' '.join(str(exc).splitlines())}")
+        return out
+    out.model_source = words if mac_model is not None else ""
+    if mac_model is None:
+        out.notes.append(words)
+        return out
+    try:
+        from ssid.correlate_models import correlate_models
+
+        ident = Model(M=res.M, K=res.K, C=res.C, dofs=list(res.dofs))
+        out.pairs = list(correlate_models(ident, mac_model).summary["paired_modes"])
+    except Exception as exc:  # noqa: BLE001
+        out.notes.append(f"MAC: {' '.join(str(exc).splitlines())}")
+    try:
+        from ssid.discrepancy import find_discrepancy
+
+        measured = dataclasses.replace(frf, H_reaction=None, reactions=None)
+        disc = find_discrepancy(disc_model, measured)
+        out.discrepancy = disc.to_json_dict()
+        out.updated_model = upd = disc.updated_model
+        out.updated = accelerance_under_test_loads(upd.M, upd.C, upd.K, list(upd.dofs), measured)
+    except Exception as exc:  # noqa: BLE001
+        out.notes.append(f"discrepancy workflow: {' '.join(str(exc).splitlines())}")
+    return out
+
+
+def export_results(results: RunResults, kind: str, out_i: int = 0, in_j: int = 0) -> list[Path]:
+    """Write the results next to the run file; the paths written.
+
+    ``hdf5``: the identified model (``<run>_ssid_model.h5``, model-file contract) and, with a
+    discrepancy finding, the updated analysis model (``<run>_updated_model.h5``); ``uff``:
+    the measured FRFs as UFF 58 (``<run>.uff``); ``png``: FRF ``(out_i, in_j)`` measured vs
+    identified (and updated) model (``<run>_frf_<out>_<in>.png``).
+    """
+    from ssid.io import Model, write_model
+
+    base = results.path.with_suffix("")
+    res = results.result
+    written: list[Path] = []
+    if kind == "hdf5":
+        p = Path(f"{base}_ssid_model.h5")
+        write_model(p, Model(M=res.M, K=res.K, C=res.C, dofs=list(res.dofs)))
+        written.append(p)
+        if results.updated_model is not None:
+            p = Path(f"{base}_updated_model.h5")
+            write_model(p, results.updated_model)
+            written.append(p)
+    elif kind == "uff":
+        from ssid.exchange import write_uff_frf
+
+        p = Path(f"{base}.uff")
+        write_uff_frf(str(p), results.frf)
+        written.append(p)
+    elif kind == "png":
+        from ssid.plots_correlation import plot_frf_overlay
+
+        frf = results.frf
+        o, i = frf.outputs[out_i], frf.inputs[in_j]
+        safe = "".join(ch if ch.isalnum() else "_" for ch in f"{o}_{i}")
+        p = Path(f"{base}_frf_{safe}.png")
+        plot_frf_overlay(frf.freq_hz, frf.H[:, out_i, in_j], results.predicted[:, out_i, in_j], p,
+                         title=f"{o} / {i}: measured vs SSID model under the test's loads",
+                         labels=("measured", "SSID model"), valid=frf.valid_mask()[:, out_i, in_j])
+        written.append(p)
+    else:
+        raise ValueError(f"unknown export kind {kind!r} (hdf5, uff, png)")
+    return written

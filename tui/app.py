@@ -180,7 +180,9 @@ class LabApp(App):
             "name", "in", "dof", "quantity", "mV/unit", "range V", "coupl.")
         self.query_one("#instruments", DataTable).add_columns("instrument", "kind", "address", "state", "identity")
         self.query_one("#modes", DataTable).add_columns("mode", "f [Hz]", "zeta %", "MPC")
-        self.query_one("#mac", DataTable).add_columns("SSID", "model", "f [Hz]", "df %", "MAC")
+        # MAC pairs the identified model's normal modes (undamped, of its M and K) with the
+        # analysis model's: both frequencies shown, as the mode numbers differ from the table left.
+        self.query_one("#mac", DataTable).add_columns("SSID Hz", "model Hz", "df %", "MAC")
         self.query_one("#live-plot", FrfPlot).show_message("live FRF: start a run (F5)")
         self.query_one("#overlay", FrfPlot).show_message("FRF overlay: after a run")
         self.set_interval(0.25, self._redraw_live)
@@ -431,13 +433,7 @@ class LabApp(App):
         if kind in ("line", "spectrum"):
             self._plot_dirty = True
         if kind == "instruments":
-            rows = []
-            for group, items in ev.get("identities", {}).items():
-                if group == "daq":
-                    rows.append(("daq", "daq", "", "in use by the run", ", ".join(f"{k} {v}" for k, v in items.items())))
-                else:
-                    rows += [(name, group.rstrip("s"), "", "in use by the run", str(idn)) for name, idn in items.items()]
-            self._fill_instruments(rows)
+            self._fill_instruments(self._instruments_in_use(ev))
         if kind == "paused":
             self.pause_pending = True
             self._status("PAUSED: generator outputs off, amplifiers disabled - F7 resumes, F8 aborts")
@@ -447,6 +443,24 @@ class LabApp(App):
         self.query_one("#line-status", Static).update(live.line_text())
         self.query_one("#inst-status", Static).update(live.instrument_text())
         self._refresh_controls()
+
+    def _instruments_in_use(self, ev: dict) -> list[tuple[str, str, str, str, str]]:
+        """Instrument table rows from the run's ``instruments`` event (identities as read)."""
+        sim = bool(ev.get("simulated"))
+        addr = {}
+        if self.setup is not None and not sim:
+            addr = {g.name: g.url for g in self.setup.generators}
+            addr.update({a.name: f"{a.host}:{a.port}" for a in self.setup.amplifiers})
+            addr["daq"] = f"{self.setup.daq.interface}:{self.setup.daq.channel}"
+        rows = []
+        for group, items in ev.get("identities", {}).items():
+            if group == "daq":
+                ident = ", ".join(f"{k} {v}" for k, v in items.items() if k in ("serial", "fw_version", "n_inputs"))
+                rows.append(("daq", "daq", addr.get("daq", "simulated" if sim else ""), "in use by the run", ident))
+            else:
+                rows += [(name, group.rstrip("s"), addr.get(name, "simulated" if sim else ""), "in use by the run",
+                          str(idn)) for name, idn in items.items()]
+        return rows
 
     def _redraw_live(self) -> None:
         if not self._plot_dirty or self.live is None or self.setup is None:
@@ -518,7 +532,7 @@ class LabApp(App):
                 modes.add_row(f"{r.mode}{'' if r.in_band else '*'}", f"{r.freq_hz:.2f}",
                               f"{100 * r.damping_ratio:.2f}", f"{r.mpc:.2f}")
             for p in results.pairs:
-                mac.add_row(str(p["test_mode"]), str(p["analysis_mode"]), f"{p['analysis_freq_hz']:.2f}",
+                mac.add_row(f"{p['test_freq_hz']:.2f}", f"{p['analysis_freq_hz']:.2f}",
                             f"{p['freq_error_percent']:+.2f}", f"{p['mac']:.3f}")
             notes = [n for n in results.notes if not n.startswith("discrepancy")]
             message = (message + ("; * outside the band" if any(not r.in_band for r in results.modes) else "")

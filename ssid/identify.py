@@ -396,3 +396,4 @@ def identify_mck(
         warnings=warnings,
         info=info,
     )
+

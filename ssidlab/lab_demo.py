@@ -28,117 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
+# The demo runs the simulated lab's example setup; its names, as the demo calls them.
+from daq.simlab import EXAMPLE_HIDDEN as HIDDEN
+from daq.simlab import EXAMPLE_SHAKERS as DEMO_SHAKERS
+from daq.simlab import example_setup_text as demo_setup_text
+
 __all__ = ["DEMO_SHAKERS", "demo_setup_text", "run_lab_demo"]
-
-DEMO_SHAKERS = ("11+Z", "16+Z")
-HIDDEN = {"type": "added_mass", "dof": "6+Z", "mass_kg": 0.25}
-
-
-def demo_setup_text() -> str:
-    """The demo's test setup (TOML)."""
-    from ssid.models.payload import INTERFACE_DOFS, Z_DOFS
-
-    out = ['''# Example test setup for the simulated lab: the payload simulator on a three-post test stand.
-#
-#     ssidlab acquire examples/setup_sim.toml --sim --out run.h5
-#
-# Keys: docs/acquisition.md. Instrument addresses below are placeholders: with --sim they are
-# replaced by the simulated instruments' endpoints; without it they must point at real ones.
-
-[test]
-name = "payload simulator on test stand, stepped sine"
-operator = "ssidlab demo"
-
-[output]
-file = "run.h5"
-uff = "run.uff"
-raw_time = false
-
-[daq]
-interface = "socketcan"
-channel = "can0"
-sample_rate_hz = 4096          # 21 channels: 77 % of a 1/5 Mbit/s CAN FD bus
-
-[[generators]]
-name = "gen0"
-url = "/dev/ttyUSB0"
-max_vpp = 8.0
-ramp_time_s = 0.05
-''']
-    for j in range(len(DEMO_SHAKERS)):
-        out.append(f'''[[amplifiers]]
-name = "amp{j}"
-host = "192.168.0.{10 + j}"
-port = 502
-gain_v_per_v = 2.0
-''')
-    for j, d in enumerate(DEMO_SHAKERS):
-        out.append(f'''[[shakers]]
-dof = "{d}"
-generator = "gen0"
-channel = {j + 1}
-amplifier = "amp{j}"
-force_channel = "force {d}"
-''')
-    chans = ([(f"force {d}", d, "force", 22.5, 2.0) for d in DEMO_SHAKERS]
-             + [(f"acc {d}", d, "acceleration", 10.0, 5.0) for d in Z_DOFS]
-             + [(f"load {d}", d, "reaction", 22.5, 5.0) for d in INTERFACE_DOFS])
-    for k, (name, d, q, sens, rng) in enumerate(chans):
-        out.append(f'''[[channels]]
-name = "{name}"
-input = {k}
-dof = "{d}"
-quantity = "{q}"
-sensitivity_mv_per_unit = {sens}
-range_volt = {rng}
-''')
-    out.append(f'''[excitation]
-type = "stepped_sine"
-
-[stepped_sine]
-f_min_hz = 20.0
-f_max_hz = 1500.0
-n_lines = 40                   # coarse lines; the sweep refines near resonances
-spacing = "log"
-refine = 8                     # up to 8 finer lines per coarse step
-max_change = 0.25              # target relative change of the response between lines
-force_n = 2.0                  # force amplitude (peak) held by the level control
-tolerance = 0.15
-compression = 2.0
-accuracy = 1e-3                # requested relative accuracy of each line
-min_cycles = 8.0
-min_dwell_s = 0.04
-damping_guess = 0.01
-max_settle_s = 10.0
-
-[limits]
-max_drive_vpp = 8.0
-max_force_n = 50.0
-max_accel_m_per_s2 = 400.0
-max_reaction_n = 300.0
-
-[quality]
-min_coherence = 0.9
-
-[sim]
-structure = "payload"
-damping_ratio = 0.02
-noise = true
-seed = 1
-oversample = 4                 # the payload's modes reach 2.6 kHz: finer internal steps
-
-[sim.stand]
-stand_mass_kg = 20.0
-stand_k_n_per_m = 2.0e6
-stand_c_n_s_per_m = 400.0
-ground_k_n_per_m = 5.0e6
-
-[[sim.effects]]                # the hidden effect the nominal model lacks
-type = "{HIDDEN['type']}"
-dof = "{HIDDEN['dof']}"
-mass_kg = {HIDDEN['mass_kg']}
-''')
-    return "\n".join(out)
 
 
 def _progress(echo, every_s: float = 2.0):

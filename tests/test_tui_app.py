@@ -319,3 +319,22 @@ def test_lab_hardware_pause_resume_abort_then_resume_from_the_ui(tmp_path):
     assert run_file_state(out) == "complete"
     with h5py.File(out, "r") as f:
         assert int(f["acq/n_done"][0]) == 2 * 30  # every sub-line once: none lost, none doubled
+
+
+def test_new_setup_from_the_example(tmp_path):
+    """Ctrl+N writes the example setup to the path given (never over an existing file) and
+    loads it; what it writes is the simulated lab's example, examples/setup_sim.toml."""
+    target = tmp_path / "mine.toml"
+
+    async def go():
+        app = LabApp()
+        async with app.run_test(size=SIZE) as pilot:
+            app.query_one("#setup-path", Input).value = str(target)
+            await pilot.press("ctrl+n")
+            assert target.is_file() and app.setup is not None
+            assert app.query_one("#channels", DataTable).row_count == 21
+            await pilot.press("ctrl+n")  # again: the file exists now, it is left alone
+            assert "not overwritten" in str(app.query_one("#setup-error", Static).render())
+
+    asyncio.run(go())
+    assert target.read_text(encoding="utf-8") == EXAMPLE.read_text(encoding="utf-8")

@@ -99,6 +99,7 @@ class LabApp(App):
         Binding("f2", "show_tab('run')", "Run", priority=True, show=False),
         Binding("f3", "show_tab('results')", "Results", priority=True, show=False),
         Binding("ctrl+l", "load", "Load", priority=True),
+        Binding("ctrl+n", "new", "New", priority=True),
         Binding("f4", "check", "Check", priority=True),
         Binding("f5", "start", "Start", priority=True),
         Binding("f6", "pause", "Pause", priority=True),
@@ -130,7 +131,7 @@ class LabApp(App):
         yield Header()
         with TabbedContent(initial="setup"):
             with TabPane("Setup F1", id="setup"), VerticalScroll():
-                for label, key, hint in (("Setup", "setup", "SETUP.toml (Enter or Ctrl+L loads)"),
+                for label, key, hint in (("Setup", "setup", "SETUP.toml (Enter/Ctrl+L loads, Ctrl+N creates)"),
                                          ("Run file", "out", "RUN.h5 (default: the setup's [output] file)"),
                                          ("Model", "model", "optional: model file (.h5/.mat/.op4)")):
                     with Horizontal(classes="row"):
@@ -198,7 +199,7 @@ class LabApp(App):
             tab = self.query_one(TabbedContent).active
         except Exception:  # noqa: BLE001 -- before the layout exists
             return True
-        if action in ("load", "check"):
+        if action in ("load", "check", "new"):
             return tab == "setup" and not self.running
         if action == "start":
             return not self.running
@@ -286,6 +287,24 @@ class LabApp(App):
             sel = self.query_one(sel_id, Select)
             sel.set_options(options)
             sel.value = drive
+
+    def action_new(self) -> None:
+        """Create the setup file in the path field from the simulated lab's example, then load it."""
+        from daq.simlab import example_setup_text
+
+        path = Path(self.query_one("#setup-path", Input).value.strip() or "setup.toml")
+        err = self.query_one("#setup-error", Static)
+        if path.exists():
+            err.update(f"error: {path} exists: not overwritten (Ctrl+L loads it)")
+            return
+        try:
+            path.write_text(example_setup_text(), encoding="utf-8")
+        except OSError as exc:
+            err.update(f"error: {path}: {_one_line(exc)}")
+            return
+        self.query_one("#setup-path", Input).value = str(path)
+        self.action_load()
+        self.notify(f"created {path} from the example setup: edit it for your lab, Ctrl+L reloads")
 
     def _fill_instruments(self, rows: list[tuple[str, str, str, str, str]]) -> None:
         t = self.query_one("#instruments", DataTable)

@@ -234,10 +234,13 @@ class LabApp(App):
 
     def action_show_tab(self, tab: str) -> None:
         self.query_one(TabbedContent).active = tab
-        first = {"setup": "#setup-path", "run": "#start", "results": "#results-scroll"}[tab]
-        widget = self.query_one(first)
-        if not self.focused or tab not in {a.id for a in self.focused.ancestors_with_self if a.id}:
-            widget.focus() if widget.focusable and not getattr(widget, "disabled", False) else None
+        pane = self.query_one(f"#{tab}", TabPane)
+        # Keys must act on the tab in view: move the focus into it unless it is there already.
+        if self.focused is None or pane not in self.focused.ancestors_with_self:
+            for widget in pane.query("*"):
+                if widget.focusable:
+                    widget.focus()
+                    break
         self.refresh_bindings()
 
     def on_tabbed_content_tab_activated(self, event: TabbedContent.TabActivated) -> None:

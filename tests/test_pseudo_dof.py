@@ -1,0 +1,125 @@
+"""Step 2 for pseudo-DOF models (report section 5.3): checks against a known M, C, K.
+
+A 6-DOF spring-mass chain with modal damping is seen by 3 sensors with 2 shakers, so its 6
+modes in the band are twice the sensors: the case pseudo DOFs are for. The FRFs are
+synthesised exactly, so every tolerance below is rounding level (about 1e-12 relative,
+amplified by the condition of the least-squares fits) with a margin of 1e3-1e4.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg as sla
+
+from ssid.frf import accelerance_from_model
+from ssid.modal import modal_damping_matrix
+from ssid.pseudo_dof import (
+    PseudoDofResult,
+    free_residue_error,
+    frf_relative_error,
+    mck_accelerance,
+    modal_model_accelerance,
+    pseudo_dof_mck,
+    pseudo_modal_model,
+)
+from ssid.step1 import step1_data
+
+N_DOF = 6
+SENSORS = ["d1", "d3", "d6"]
+INPUTS = ["d1", "d6"]
+ZETA = 0.02
+
+
+def _chain():
+    """M (kg), C, K (N/m) of a grounded 6-mass chain; modes about 10-190 Hz."""
+    m = np.array([1.0, 1.5, 0.8, 1.2, 0.9, 1.1])
+    k = 2e5 * np.array([1.0, 0.7, 1.3, 0.9, 1.1, 0.6])
+    K = np.zeros((N_DOF, N_DOF))
+    for i in range(N_DOF):
+        K[i, i] += k[i]
+        if i + 1 < N_DOF:
+            K[i, i] += k[i + 1]
+            K[i, i + 1] = K[i + 1, i] = -k[i + 1]
+    M = np.diag(m)
+    C = modal_damping_matrix(M, K, np.full(N_DOF, ZETA))
+    return M, C, K
+
+
+def _data(n_lines=800):
+    M, C, K = _chain()
+    ev, Phi = sla.eigh(K, M)  # mass-normalised: Phi^T M Phi = I
+    f = np.sqrt(ev) / (2 * np.pi)
+    dofs = [f"d{i + 1}" for i in range(N_DOF)]
+    frf = accelerance_from_model(M, C, K, dofs, np.linspace(2.0, 1.2 * f[-1], n_lines),
+                                 SENSORS, INPUTS)
+    return M, C, K, f, Phi[[dofs.index(s) for s in SENSORS]], frf
+
+
+def _result_from_truth(f_hz, phi_s, f_split):
+    """A PseudoDofResult holding the exact roots, with each shape in its own partition."""
+    wn = 2 * np.pi * f_hz
+    lam = -ZETA * wn + 1j * wn * np.sqrt(1 - ZETA**2)
+    m = phi_s.shape[1]
+    below = f_hz < f_split
+    th_x = np.vstack([phi_s * below, phi_s * ~below])  # (2n, m), the other partition zero
+    theta = np.vstack([th_x, th_x * lam])
+    one = np.ones(m)
+    return PseudoDofResult(freq_hz=f_hz, zeta=ZETA * one, mpc=one, consistency=one,
+                           structural=one.astype(bool), lam=lam, theta=theta,
+                           u=np.zeros(m, complex), f_split_hz=f_split)
+
+
+def test_scale_factors_give_the_true_modal_masses():
+    # Shapes mass-normalised on the full model: Eq. 3.23 must return m_r = 1 kg for each mode.
+    _, _, _, f, phi_s, frf = _data()
+    res = _result_from_truth(f, phi_s, 0.5 * (frf.freq_hz[0] + frf.freq_hz[-1]))
+    mm = pseudo_modal_model(frf, res)
+    np.testing.assert_allclose(mm.modal_mass, 1.0, rtol=1e-8)
+    H = modal_model_accelerance(mm, frf.omega, residual_fit=step1_data(frf))
+    assert frf_relative_error(H, frf.H) < 1e-8
+    assert free_residue_error(frf, mm.lam) < 1e-8
+
+
+def test_generalised_model_holds_more_modes_than_sensors():
+    # 6 modes, 3 sensors: a 6-DOF model, 3 measured + 3 generalised coordinates. It must be
+    # physical (M > 0, K > 0), have exactly the true natural frequencies (eig(K, M) = |lambda|^2),
+    # and reproduce the measured FRFs at its measured coordinates.
+    _, _, _, f, phi_s, frf = _data()
+    res = _result_from_truth(f, phi_s, 0.5 * (frf.freq_hz[0] + frf.freq_hz[-1]))
+    g = pseudo_dof_mck(frf, pseudo_modal_model(frf, res))
+    assert g.M.shape == (N_DOF, N_DOF) and g.n_measured == len(SENSORS)
+    assert np.linalg.eigvalsh(g.M).min() > 0 and np.linalg.eigvalsh(g.K).min() > 0
+    np.testing.assert_allclose(g.undamped_freq_hz, f, rtol=1e-9)
+    Hg = mck_accelerance(g.M, g.C, g.K, frf.omega, g.n_measured, frf.input_index())
+    assert frf_relative_error(Hg, frf.H) < 1e-7
+
+
+def test_reduced_model_keeps_n_strongest_modes_exactly():
+    # A 3-DOF physical model can hold 3 of the 6 modes: those it keeps keep their exact
+    # frequencies; M, K positive definite; the FRFs are then only partly reproduced.
+    _, _, _, f, phi_s, frf = _data()
+    res = _result_from_truth(f, phi_s, 0.5 * (frf.freq_hz[0] + frf.freq_hz[-1]))
+    mm = pseudo_modal_model(frf, res)
+    g = pseudo_dof_mck(frf, mm, n_keep=len(SENSORS))
+    assert g.M.shape == (3, 3) and g.modes.size == 3
+    assert np.linalg.eigvalsh(g.M).min() > 0 and np.linalg.eigvalsh(g.K).min() > 0
+    np.testing.assert_allclose(g.undamped_freq_hz, f[g.modes], rtol=1e-9)
+    Hg = mck_accelerance(g.M, g.C, g.K, frf.omega, g.n_measured, frf.input_index())
+    assert frf_relative_error(Hg, frf.H) > 0.05  # it cannot hold the modes it dropped
+
+
+def test_negative_modal_mass_flags_non_passive_data():
+    # FRFs of the opposite sign (an active system, or a reversed sensor) need m_r < 0 for
+    # every mode: the indicator must flag them all and no M, C, K may be built from them.
+    from dataclasses import replace
+
+    from ssid.errors import IdentificationError
+
+    _, _, _, f, phi_s, frf = _data()
+    res = _result_from_truth(f, phi_s, 0.5 * (frf.freq_hz[0] + frf.freq_hz[-1]))
+    mm = pseudo_modal_model(replace(frf, H=-frf.H), res)
+    np.testing.assert_allclose(mm.modal_mass, -1.0, rtol=1e-8)
+    assert not mm.physical.any()
+    with pytest.raises(IdentificationError):
+        pseudo_dof_mck(frf, mm)

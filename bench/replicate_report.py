@@ -44,7 +44,18 @@ from ssid.models.payload import (  # noqa: E402
 )
 from ssid.noise import report_noise_frf  # noqa: E402
 from ssid.placement import effective_independence  # noqa: E402
-from ssid.pseudo_dof import identify_pseudo_dof, pseudo_dof_fit_error  # noqa: E402
+from ssid.pseudo_dof import (  # noqa: E402
+    free_residue_error,
+    frf_relative_error,
+    identify_pseudo_dof,
+    mck_accelerance,
+    modal_model_accelerance,
+    pseudo_dof_fit_error,
+    pseudo_dof_mck,
+    pseudo_modal_model,
+)
+from ssid.step1 import step1_data  # noqa: E402
+from ssid.errors import IdentificationError  # noqa: E402
 from ssid.tam import guyan_reduce  # noqa: E402
 
 # The report's figures: largest |% error| over the target modes in each table column.
@@ -224,11 +235,29 @@ BAND_NOTES = """Why M was not positive definite before, and what changed (`ssid/
   criterion checks): X = 0, M and K are positive definite when every modal mass is positive,
   and eig(K, M) = |lambda_r|^2, so its frequency error is the root error.
 
-Still open: the noisy selection misses the 1.29 Hz mode (one line per 2.25 Hz against a
-0.05 Hz half-power band; its estimates in bands 0 and 1 differ by 1.4 %, more than the 0.5 %
-repeat tolerance), hence 120 % in the noisy rows; and noisy BP3 gives a negative modal mass
-for the 2.83 Hz mode (the lowest run of lines has six lines, and the residual pair per FRF
-takes too much of them; without residuals it is positive).
+- **Repeat tolerance and the line spacing (criterion 4).** A root is located to a fraction of
+  the width over which the lines see it: its half-power band 2 zeta f when the lines resolve
+  it, the line spacing df when they do not. The tolerance is now 1/8 of max(2 zeta f, df)
+  (0.5 % of f, as before, for a resolved 2 %-damped mode; `repeat_tolerance_hz`): the 1.29 Hz
+  suspension mode (2 zeta f = 0.05 Hz, df = 2.25 Hz), whose estimates in bands 0 and 1
+  differ by 1.4 % of f (0.8 % of df), is kept; lightly damped noise roots get a tighter
+  tolerance than before. Pairs are matched closest first, one root per band, so a noise
+  root beside a mode does not take its place, and a mode's representative is the estimate
+  farthest from a band edge inside the record.
+- **BP3 scale factors from each root's own lines.** Far above a mode, its tail is its mass
+  line (absorbed by the residual terms) plus j w 2 Re(u theta theta^T), zero for a normal
+  mode and set by the slight complexity of noisy shapes. Fitted on every run, the hundreds of
+  lines far above the 1-6 Hz modes set their scale factors through that term (modal masses
+  40-300 times off, some negative): in BP3 a root now gets equations only from the runs that
+  hold its resonance, while every run's model keeps all roots (exact on noise-free data).
+  The residual terms are dropped in a run holding a mode narrower than the line spacing,
+  whose mass line they would otherwise take (`residual_runs`; here the 1-12 Hz run).
+
+Still open: with the report's noise the 1.29 Hz mode is not always kept: seed 2 rejects its
+band-0 estimate by MPC (0.74 < 0.8), so it is not repeated (16/16 targets with seeds 1 and 3,
+15/16 with seed 2); and noise roots found in the lines two bands share (563.9 Hz, seed 3) are
+repeated by construction, which criterion 4 cannot reject. The state-space assembly (Eq. 3.26
+through the full inverse) stays indefinite on noisy data (see above).
 """
 
 
@@ -245,7 +274,9 @@ def band_processing(truth: Truth, seed: int, width_hz: float) -> None:
           f"{int(np.sum(truth.f < 2300))} modes, the 16-DOF model 16: the roots kept are either the "
           "strongest with independent shapes (auto) or first those paired by MAC with the "
           "target modes, as the report picked its roots by hand (target), then the strongest "
-          "independent ones. Scale factors with residual terms; M, C, K by Eq. 3.26 (state "
+          "independent ones. Criterion 4 tolerance 1/8 of max(2 zeta f, df). Scale factors with "
+          "residual terms (none in a run holding a mode narrower than the line spacing; BP3 "
+          "fits each root on the runs holding its resonance); M, C, K by Eq. 3.26 (state "
           "space, the report's) or as real normal modes (normal). Cells: max |% error| of the "
           "undamped frequencies of the assembled M, C, K (eig(K, M)) over the 16 target modes, "
           "each against the nearest identified one.")
@@ -307,9 +338,37 @@ def pseudo_dof(truth: Truth) -> None:
     print(f"  targets found within 1 %: {', '.join(found(res.freq_hz[res.structural]))} "
           f"(of {', '.join(f'{f:.0f}' for f in tf[tf <= 2100])} in the band)")
     print(f"  rejected as computational: {', '.join(f'{f:.1f}' for f in res.freq_hz[~res.structural])}")
-    print(f"- step 2 attempt (pseudo DOFs as generalised coordinates): relative RMS FRF error "
-          f"{100 * pseudo_dof_fit_error(frf, res):.1f} % with the structural roots, "
+    print(f"- previous step 2 attempt (pseudo DOFs as generalised coordinates): relative RMS FRF "
+          f"error {100 * pseudo_dof_fit_error(frf, res):.1f} % with the structural roots, "
           f"{100 * pseudo_dof_fit_error(frf, res, False):.1f} % with all roots; no physical M, C, K")
+    # Step 2 on the measured FRFs: structural roots, measured-partition shapes, Eq. 3.23 fit
+    # of the scale factors on all lines with residual terms. FRF errors are relative RMS over
+    # all 1024 lines x 10 outputs x 3 inputs.
+    mm = pseudo_modal_model(frf, res)
+    d = step1_data(frf)
+    bound = free_residue_error(frf, mm.lam)
+    e_modal = frf_relative_error(modal_model_accelerance(mm, frf.omega, residual_fit=d), frf.H)
+    bad = mm.freq_hz[~mm.physical]
+    print(f"- step 2, modal model (structural roots, shapes = the partition carrying each root, "
+          f"Eq. 3.23 scale factors with residual terms, all lines): FRF error {100 * e_modal:.1f} %; "
+          f"best possible with these roots and free residues: {100 * bound:.1f} % (the rest is "
+          f"the in-band modes the pseudo model did not find)")
+    print(f"  modal mass <= 0 (not a passive mode, left out of M, C, K): "
+          f"{', '.join(f'{f:.1f}' for f in bad) or 'none'} Hz")
+    for label, n_keep in (("all modes with m_r > 0, measured DOFs + generalised coordinates", None),
+                          ("reduced, the 10 strongest independent modes", 10)):
+        try:
+            g = pseudo_dof_mck(frf, mm, n_keep)
+        except IdentificationError as exc:  # report, do not stop the other sections
+            print(f"- M, C, K, {label}: none ({exc})")
+            continue
+        Hg = mck_accelerance(g.M, g.C, g.K, frf.omega, g.n_measured, frf.input_index())
+        ok_m = np.linalg.eigvalsh(g.M).min() > 0
+        ok_k = np.linalg.eigvalsh(g.K).min() >= 0
+        print(f"- M, C, K, {label}: {g.M.shape[0]} DOF, FRF error "
+              f"{100 * frf_relative_error(Hg, frf.H):.1f} %, M > 0: {ok_m}, K >= 0: {ok_k}; "
+              f"eig(K, M): {', '.join(f'{f:.1f}' for f in g.undamped_freq_hz)} Hz")
+        print(f"  targets found within 1 %: {', '.join(found(g.undamped_freq_hz))}")
 
 
 def reactions(truth: Truth, seeds: list[int]) -> None:
@@ -341,10 +400,19 @@ def reactions(truth: Truth, seeds: list[int]) -> None:
     H = -(w**2)[:, None, None] * X[:, : len(Z_DOFS)]
     frf = FRFData(freq_hz=f, H=H, outputs=list(Z_DOFS), inputs=inputs, H_reaction=Hr,
                   reactions=list(INTERFACE_DOFS))
-    lam = sla.eigh(Ks, Ms, eigvals_only=True)
+    lam, phi_s = sla.eigh(Ks, Ms)
     fs = np.sqrt(lam) / (2 * np.pi)
+    # Fair measure: the substructure modes inside the measured band (11 of 16: the 16-DOF model
+    # has 5 modes above 1000 Hz), paired by MAC; the three suspension modes (1.3-6.2 Hz) fall
+    # between the first lines (spacing 1.95 Hz, half-power width 2 zeta f < 0.3 Hz) where the
+    # accelerance is far below the report's noise floor (0.3 % of each FRF's RMS), so they
+    # are listed apart. The split is for reporting only; the identification never sees it.
+    inband = np.flatnonzero(fs <= f[-1])
+    low = inband[fs[inband] < 10.0]
+    mid = inband[fs[inband] >= 10.0]
     print("16-DOF Guyan substructure; coupled 25-DOF Guyan model with Rayleigh damping; inputs "
-          "at 11+Z and 16+Z; reactions at 4+Z, 8+Z, 18+Z; 512 lines 1-1000 Hz")
+          "at 11+Z and 16+Z; reactions at 4+Z, 8+Z, 18+Z; 512 lines 1-1000 Hz; substructure "
+          f"modes in the band: {inband.size} of 16 ({fs[inband[0]]:.3g}-{fs[inband[-1]]:.4g} Hz)")
     print(f"- report: {REPORT['reactions']}")
     for label, data in [("noise-free", frf)] + [(f"noisy seed {s}", report_noise_frf(frf, seed=s)) for s in seeds]:
         r = identify_mck(data)
@@ -352,9 +420,31 @@ def reactions(truth: Truth, seeds: list[int]) -> None:
         ec = np.max(np.abs(r.C - Cs)) / np.max(np.abs(Cs))
         fe = r.undamped_freq_hz
         ef = np.max(np.abs(fe - fs) / fs) * 100 if np.all(np.isfinite(fe)) else np.inf
-        print(f"- ours, {label}: M, K max entry error {100 * em:.3g} % of max entry (C {100 * ec:.3g} %); "
-              f"undamped frequencies max error {ef:.3g} %" + ("" if not r.warnings else
-              f"; warnings: {len(r.warnings)}"))
+        pairs = {pp.analysis: pp.test for pp in pair_modes_by_mac(
+            modal_assurance(np.asarray(r.mode_shapes), phi_s[:, inband]), 0.5)}
+
+        def band_err(sel):
+            e = [abs(r.natural_freq_hz[pairs[i]] - fs[m]) / fs[m] * 100
+                 for i, m in enumerate(inband) if m in sel and i in pairs]
+            miss = sum(1 for i, m in enumerate(inband) if m in sel and i not in pairs)
+            return (max(e) if e else np.inf), miss
+
+        e_mid, m_mid = band_err(mid)
+        e_low, m_low = band_err(low)
+        print(f"- ours, {label}: in-band modes {fs[mid[0]]:.3g}-{fs[mid[-1]]:.4g} Hz max frequency "
+              f"error {fmt(e_mid, None, m_mid).strip()} %; suspension modes below 10 Hz "
+              f"{fmt(e_low, None, m_low).strip()} %; M, K max entry error {100 * em:.3g} % of max "
+              f"entry (C {100 * ec:.3g} %); all 16 undamped frequencies max error {ef:.3g} %"
+              + ("" if not r.warnings else f"; warnings: {len(r.warnings)}"))
+    print("- what we achieve where the report had no solution: noise-free, the substructure exactly. "
+          "With the report's noise on accelerances, forces and reactions, the errors-in-variables "
+          "output-error refinement (docs/algorithm.md) lowers the cost well below the SK fixed "
+          "point but still stops above the cost of the true model: in-band modes above 10 Hz "
+          "come out to a few % (rows above), not to the ~0.3 % that the cost minimum next to the "
+          "true model holds (seed 1, diagnosis). Not achieved: the three suspension modes (tens "
+          "of % off even at that minimum, and missed by a free substructure without reactions "
+          "under the same noise: not determined by these data) and M, K entry by entry (five "
+          "modes above the band).")
 
 
 def section_6_5(truth: Truth) -> None:
@@ -393,7 +483,7 @@ def main() -> None:
         reduced_noisy(truth, seeds)
         band_processing(truth, seeds[0], 400.0 if args.quick else 200.0)
         pseudo_dof(truth)
-        reactions(truth, seeds[:1])
+        reactions(truth, seeds)
         section_6_5(truth)
         print(f"\n(total {time.perf_counter() - t0:.0f} s)")
     if args.out:

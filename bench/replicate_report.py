@@ -211,7 +211,7 @@ def reduced_noisy(truth: Truth, seeds: list[int]) -> None:
             print(f"| {n}-DOF | {solver} | {rep} | {fmt(*res)}{extra} |")
 
 
-BAND_NOTES = """Why M was not positive definite before, and what changed (`ssid/bands.py`):
+BAND_NOTES = """Why M was not positive definite at first, and what changed (`ssid/bands.py`, `ssid/band_scaling.py`):
 
 - **Kept roots with dependent shapes.** 22 modes are in 1-2300 Hz, the model holds 16. The
   payload is symmetric about x = 30 in: at the 16 Z sensors the symmetric modes span 8
@@ -437,15 +437,16 @@ def reactions(truth: Truth, seeds: list[int]) -> None:
               f"entry (C {100 * ec:.3g} %); all 16 undamped frequencies max error {ef:.3g} %"
               + ("" if not r.warnings else f"; warnings: {len(r.warnings)}"))
     print("- what we achieve where the report had no solution: noise-free, the substructure exactly. "
-          "With the report's noise on accelerances, forces and reactions, the errors-in-variables "
-          "output-error refinement (docs/algorithm.md) lowers the cost well below the SK fixed "
-          "point but still stops above the cost of the true model: in-band modes above 10 Hz "
-          "come out to a few % (rows above), not to the ~0.3 % that the cost minimum next to the "
-          "true model holds (seed 1, diagnosis). Not achieved: the three suspension modes (tens "
-          "of % off even at that minimum, and missed by a free substructure without reactions "
-          "under the same noise: not determined by these data) and M, K entry by entry (five "
-          "modes above the band).")
-
+          "With the report's noise on accelerances, forces and reactions, the default (SK with the "
+          "equation-error covariance, which includes the reaction noise, then output-error ML) "
+          "finds the in-band modes above 10 Hz to a few % (rows above), not to the ~0.3 % that "
+          "the cost minimum next to the true model holds (seed 1, found from the true model for "
+          "diagnosis only): the optimisation stops short of that minimum. An output-error "
+          "refinement with the reaction noise in its weights was tried; it lowered the cost but "
+          "made the frequencies worse (4-11 %), which points at the noise weights, and was not "
+          "adopted. Not achieved: the three suspension modes (tens of % off even at that "
+          "minimum, and missed by a free substructure without reactions under the same noise: "
+          "not determined by these data) and M, K entry by entry (five modes above the band).")
 
 def section_6_5(truth: Truth) -> None:
     print("\n## 7. SSID models against TAMs (section 6.5, Tables 6.21-6.26)\n")

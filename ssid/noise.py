@@ -13,7 +13,7 @@ import numpy as np
 
 from .frf import FRFData
 
-__all__ = ["add_report_noise", "report_noise_frf", "frf_noise_weights"]
+__all__ = ["add_report_noise", "fit_additive_proportional", "frf_noise_weights", "report_noise_frf"]
 
 
 def add_report_noise(
@@ -101,3 +101,79 @@ def frf_noise_weights(frf: FRFData, floor: float = 1e-6) -> np.ndarray | None:
     var = np.where(np.isfinite(var) & (var > 0), var, np.median(pos))
     var = np.maximum(var, floor * np.median(pos))
     return 1.0 / np.sqrt(var)
+
+
+def fit_additive_proportional(
+    r2: np.ndarray,
+    h2: np.ndarray,
+    ok: np.ndarray,
+    trim: float = 7.0,
+    max_iter: int = 50,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fit the noise model ``var[k, i, j] = a2[i, j] + b2[j] |H[k, i, j]|^2`` to squared residuals.
+
+    A measured FRF's noise is not one level: additive noise on the response spectrum is flat
+    (``a2``, one level per FRF), while phase noise of the response and noise on the force
+    spectrum are proportional to the FRF (``b2``, one level per input: the force noise is that
+    input's, common to all outputs). The report's noise model has both (appendix A).
+
+    Parameters
+    ----------
+    r2 : (L, n, n_in) float
+        Squared magnitudes of residuals that hold noise only (e.g. ``|H - H_model|^2`` of a
+        converged fit); for complex Gaussian noise ``r2 / var`` is exponential with mean 1.
+    h2 : (L, n, n_in) float
+        ``|H|^2`` the proportional part scales with (the model's, which carries no noise).
+    ok : (L, n, n_in) bool
+        Values to use (blanked values: False).
+    trim : float
+        Values with ``r2 > trim * var`` are left out of the next iteration: lines a model
+        cannot follow (e.g. modes a reduced-order model lacks) must not set the noise level.
+        The truncated exponential's mean, ``1 - t e^-t / (1 - e^-t)``, is corrected for.
+    max_iter : int
+
+    Returns
+    -------
+    a2 : (n, n_in) float, the flat variance of each FRF (units of ``r2``), > 0.
+    b2 : (n_in,) float, the relative variance of the proportional part (>= 0, dimensionless).
+
+    Notes
+    -----
+    Maximum likelihood for exponentially distributed ``r2`` with a mean linear in the
+    parameters, by Fisher scoring (weighted least squares with weights ``1/var^2``); ``a2`` is
+    eliminated per FRF, which leaves one scalar equation per input for ``b2``. ``a2`` is kept
+    at least 1e-4 of the FRF's median-based flat level so that a value the model predicts near
+    zero (an antiresonance) cannot receive an unbounded weight.
+    """
+    r2 = np.asarray(r2, dtype=float)
+    h2 = np.asarray(h2, dtype=float)
+    ok = np.asarray(ok, dtype=bool) & np.isfinite(r2) & np.isfinite(h2)
+    with np.errstate(all="ignore"):
+        flat = np.nanmedian(np.where(ok, r2, np.nan), axis=0) / np.log(2.0)  # (n, n_in)
+    pos = flat[np.isfinite(flat) & (flat > 0)]
+    fill = np.median(pos) if pos.size else 1.0
+    flat = np.where(np.isfinite(flat) & (flat > 0), flat, fill)
+    a2 = flat.copy()
+    b2 = np.zeros(r2.shape[2])
+    for _ in range(max_iter):
+        var = a2[None] + b2[None, None] * h2
+        w = np.where(ok & (r2 < trim * var), 1.0 / var**2, 0.0)
+        s_aa = w.sum(axis=0)  # (n, n_in)
+        s_ab = (w * h2).sum(axis=0)
+        s_bb = (w * h2**2).sum(axis=(0, 1))  # (n_in,)
+        t_a = (w * r2).sum(axis=0)
+        t_b = (w * h2 * r2).sum(axis=(0, 1))
+        use = s_aa > 0
+        q = np.where(use, s_ab / np.where(use, s_aa, 1.0), 0.0)
+        schur = s_bb - (q * s_ab).sum(axis=0)
+        rhs = t_b - (q * t_a).sum(axis=0)
+        b2_new = np.where(schur > 0, np.maximum(rhs / np.where(schur > 0, schur, 1.0), 0.0), 0.0)
+        a2_new = np.where(use, (t_a - s_ab * b2_new[None]) / np.where(use, s_aa, 1.0), flat)
+        a2_new = np.maximum(a2_new, 1e-4 * flat)
+        done = np.allclose(a2_new, a2, rtol=1e-6, atol=0) and np.allclose(
+            b2_new, b2, rtol=1e-6, atol=1e-300)
+        a2, b2 = a2_new, b2_new
+        if done:
+            break
+    corr = 1.0 - trim * np.exp(-trim) / (1.0 - np.exp(-trim))
+    return a2 / corr, b2 / corr

@@ -22,6 +22,8 @@ module                      what
                             line, finalised atomically
 ``daq.safety``              limits (abort the line), faults (stop the run), messages
 ``daq.run``                 a whole run: every exit path ends in the safe state
+``daq.control``             pause / resume between lines; the run's events for a UI
+``daq.check``               connection check: every instrument opened, identified, released
 UFF 58 export               by ``daq.run`` through ``ssid.exchange.write_uff_frf``
 ``daq.simlab``              the only bridge to ``sim_devices``: the ``--sim`` lab for a setup,
                             ``WorldRig`` for benchmarks

@@ -359,7 +359,7 @@ class LabApp(App):
             else:
                 states = check_instruments(setup)
         except Exception as exc:  # noqa: BLE001 -- e.g. a setup the simulated lab cannot build
-            self.call_from_thread(self.query_one("#setup-error", Static).update, f"error: {_one_line(exc)}")
+            self.call_from_thread(self._show_line, "#setup-error", f"error: {_one_line(exc)}")
             return
         rows = [(s.name, s.kind, s.address, ("ok: " if s.ok else "NO ANSWER: ") + s.detail, s.identity)
                 for s in states]
@@ -367,7 +367,11 @@ class LabApp(App):
         msg = (f"instruments: all {len(states)} answered" if not n_bad else
                f"instruments: {n_bad} of {len(states)} did not answer") + (" (simulated lab)" if sim else "")
         self.call_from_thread(self._fill_instruments, rows)
-        self.call_from_thread(self.query_one("#check-status", Static).update, msg)
+        self.call_from_thread(self._show_line, "#check-status", msg)
+
+    def _show_line(self, selector: str, text: str) -> None:
+        """Update a one-line Static (in the UI thread: workers never touch widgets)."""
+        self.query_one(selector, Static).update(text)
 
     # ------------------------------------------------------------------ run
     @property

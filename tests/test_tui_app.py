@@ -338,3 +338,34 @@ def test_new_setup_from_the_example(tmp_path):
 
     asyncio.run(go())
     assert target.read_text(encoding="utf-8") == EXAMPLE.read_text(encoding="utf-8")
+
+
+def test_end_of_input_stops_a_controlled_run_safely(tmp_path):
+    """What happens when the TUI dies however it dies: the run's stdin reaches end of input,
+    and ``ssidlab acquire --control-stdin`` stops safely - read on the instruments."""
+    import subprocess
+    import sys
+
+    lab, hw = lab_setup(tmp_path, n_lines=30)
+    out = tmp_path / "orphan.h5"
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "ssidlab", "acquire", str(hw), "--out", str(out),
+                                 "--events", "--control-stdin"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        try:
+            n = 0
+            for line in proc.stdout:
+                n += line.startswith('@event {"event":"sub_line"')
+                if n == 2:
+                    break
+            assert n == 2 and not instruments_safe(lab.world)  # it is driving
+            proc.stdin.close()  # the controlling program is gone
+            proc.stdout.read()
+            assert proc.wait(60) == 130
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert instruments_safe(lab.world)
+    finally:
+        lab.stop()
+    assert run_file_state(out) == "interrupted"

@@ -83,7 +83,9 @@ def test_coherence_blanking_and_limit_abort(tmp_path):
     assert frf.valid_mask()[~bad].all()
 
 
-def _same_frf(a, b, rtol=3e-3):
+def _same_frf(a, b, rtol=2 * 2e-3):
+    """Lines measured in different sessions are independent estimates, each within the
+    setup's ``accuracy`` (2e-3, sine_setup) of the truth: they may differ by twice that."""
     assert np.array_equal(a.freq_hz, b.freq_hz)
     assert np.array_equal(a.valid_mask(), b.valid_mask())
     ok = a.valid_mask()

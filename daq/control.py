@@ -16,6 +16,7 @@ user interface (``ssidlab acquire --events``).
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from typing import Any
@@ -26,7 +27,10 @@ from ssid.jsonutil import to_jsonable
 
 from .safety import RunStopped
 
-__all__ = ["RunControl", "RunEvents", "hold_if_paused"]
+__all__ = ["EVENT_PREFIX", "RunControl", "RunEvents", "event_line", "hold_if_paused", "parse_event_line"]
+
+#: Prefix of an event's line on a run's stdout (``ssidlab acquire --events``).
+EVENT_PREFIX = "@event "
 
 
 class RunControl:
@@ -63,6 +67,22 @@ class RunEvents:
     def emit(self, kind: str, **fields: Any) -> None:
         if self.sink is not None:
             self.sink(to_jsonable({"event": kind, **fields}))
+
+
+def event_line(event: dict) -> str:
+    """One event as its output line, ``@event {json}`` (compact, strict JSON)."""
+    return EVENT_PREFIX + json.dumps(event, separators=(",", ":"))
+
+
+def parse_event_line(line: str) -> dict | None:
+    """The event of an :func:`event_line`, or None for any other (log) line."""
+    if not line.startswith(EVENT_PREFIX):
+        return None
+    try:
+        ev = json.loads(line[len(EVENT_PREFIX):])
+    except ValueError:
+        return None
+    return ev if isinstance(ev, dict) and "event" in ev else None
 
 
 def frf_line_event(freq_hz: float, H: np.ndarray, coh: np.ndarray, valid: np.ndarray) -> dict:

@@ -35,7 +35,7 @@ from typing import Any
 
 from ssid.errors import InputError
 
-__all__ = ["EVENT_PREFIX", "EXIT_STOPPED", "add_acquire_subcommand", "run_acquire"]
+__all__ = ["EXIT_STOPPED", "add_acquire_subcommand", "run_acquire"]
 
 HELP = "Run a stepped-sine or random vibration test from a setup file (real or simulated lab)."
 EXIT_STOPPED = 3
@@ -58,12 +58,10 @@ def add_acquire_subcommand(sub: Any) -> argparse.ArgumentParser:
     return p
 
 
-#: Prefix of an event line on stdout (``--events``).
-EVENT_PREFIX = "@event "
-
-
 def _print_event(event: dict) -> None:
-    print(EVENT_PREFIX + json.dumps(event, separators=(",", ":")), flush=True)
+    from daq.control import event_line
+
+    print(event_line(event), flush=True)
 
 
 def _read_control(control, stream) -> None:

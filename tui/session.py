@@ -16,7 +16,6 @@ because that is what makes "always reaches the safe state" hold whatever happens
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -26,6 +25,8 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+
+from daq.control import parse_event_line as parse_event  # the run's event lines (ssidlab acquire --events)
 
 __all__ = ["Acquisition", "LiveRun", "ProgressParser", "RunOutcome", "parse_event", "run_file_state"]
 
@@ -199,20 +200,6 @@ def run_file_state(path: str | Path) -> str | None:
             return str(f["acq"].attrs["state"])
     except Exception:  # noqa: BLE001 -- no file, not HDF5, no /acq: nothing to show
         return None
-
-
-EVENT_PREFIX = "@event "  # ssidlab.cli_acquire.EVENT_PREFIX (not imported: tui does not import the CLI)
-
-
-def parse_event(line: str) -> dict | None:
-    """The event of an ``@event {json}`` output line, or None for a plain (log) line."""
-    if not line.startswith(EVENT_PREFIX):
-        return None
-    try:
-        ev = json.loads(line[len(EVENT_PREFIX):])
-    except ValueError:
-        return None
-    return ev if isinstance(ev, dict) and "event" in ev else None
 
 
 class LiveRun:

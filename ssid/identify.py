@@ -88,6 +88,13 @@ class SSIDResult:
     warnings: list[str] = field(default_factory=list)
     info: dict = field(default_factory=dict)
 
+    def to_model(self):
+        """The identified M, C, K as a :class:`ssid.io.Model` over ``dofs`` (what the model
+        file, correlation and the discrepancy workflow take)."""
+        from .io import Model  # local: the file layer must not load with the algorithm
+
+        return Model(M=self.M, K=self.K, C=self.C, dofs=list(self.dofs))
+
     def to_json_dict(self) -> dict:
         """The result as plain JSON types (the contract's keys first); NaN/Inf become None."""
         return to_jsonable({

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ssid.errors import IdentificationError, InputError
-from ssid.io import Model, read_frf, write_model
+from ssid.io import read_frf, write_model
 from ssidlab import __version__
 from ssidlab.argtypes import check_output_paths, frequency_hz
 
@@ -195,7 +195,7 @@ def _run_identify(args: argparse.Namespace) -> int:
             f"{frf.outputs!r}"
         )
     try:
-        write_model(args.out, Model(M=result.M, K=result.K, C=result.C, dofs=list(result.dofs)))
+        write_model(args.out, result.to_model())
     except InputError as exc:
         # Our own result failing validation is a bug, not bad input: report it as internal.
         raise RuntimeError(f"identified model failed validation: {exc}") from exc

@@ -17,7 +17,7 @@ import numpy as np
 
 from ssid.frf import accelerance, accelerance_from_model, selection_matrix
 from ssid.identify import identify_mck
-from ssid.io import Model, write_frf, write_model
+from ssid.io import write_frf, write_model
 from ssid.modal import complex_modes, root_frequency_damping
 from ssid.models import example_system
 from ssid.noise import report_noise_frf
@@ -51,7 +51,7 @@ def run_demo(out_dir: str, echo=print) -> dict:
 
     echo("[2/4] identifying M, C, K (default solver) ...")
     result = identify_mck(frf)
-    write_model(str(out / "model.h5"), Model(M=result.M, K=result.K, C=result.C, dofs=result.dofs))
+    write_model(str(out / "model.h5"), result.to_model())
 
     echo("[3/4] comparing with the true system")
     lam, _ = complex_modes(M, C, K)

@@ -84,7 +84,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
 
     echo("[2/5] identifying the substructure (SSID, accelerances + measured reactions) ...")
     res = identify_mck(frf)
-    ident = Model(M=res.M, K=res.K, C=res.C, dofs=list(res.dofs))
+    ident = res.to_model()
     write_model(out / "model.h5", ident)
     (out / "result.json").write_text(json.dumps(res.to_json_dict(), indent=2) + "\n", encoding="utf-8")
 

@@ -170,6 +170,11 @@ class FakeResult:
         self.dofs = dofs
         self.warnings = warnings
 
+    def to_model(self):
+        from ssid.io import Model
+
+        return Model(M=self.M, K=self.K, C=self.C, dofs=list(self.dofs))
+
     def to_json_dict(self) -> dict:
         return {
             "natural_freq_hz": np.array([5.1, 14.2, 21.9]),

@@ -86,7 +86,7 @@ def analyse_run(path: str | Path, setup=None, *, sim: bool = False, model_path: 
     """
     from ssid.frf import accelerance_under_test_loads
     from ssid.identify import identify_mck
-    from ssid.io import Model, read_frf
+    from ssid.io import read_frf
 
     path = Path(path)
     frf = read_frf(path)
@@ -110,8 +110,7 @@ def analyse_run(path: str | Path, setup=None, *, sim: bool = False, model_path: 
     try:
         from ssid.correlate_models import correlate_models
 
-        ident = Model(M=res.M, K=res.K, C=res.C, dofs=list(res.dofs))
-        out.pairs = list(correlate_models(ident, mac_model).summary["paired_modes"])
+        out.pairs = list(correlate_models(res.to_model(), mac_model).summary["paired_modes"])
     except Exception as exc:  # noqa: BLE001
         out.notes.append(f"MAC: {' '.join(str(exc).splitlines())}")
     try:
@@ -135,14 +134,14 @@ def export_results(results: RunResults, kind: str, out_i: int = 0, in_j: int = 0
     the measured FRFs as UFF 58 (``<run>.uff``); ``png``: FRF ``(out_i, in_j)`` measured vs
     identified (and updated) model (``<run>_frf_<out>_<in>.png``).
     """
-    from ssid.io import Model, write_model
+    from ssid.io import write_model
 
     base = results.path.with_suffix("")
     res = results.result
     written: list[Path] = []
     if kind == "hdf5":
         p = Path(f"{base}_ssid_model.h5")
-        write_model(p, Model(M=res.M, K=res.K, C=res.C, dofs=list(res.dofs)))
+        write_model(p, res.to_model())
         written.append(p)
         if results.updated_model is not None:
             p = Path(f"{base}_updated_model.h5")

@@ -12,11 +12,10 @@ import pytest
 from daq.control import RunControl
 from daq.safety import limit_usage
 from daq.setup import Limits, parse_setup
-from daq.run import run_test
-from daq.simlab import build_world, start_sim_lab
+from daq.simlab import build_world
 from ssid.io import read_frf
 
-from test_daq_helpers import all_safe, frf_error, random_setup, sine_setup
+from test_daq_helpers import all_safe, frf_error, random_setup, run_on_sim, sine_setup
 
 
 class PauseOnce:
@@ -45,13 +44,9 @@ def run_with_pause(tmp_path, text: str, kind: str, after: int):
     setup = parse_setup(text, str(tmp_path / "s.toml"))
     control = RunControl()
     sink = PauseOnce(control, kind, after)
-    handle, inst = start_sim_lab(setup)
-    sink.world = handle.world
-    try:
-        summary = run_test(inst, out=str(tmp_path / "run.h5"), echo=lambda m: None, control=control, events=sink)
-    finally:
-        handle.stop()
-    return setup, summary, handle.world, sink
+    summary, world = run_on_sim(setup, tmp_path / "run.h5", on_start=lambda w: setattr(sink, "world", w),
+                                control=control, events=sink)
+    return setup, summary, world, sink
 
 
 def test_stepped_sine_pause_goes_safe_and_resume_completes_the_run(tmp_path):

@@ -163,6 +163,21 @@ def frf_error(frf, world) -> np.ndarray:
     return np.linalg.norm(H - ref.H, axis=1) / np.linalg.norm(ref.H, axis=1)
 
 
+def run_on_sim(setup, out, on_start=None, **kw):
+    """Run ``setup`` against a simulated lab started here, so the test can read the
+    instruments' state; ``on_start(world)`` is called before the run. Returns (summary, world)."""
+    from daq.run import run_test
+    from daq.simlab import start_sim_lab
+
+    handle, inst = start_sim_lab(setup)
+    try:
+        if on_start is not None:
+            on_start(handle.world)
+        return run_test(inst, out=str(out), echo=kw.pop("echo", lambda m: None), **kw), handle.world
+    finally:
+        handle.stop()
+
+
 def all_safe(world) -> bool:
     """Every generator output off and every amplifier disabled (read from the simulators)."""
     gens = all(not c.output_on for g in world.generators for c in g.channels)

@@ -10,18 +10,10 @@ import pytest
 
 from daq.run import run_test
 from daq.setup import parse_setup
-from daq.simlab import build_world, start_sim_lab
+from daq.simlab import build_world
 from ssid.io import read_frf
 
-from test_daq_helpers import all_safe, frf_error, random_setup
-
-
-def run_on_sim(setup, out, **kw):
-    handle, inst = start_sim_lab(setup)
-    try:
-        return run_test(inst, out=str(out), echo=kw.pop("echo", lambda m: None), **kw), handle.world
-    finally:
-        handle.stop()
+from test_daq_helpers import all_safe, frf_error, random_setup, run_on_sim
 
 
 def test_periodic_random_mimo_noise_free_matches_the_world(tmp_path):

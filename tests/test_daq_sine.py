@@ -15,21 +15,12 @@ import pytest
 
 from daq.run import run_test
 from daq.setup import parse_setup
-from daq.simlab import build_world, start_sim_lab
+from daq.simlab import build_world
 from ssid.io import read_frf
 
-from test_daq_helpers import all_safe, cli, frf_error, sine_setup
+from test_daq_helpers import all_safe, cli, frf_error, run_on_sim, sine_setup
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def run_on_sim(setup, out, **kw):
-    """Run against a simulated lab started here, so the test can read the instruments' state."""
-    handle, inst = start_sim_lab(setup)
-    try:
-        return run_test(inst, out=str(out), echo=kw.pop("echo", lambda m: None), **kw), handle.world
-    finally:
-        handle.stop()
 
 
 def test_noise_free_stepped_sine_matches_the_world(tmp_path):

@@ -21,6 +21,8 @@ from tui.app import LabApp
 from tui.cli import add_tui_subcommand
 from tui.session import Acquisition, ProgressParser, run_file_state
 
+from test_daq_helpers import all_safe
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "setup_sim.toml"
 SIZE = (80, 24)
@@ -255,11 +257,6 @@ def lab_setup(tmp_path: Path, n_lines: int):
     return lab, hw
 
 
-def instruments_safe(world) -> bool:
-    gens = all(not c.output_on for g in world.generators for c in g.channels)
-    return gens and not any(a.enabled for a in world.amplifiers)
-
-
 def sub_lines(app: LabApp) -> int:
     return sum(len(v) for v in app.live.sub_lines.values()) if app.live else 0
 
@@ -285,22 +282,22 @@ def test_lab_hardware_pause_resume_abort_then_resume_from_the_ui(tmp_path):
             assert "SIM-33522" in rows[0][4]
             await pilot.press("f5")
             await wait_for(pilot, lambda: sub_lines(app) >= 2, 40, "two measured lines")
-            assert not instruments_safe(world)  # it is driving
+            assert not all_safe(world)  # it is driving
             await pilot.press("f6")
             await wait_for(pilot, lambda: app.live.paused, 30, "the pause")
             n_paused = sub_lines(app)
-            assert instruments_safe(world)  # read from the simulated instruments themselves
+            assert all_safe(world)  # read from the simulated instruments themselves
             assert "PAUSED" in str(app.query_one("#run-status", Static).render())
             assert "PAUSED" in str(app.query_one("#inst-status", Static).render())
             assert not app.query_one("#resume", Button).disabled and app.query_one("#pause", Button).disabled
             await pilot.pause(1.0)
-            assert sub_lines(app) == n_paused and instruments_safe(world)  # it stays paused
+            assert sub_lines(app) == n_paused and all_safe(world)  # it stays paused
             await pilot.press("f7")
             await wait_for(pilot, lambda: sub_lines(app) >= n_paused + 2, 40, "lines after the resume")
             await pilot.press("f8")
             await wait_for(pilot, lambda: app.outcome is not None, 30, "the run to stop")
             assert app.outcome.aborted and app.outcome.state == "interrupted", log_text(app)
-            assert instruments_safe(world)
+            assert all_safe(world)
             # Resume from the UI: F5 continues the unfinished file.
             await pilot.press("f5")
             await wait_for(pilot, lambda: bool(app.results_message), 120, "the resumed run and its results")
@@ -313,7 +310,7 @@ def test_lab_hardware_pause_resume_abort_then_resume_from_the_ui(tmp_path):
 
     try:
         asyncio.run(go())
-        assert instruments_safe(world)
+        assert all_safe(world)
     finally:
         lab.stop()
     assert run_file_state(out) == "complete"
@@ -358,14 +355,14 @@ def test_end_of_input_stops_a_controlled_run_safely(tmp_path):
                 n += line.startswith('@event {"event":"sub_line"')
                 if n == 2:
                     break
-            assert n == 2 and not instruments_safe(lab.world)  # it is driving
+            assert n == 2 and not all_safe(lab.world)  # it is driving
             proc.stdin.close()  # the controlling program is gone
             proc.stdout.read()
             assert proc.wait(60) == 130
         finally:
             if proc.poll() is None:
                 proc.kill()
-        assert instruments_safe(lab.world)
+        assert all_safe(lab.world)
     finally:
         lab.stop()
     assert run_file_state(out) == "interrupted"

@@ -123,7 +123,7 @@ class LabApp(App):
         self.results: RunResults | None = None
         self.results_message = ""
         self.pause_pending = False
-        self.channel = (0, 0)  # (output, input) shown in the plots
+        self.channel: tuple[int, int] | None = None  # (output, input) in the plots; set by loading a setup
         self._plot_dirty = False
 
     # ------------------------------------------------------------------ layout
@@ -284,12 +284,12 @@ class LabApp(App):
                                + [("daq", "daq", f"{setup.daq.interface}:{setup.daq.channel}", "not checked (F4)",
                                    "")])
         options = [(f"{o} / {i}", (k, j)) for j, i in enumerate(setup.inputs) for k, o in enumerate(setup.outputs)]
-        drive = (setup.outputs.index(setup.inputs[0]), 0) if setup.inputs[0] in setup.outputs else (0, 0)
-        self.channel = drive
+        if self.channel not in {v for _, v in options}:  # keep the engineer's choice across reloads
+            self.channel = (setup.outputs.index(setup.inputs[0]), 0) if setup.inputs[0] in setup.outputs else (0, 0)
         for sel_id in ("#channel", "#result-channel"):
             sel = self.query_one(sel_id, Select)
             sel.set_options(options)
-            sel.value = drive
+            sel.value = self.channel
 
     def action_new(self) -> None:
         """Create the setup file in the path field from the simulated lab's example, then load it."""

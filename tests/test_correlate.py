@@ -93,6 +93,16 @@ def test_pairing_is_one_to_one_and_drops_poor_matches():
     np.testing.assert_allclose(frequency_error_percent([10.5, 9.0], [10.0, 10.0]), [5.0, -10.0])
 
 
+def test_pairing_ignores_correlations_below_the_threshold():
+    """Seen on a 16-DOF model: test mode 0 matches analysis mode 0 exactly (1.0) and another
+    weakly (0.42); test mode 1 resembles analysis mode 0 (0.9) only. Counting the 0.42 in the
+    sum, the assignment gave analysis mode 0 to test mode 1 (0.9 + 0.42 > 1.0) and dropped
+    the exact pair."""
+    mac = np.array([[1.0, 0.42], [0.9, 0.0]])
+    pairs = pair_modes_by_mac(mac, min_mac=0.5)
+    assert [(p.test, p.analysis) for p in pairs] == [(0, 0)]
+
+
 def test_real_mode_from_complex_recovers_a_rotated_normal_mode():
     phi = np.array([1.0, -2.0, 0.5])
     z = phi * 3.0 * np.exp(1j * 0.7)

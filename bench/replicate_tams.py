@@ -46,6 +46,7 @@ from ssid.correlate import (
     modal_assurance,
     orthogonality,
     pair_modes_by_mac,
+    pair_modes_by_mac_and_frequency,
 )
 from ssid.craig_bampton import craig_bampton_form, craig_bampton_tam
 from ssid.errors import InputError
@@ -103,13 +104,9 @@ def _paired_frequencies(M_red, K_red, phi_t_a: np.ndarray, f_t: np.ndarray) -> n
     """
     lam, phi = normal_modes(M_red, K_red)
     f = np.sign(lam) * np.sqrt(np.abs(lam)) / (2 * np.pi)
-    mac = modal_assurance(phi, phi_t_a)
-    fa, fb = np.abs(f)[:, None], np.abs(f_t)[None, :]
-    score = mac * np.minimum(fa, fb) / np.maximum(np.maximum(fa, fb), 1e-300)
     out = np.full(phi_t_a.shape[1], np.nan)
-    for p in pair_modes_by_mac(score, 0.0):
-        if mac[p.test, p.analysis] >= 0.5:
-            out[p.analysis] = f[p.test]
+    for p in pair_modes_by_mac_and_frequency(modal_assurance(phi, phi_t_a), f, f_t, 0.5):
+        out[p.analysis] = f[p.test]
     return out
 
 

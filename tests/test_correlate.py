@@ -14,6 +14,7 @@ from ssid.correlate import (
     modal_assurance,
     orthogonality,
     pair_modes_by_mac,
+    pair_modes_by_mac_and_frequency,
     real_mode_from_complex,
 )
 from ssid.correlate_frf import (
@@ -101,6 +102,19 @@ def test_pairing_ignores_correlations_below_the_threshold():
     mac = np.array([[1.0, 0.42], [0.9, 0.0]])
     pairs = pair_modes_by_mac(mac, min_mac=0.5)
     assert [(p.test, p.analysis) for p in pairs] == [(0, 0)]
+
+
+def test_pairing_by_mac_and_frequency_tells_aliased_modes_apart():
+    """Two reference modes look alike at the sensors (MAC 0.9 with each other's test mode);
+    MAC alone pairs the 1.3 Hz test mode with the 800 Hz reference mode, the frequencies set
+    it right; a test mode with MAC < 0.5 to every reference mode stays unpaired."""
+    mac = np.array([[0.9, 0.95, 0.0], [0.95, 0.9, 0.0], [0.0, 0.0, 0.4]])
+    f_test = np.array([1.3, 805.0, 50.0])
+    f_ref = np.array([1.29, 800.0, 50.0])
+    by_mac = pair_modes_by_mac(mac, 0.5)
+    assert [(p.test, p.analysis) for p in by_mac] == [(0, 1), (1, 0)]
+    pairs = pair_modes_by_mac_and_frequency(mac, f_test, f_ref, 0.5)
+    assert [(p.test, p.analysis, p.mac) for p in pairs] == [(0, 0, 0.9), (1, 1, 0.9)]
 
 
 def test_real_mode_from_complex_recovers_a_rotated_normal_mode():

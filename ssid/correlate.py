@@ -205,14 +205,17 @@ def pair_modes_by_mac(mac: np.ndarray, min_mac: float = 0.5) -> list[ModePair]:
 
 
 def pair_modes_by_mac_and_frequency(
-    mac: np.ndarray, f_test_hz: np.ndarray, f_ref_hz: np.ndarray, min_mac: float = 0.5
+    mac: np.ndarray, f_test_hz: np.ndarray, f_ref_hz: np.ndarray, min_mac: float = 0.5,
+    max_freq_ratio: float = 2.0,
 ) -> list[ModePair]:
     """One-to-one pairing on ``MAC x min(f_t, f_r) / max(f_t, f_r)``; a pair needs
-    ``MAC >= min_mac``.
+    ``MAC >= min_mac`` and frequencies within a factor ``max_freq_ratio``.
 
     MAC alone cannot tell apart modes that look alike at few sensors (spatial aliasing: at 16
     Z sensors a 1.3 Hz rigid-body mode and an 800 Hz rotation-dominated mode can have MAC
-    0.6); their frequencies can. ``ModePair.mac`` holds the MAC, not the score.
+    0.6); their frequencies can. Without the frequency bound, a reference mode whose
+    counterpart is missing would take whatever test mode is left over. ``ModePair.mac``
+    holds the MAC, not the score.
 
     Parameters
     ----------
@@ -222,9 +225,11 @@ def pair_modes_by_mac_and_frequency(
     mac = np.asarray(mac, dtype=float)
     fa = np.abs(np.asarray(f_test_hz, dtype=float))[:, None]
     fb = np.abs(np.asarray(f_ref_hz, dtype=float))[None, :]
-    score = mac * np.minimum(fa, fb) / np.maximum(np.maximum(fa, fb), 1e-300)
+    ratio = np.minimum(fa, fb) / np.maximum(np.maximum(fa, fb), 1e-300)
+    ok = (mac >= min_mac) & (ratio * max_freq_ratio >= 1.0)
+    score = np.where(ok, mac * ratio, 0.0)
     return [ModePair(p.test, p.analysis, float(mac[p.test, p.analysis]))
-            for p in pair_modes_by_mac(score, 0.0) if mac[p.test, p.analysis] >= min_mac]
+            for p in pair_modes_by_mac(score, 0.0) if ok[p.test, p.analysis]]
 
 
 def frequency_error_percent(f_test_hz: np.ndarray, f_ref_hz: np.ndarray) -> np.ndarray:

@@ -115,6 +115,11 @@ def test_pairing_by_mac_and_frequency_tells_aliased_modes_apart():
     assert [(p.test, p.analysis) for p in by_mac] == [(0, 1), (1, 0)]
     pairs = pair_modes_by_mac_and_frequency(mac, f_test, f_ref, 0.5)
     assert [(p.test, p.analysis, p.mac) for p in pairs] == [(0, 0, 0.9), (1, 1, 0.9)]
+    # The 1.29 Hz reference mode's counterpart missing, and the 805 Hz test mode a poor match
+    # (0.3) of its own: left over, it is not the 1.29 Hz mode's pair however alike the shapes.
+    left = np.array([[0.95, 0.3]])
+    assert [(p.test, p.analysis) for p in pair_modes_by_mac(left, 0.5)] == [(0, 0)]
+    assert pair_modes_by_mac_and_frequency(left, [805.0], [1.29, 800.0], 0.5) == []
 
 
 def test_real_mode_from_complex_recovers_a_rotated_normal_mode():

@@ -11,12 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from .band_scaling import scale_selected_roots, strongest_roots
+from .bands import overlapping_bands, process_bands
 from .errors import IdentificationError
 from .frf import FRFData, accelerance_under_test_loads
 from .identify import SSIDResult, _roughness_weights, identify_mck
+from .modal import modal_phase_collinearity, physical_checks, real_modes
 from .noise import frf_noise_weights
 
-__all__ = ["band_ladder", "identify_mck_band_select", "model_accelerance", "result_problems"]
+__all__ = ["band_ladder", "identify_mck_band_select", "identify_mck_modal",
+           "model_accelerance", "result_problems"]
 
 
 def model_accelerance(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -64,6 +68,87 @@ def band_ladder(
     return out
 
 
+def identify_mck_modal(
+    frf: FRFData,
+    *,
+    band_width_hz: float | None = None,
+    scale: str = "BP3",
+    solver: str = "ml",
+) -> SSIDResult:
+    """Reduced-order M, C, K assembled from band-processed modes (beyond the report).
+
+    An n-DOF model fitted to a band holding more than n modes (or whose n modes are spatially
+    truncated) compromises between them; band processing (section 5.2) instead locates every
+    mode of the band in narrow overlapping bands, where each is well determined. This keeps
+    the n strongest of those modes with independent shapes at the sensors
+    (:func:`ssid.band_scaling.strongest_roots`), fits their scale factors (Eq. 3.23, BP3 by
+    default) and assembles M, C, K as real normal modes
+    (:func:`ssid.band_scaling.normal_mode_mck`): physical whenever every kept modal mass is
+    positive, with eig(K, M) the kept roots' |lambda|^2 exactly. Which n modes it holds is
+    the data's choice (their contribution to the measured FRFs), not an analyst's list of
+    target modes; the modes it leaves out are simply absent from the model.
+
+    Parameters
+    ----------
+    frf : FRFData
+        Accelerances (L, n, n_in) without interface reactions.
+    band_width_hz : float, optional
+        Width of the overlapping bands (50 % overlap). Default: 1/12 of the record, at
+        least 24 lines.
+    scale : {"BP1", "BP2", "BP3"}
+        Scale-factor estimate (section 5.2.2).
+    solver : step-1 solver in each band (as for :func:`identify_mck`).
+
+    Returns
+    -------
+    SSIDResult with ``solver`` set to ``"bands"``; ``info["bands"]`` holds the band width,
+    how many modes the bands selected and the kept frequencies.
+
+    Raises
+    ------
+    IdentificationError
+        With reactions in the data, when the bands find fewer independent modes than DOFs
+        (no n-DOF modal model exists), or when a kept modal mass is not positive.
+    """
+    if frf.H_reaction is not None:
+        raise IdentificationError("the modal (band-processed) model is not available with "
+                                  "measured interface reactions")
+    f = frf.freq_hz
+    span = float(f[-1] - f[0])
+    df = span / max(f.size - 1, 1)
+    width = band_width_hz if band_width_hz is not None else max(span / 12.0, 24 * df)
+    res = process_bands(frf, overlapping_bands(float(f[0]), float(f[-1]), width, 0.5),
+                        solver=solver)
+    n = frf.n_out
+    kept = strongest_roots(frf, res, n)
+    if len(kept.selected) < n:
+        raise IdentificationError(
+            f"band processing found {len(kept.selected)} modes with independent shapes, "
+            f"{n} are needed for an {n}-DOF modal model")
+    _, mck = scale_selected_roots(frf, kept, scale, assembly="normal")
+    M, C, K = mck
+    lam = np.array([r.lam for r in kept.selected])
+    shapes = np.column_stack([r.theta[:n] for r in kept.selected])
+    shapes = shapes / shapes[np.argmax(np.abs(shapes), axis=0), np.arange(n)]
+    try:
+        wu, phi = real_modes(M, K)
+    except np.linalg.LinAlgError as exc:
+        raise IdentificationError("a kept mode has a modal mass <= 0: the modal model is not "
+                                  "physical") from exc
+    zeta = -lam.real / np.abs(lam)
+    checks, warnings = physical_checks(M, C, K, zeta)
+    return SSIDResult(
+        M=M, C=C, K=K, dofs=list(frf.outputs),
+        natural_freq_hz=np.abs(lam) / (2 * np.pi), damping_ratio=zeta,
+        mpc=modal_phase_collinearity(shapes), mode_shapes=shapes,
+        undamped_freq_hz=wu / (2 * np.pi), real_mode_shapes=phi,
+        real_roots=np.zeros(0), solver="bands", damping="modal",
+        band_hz=(float(f[0]), float(f[-1])), checks=checks, warnings=warnings,
+        info={"bands": {"band_width_hz": width, "n_selected": len(res.selected),
+                        "kept_freq_hz": [float(v) for v in kept.freq_hz]}},
+    )
+
+
 def identify_mck_band_select(
     frf: FRFData,
     *,
@@ -71,6 +156,7 @@ def identify_mck_band_select(
     n_refine: int = 2,
     damping: str = "identified",
     candidates: dict | None = None,
+    modal: bool = True,
 ) -> SSIDResult:
     """SSID of a reduced-order model with the band and solver chosen from the data.
 
@@ -86,6 +172,8 @@ def identify_mck_band_select(
        identified again with the default ``ml`` (costly: O(n^2 p^2) per line). The whole-band
        ``ml`` candidate is :func:`identify_mck`'s default result, so the search can only
        return a model that is physical where that one is not, or predicts the data better.
+       With ``modal`` (and no reactions), the whole band's band-processed modal model
+       (:func:`identify_mck_modal`, solver ``"bands"``) competes too.
     3. Choice: among candidates whose M, C, K are physical (:func:`result_problems` is 0),
        the one with the lowest weighted output error of its M, C, K
        over **all** measured lines, ``sum_kij w_kij^2 |H_kij - H^model_kij|^2`` (Eq. 3.6 solved
@@ -106,6 +194,8 @@ def identify_mck_band_select(
         How many of the best sub-bands get the ``ml`` refinement (besides the whole band).
     damping : {"identified", "modal"}
         As in :func:`identify_mck`.
+    modal : bool
+        Also try :func:`identify_mck_modal` on the whole band.
     candidates : dict, optional
         Receives every candidate's :class:`SSIDResult` keyed by ``(band_max_hz, solver)``;
         ``candidates[(band_max_hz[0], "ml")]`` is :func:`identify_mck`'s default result.
@@ -132,7 +222,10 @@ def identify_mck_band_select(
 
     def run(hi: float, solver: str) -> None:
         try:
-            r = identify_mck(frf, solver=solver, f_max_hz=hi, damping=damping)
+            if solver == "bands":
+                r = identify_mck_modal(frf.band(float(frf.freq_hz[0]), hi))
+            else:
+                r = identify_mck(frf, solver=solver, f_max_hz=hi, damping=damping)
             Hm = model_accelerance(frf, r.M, r.C, r.K)
         except (IdentificationError, np.linalg.LinAlgError):
             return
@@ -153,6 +246,8 @@ def identify_mck_band_select(
     refine = [his[0]] + [h for h in sorted(best_per_band, key=best_per_band.get) if h != his[0]]
     for hi in refine[: n_refine + 1]:
         run(hi, "ml")
+    if modal and frf.H_reaction is None:
+        run(his[0], "bands")
     if not cands:
         raise IdentificationError("no band of the search gave a model")
     if candidates is not None:

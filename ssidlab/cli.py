@@ -160,7 +160,7 @@ def _add_identify(sub: Any) -> None:
         help="natural frequencies, damping ratios and fit details",
     )
     p.add_argument(
-        "--solver", choices=SOLVERS, default="ml",
+        "--solver", choices=SOLVERS, default=None,
         help="ml: maximum likelihood, weights each line by its noise (default); "
         "ls: least squares; tls: total least squares; stls: scaled total least squares",
     )
@@ -170,12 +170,20 @@ def _add_identify(sub: Any) -> None:
         "--damping", choices=DAMPING_CHOICES, default="identified",
         help="identified: C as identified (default); modal: C rebuilt from modal damping ratios",
     )
+    p.add_argument(
+        "--select-band", action="store_true",
+        help="reduced-order model (more modes in the band than sensors): choose the band and "
+        "solver from the data, a band-processed modal model among the candidates "
+        "(docs/algorithm.md); the solver is then chosen too",
+    )
     p.add_argument("--quiet", action="store_true", help="do not print the mode table")
     p.set_defaults(run=_run_identify)
 
 
 def _run_identify(args: argparse.Namespace) -> int:
     # Cheap checks first, so a typo does not cost an identification run.
+    if args.select_band and args.solver is not None:
+        raise InputError("--select-band chooses the solver from the data; leave out --solver")
     if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
         raise InputError(f"--fmin ({args.fmin:g} Hz) must be below --fmax ({args.fmax:g} Hz)")
     check_output_paths([args.frf], [args.out, args.json])
@@ -186,9 +194,17 @@ def _run_identify(args: argparse.Namespace) -> int:
     # when it cannot be imported.
     from ssid.identify import identify_mck
 
-    result = identify_mck(
-        frf, solver=args.solver, f_min_hz=args.fmin, f_max_hz=args.fmax, damping=args.damping
-    )
+    if args.select_band:
+        from ssid.band_select import identify_mck_band_select
+
+        lo = float(frf.freq_hz[0]) if args.fmin is None else args.fmin
+        hi = float(frf.freq_hz[-1]) if args.fmax is None else args.fmax
+        result = identify_mck_band_select(frf.band(lo, hi), damping=args.damping)
+    else:
+        result = identify_mck(
+            frf, solver=args.solver or "ml", f_min_hz=args.fmin, f_max_hz=args.fmax,
+            damping=args.damping,
+        )
     if list(result.dofs) != frf.outputs:
         raise RuntimeError(
             f"identified model DOFs {list(result.dofs)!r} differ from the FRF outputs "

@@ -43,6 +43,31 @@ def test_identify_writes_contract_model_and_json(tmp_path):
     assert len(res["damping_ratio"]) == len(res["natural_freq_hz"])
 
 
+def test_identify_select_band_for_a_reduced_order_model(tmp_path):
+    """4 sensors, 7 modes in the band (test_identify's case: 3 of them belong to unmeasured
+    structure). ``--select-band`` returns a physical 4-DOF model whose modes are the 4-DOF
+    system's own within 1 % (the report's criterion for an identified mode), and says how the
+    band and solver were chosen; --solver with it is refused as the contradiction it is."""
+    from test_identify import _four_dof_with_unmeasured_modes, true_frequencies_hz
+
+    (M, C, K), frf = _four_dof_with_unmeasured_modes(3)
+    src = tmp_path / "frf.h5"
+    write_frf(str(src), frf)
+    out, js = tmp_path / "model.h5", tmp_path / "result.json"
+    p = run("identify", str(src), "--out", str(out), "--json", str(js), "--select-band")
+    assert p.returncode == 0, p.stderr
+    assert "band and solver chosen from the data" in p.stderr
+    model = read_model(str(out))
+    assert np.linalg.eigvalsh(model.M).min() > 0 and np.linalg.eigvalsh(model.K).min() > 0
+    res = json.loads(js.read_text())
+    f_sys, _ = true_frequencies_hz(M, C, K)
+    np.testing.assert_allclose(res["natural_freq_hz"], f_sys, rtol=0.01)
+    bad = run("identify", str(src), "--out", str(tmp_path / "m2.h5"), "--json",
+              str(tmp_path / "r2.json"), "--select-band", "--solver", "tls")
+    assert bad.returncode != 0 and "Traceback" not in bad.stderr
+    assert "--select-band chooses the solver" in bad.stderr
+
+
 def test_example_demo_end_to_end(tmp_path):
     p = run("demo", "--example", "--out", str(tmp_path / "demo"))
     assert p.returncode == 0, p.stderr

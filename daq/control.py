@@ -27,7 +27,8 @@ from ssid.jsonutil import to_jsonable
 
 from .safety import RunStopped
 
-__all__ = ["EVENT_PREFIX", "RunControl", "RunEvents", "event_line", "hold_if_paused", "parse_event_line"]
+__all__ = ["EVENT_PREFIX", "RunControl", "RunEvents", "clear_interrupts", "event_line", "hold_if_paused",
+           "latching_interrupt_handler", "parse_event_line", "raise_if_interrupted"]
 
 #: Prefix of an event's line on a run's stdout (``ssidlab acquire --events``).
 EVENT_PREFIX = "@event "
@@ -53,6 +54,41 @@ class RunControl:
     @property
     def pause_requested(self) -> bool:
         return self._pause
+
+
+#: Interrupts raised by :func:`latching_interrupt_handler` and not yet handled by a run
+#: (process-wide, as signal handlers are; list.append is atomic under the GIL).
+_latched: list[type[BaseException]] = []
+
+
+def latching_interrupt_handler(exc_type: type[BaseException] = KeyboardInterrupt) -> Callable:
+    """A SIGINT / SIGTERM handler that raises ``exc_type`` at once and also remembers it.
+
+    Python runs a signal handler between two bytecodes of the main thread, wherever that is.
+    When it is inside a finalizer or a weakref callback (garbage collection may run one at
+    any allocation), the exception the handler raises is printed as "Exception ignored" and
+    dropped: the Ctrl-C is lost and the drive runs on (seen once in CI). The run therefore
+    calls :func:`raise_if_interrupted` before every acquisition, which raises the interrupt
+    again if it never arrived.
+    """
+    def handler(signum, frame):
+        _latched.append(exc_type)
+        raise exc_type()
+
+    return handler
+
+
+def raise_if_interrupted() -> None:
+    """Raise an interrupt that :func:`latching_interrupt_handler` raised but nobody handled."""
+    if _latched:
+        exc_type = _latched[-1]
+        _latched.clear()
+        raise exc_type()
+
+
+def clear_interrupts() -> None:
+    """The run has handled the interrupt (it is stopping): forget it."""
+    _latched.clear()
 
 
 class RunEvents:
@@ -111,6 +147,7 @@ def hold_if_paused(control: RunControl | None, rig, runfile, echo: Callable[[str
     t0 = time.monotonic()
     try:
         while control.pause_requested:
+            raise_if_interrupted()
             time.sleep(poll_s)
     finally:
         control.paused = False

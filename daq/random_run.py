@@ -30,7 +30,7 @@ from ssid.frf import FRFData
 
 from .estimate import SpectralSums, frf_from_spectra, spectra_of_blocks
 from .rig import Rig
-from .control import RunControl, RunEvents, hold_if_paused
+from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
 from .safety import RunStopped, check_limits, limit_usage
 from .setup import TestSetup
 from .storage import RunFile
@@ -86,6 +86,7 @@ class RandomRun:
     # ------------------------------------------------------------------ acquisition
     def _acquire(self, n: int) -> np.ndarray:
         self.rig.line_check()
+        raise_if_interrupted()
         data, _ = self.rig.acquire(n)
         self.test_time_s += n / self.rig.fs_hz
         peaks = np.max(np.abs(data), axis=1)

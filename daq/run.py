@@ -14,6 +14,7 @@ before the function returns or raises, and the run file holds every completed li
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import platform
 import signal
@@ -27,7 +28,7 @@ import numpy as np
 from drivers.errors import InstrumentError
 from ssid.errors import InputError
 
-from .control import RunControl, RunEvents
+from .control import RunControl, RunEvents, clear_interrupts, latching_interrupt_handler
 from .rig import InstrumentRig, Rig
 from .safety import RunStopped, describe_fault
 from .setup import TestSetup, load_setup, parse_setup
@@ -109,6 +110,27 @@ def _create_runfile(setup: TestSetup, path: Path) -> RunFile:
                           channel_names=[c.name for c in setup.channels], meta=meta, attrs=attrs)
 
 
+def _ctrl_c_latched(fn: Callable) -> Callable:
+    """Run ``fn`` with :func:`daq.control.latching_interrupt_handler` for SIGINT in place of
+    Python's default, so that a Ctrl-C raised where Python drops exceptions (a finalizer)
+    still stops the run; a handler the caller installed (``ssidlab acquire``'s) stays."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kw):
+        if (threading.current_thread() is not threading.main_thread()
+                or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+            return fn(*args, **kw)
+        previous = signal.signal(signal.SIGINT, latching_interrupt_handler(KeyboardInterrupt))
+        try:
+            return fn(*args, **kw)
+        finally:
+            signal.signal(signal.SIGINT, previous)
+            clear_interrupts()  # the run is over: a late Ctrl-C must not stop the next one
+
+    return wrapper
+
+
+@_ctrl_c_latched
 def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, sim: bool = False,
              echo: Callable[[str], None] = print, rig_factory: Callable[[TestSetup], Rig] | None = None,
              control: RunControl | None = None, events: Callable[[dict], None] | None = None) -> dict:
@@ -198,6 +220,7 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         raise
     except KeyboardInterrupt:
         state = "interrupted"
+        clear_interrupts()
         raise
     except BaseException as exc:
         state = f"failed: {type(exc).__name__}: {exc}"

@@ -31,6 +31,7 @@ import numpy as np
 
 from .estimate import SineEstimate, SineFit
 from .rig import Rig
+from .control import raise_if_interrupted
 from .safety import LineAborted, check_limits
 from .setup import Limits, SineSpec
 
@@ -73,6 +74,7 @@ def noise_floor(rig: Rig, ranges_volt: np.ndarray, sens_v_per_unit: np.ndarray, 
     q = (np.asarray(ranges_volt) / 2**23 / np.asarray(sens_v_per_unit)) ** 2 / 12
     var = None
     for _ in range(max(1, int(np.ceil(max_wait_s / seconds)))):
+        raise_if_interrupted()  # a Ctrl-C swallowed elsewhere (daq.control)
         data, _ = rig.acquire(n)
         v = np.maximum(np.var(data - data.mean(axis=1, keepdims=True), axis=1), q)
         if var is not None and np.all(v > 0.8 * var):
@@ -262,6 +264,7 @@ class SineLine:
         corrections = 0
         level_checked = False
         while True:
+            raise_if_interrupted()  # a Ctrl-C swallowed elsewhere (daq.control)
             data, _ = rig.acquire(n_w if buf.shape[1] < n_w else n_c)
             buf = np.hstack([buf, data])
             reason = check_limits(self.limits, np.max(np.abs(data), axis=1), self.roles, vpp, rig.names)
@@ -313,6 +316,7 @@ class SineLine:
         n_need = int(min(n_w * (rel / self.spec.accuracy) ** 2, self.spec.max_dwell_s * fs))
         if n_need <= n_w:
             return est, buf[:, -n_w:]
+        raise_if_interrupted()  # a Ctrl-C swallowed elsewhere (daq.control)
         more, _ = self.rig.acquire(n_need - n_w)
         peaks = np.max(np.abs(more), axis=1)
         reason = check_limits(self.limits, peaks, self.roles, vpp, self.rig.names)

@@ -87,12 +87,8 @@ class _Terminated(KeyboardInterrupt):
     """SIGTERM, handled like Ctrl-C: safe state, file kept resumable."""
 
 
-def _on_sigterm(signum, frame) -> None:
-    raise _Terminated()
-
-
 def run_acquire(args: argparse.Namespace) -> int:
-    from daq.control import RunControl
+    from daq.control import RunControl, latching_interrupt_handler
     from daq.run import load_resume_setup, run_test
     from daq.safety import RunStopped
     from daq.setup import load_setup
@@ -108,11 +104,12 @@ def run_acquire(args: argparse.Namespace) -> int:
         setup = load_setup(args.setup)
         out = args.out
     echo = (lambda m: None) if args.quiet else (lambda m: print(m, flush=True))
-    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    previous = signal.signal(signal.SIGTERM, latching_interrupt_handler(_Terminated))
     # A process started in the background by a non-interactive shell (or by a CI runner)
     # inherits SIGINT as ignored, and Python then installs no KeyboardInterrupt handler: a
     # SIGINT (Ctrl-C, the TUI's abort) would be lost and the drive would keep running.
-    previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
+    # The latching handler also survives an interrupt raised where Python drops it.
+    previous_int = signal.signal(signal.SIGINT, latching_interrupt_handler(KeyboardInterrupt))
     control = RunControl() if args.control_stdin else None
     if control is not None:
         threading.Thread(target=_read_control, args=(control, sys.stdin), name="acquire-control", daemon=True).start()

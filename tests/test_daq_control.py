@@ -4,12 +4,14 @@ from the simulated instruments), and the resumed run still measures the world's 
 
 from __future__ import annotations
 
+import signal
 import threading
 
+import h5py
 import numpy as np
 import pytest
 
-from daq.control import RunControl
+from daq.control import RunControl, latching_interrupt_handler, raise_if_interrupted
 from daq.safety import limit_usage
 from daq.setup import Limits, parse_setup
 from daq.simlab import build_world
@@ -92,3 +94,61 @@ def test_limit_usage_is_peak_over_limit(peaks, used):
     roles = {"force": [0], "response": [1, 2], "reaction": []}
     got = limit_usage(lim, np.array(peaks), roles, drive_vpp=1.0)
     assert got == pytest.approx(used)  # no reaction channels, no infinite limit: left out
+
+
+class _InterruptInFinalizer:
+    """Calls the run's SIGINT handler from its finalizer, the way Python runs a handler when
+    the signal arrives while the garbage collector runs a finalizer: the KeyboardInterrupt it
+    raises there is printed as "Exception ignored" and dropped (seen once in CI)."""
+
+    def __init__(self, handler) -> None:
+        self.handler = handler
+
+    def __del__(self) -> None:
+        self.handler(signal.SIGINT, None)
+
+
+# The dropped exception is the point of these tests; pytest reports it as "unraisable".
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_an_interrupt_swallowed_by_a_finalizer_still_stops_the_run(tmp_path):
+    """The Ctrl-C is raised inside a finalizer at a line boundary and lost there; the latch
+    raises it again before the next acquisition, so the run stops as for any Ctrl-C: file
+    ``interrupted`` with the lines done, generator outputs off, amplifiers disabled."""
+    handler = latching_interrupt_handler(KeyboardInterrupt)
+    setup = parse_setup(sine_setup(two=True), str(tmp_path / "s.toml"))
+    worlds = []
+    count = {"n": 0}
+
+    def echo(msg):
+        count["n"] += 1
+        if count["n"] == 8:
+            _InterruptInFinalizer(handler)  # dropped at once: __del__ runs, its exception is lost
+
+    with pytest.raises(KeyboardInterrupt):
+        run_on_sim(setup, tmp_path / "run.h5", on_start=worlds.append, echo=echo)
+    with h5py.File(tmp_path / "run.h5") as f:
+        assert f["acq"].attrs["state"] == "interrupted" and f["acq/n_done"][0] < 12
+    assert all_safe(worlds[0])
+    raise_if_interrupted()  # handled by the run: nothing left latched
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_the_latch_raises_the_interrupt_type_it_caught():
+    class Terminated(KeyboardInterrupt):
+        pass
+
+    _InterruptInFinalizer(latching_interrupt_handler(Terminated))
+    with pytest.raises(Terminated):
+        raise_if_interrupted()
+    raise_if_interrupted()  # raised once, then forgotten
+
+
+def test_a_run_latches_ctrl_c_while_it_runs_and_restores_the_handler(tmp_path):
+    """Called with Python's default SIGINT handler (the demo, a script), the run puts the
+    latching one in place for its duration and restores the default after."""
+    setup = parse_setup(sine_setup(), str(tmp_path / "s.toml"))
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    seen = []
+    run_on_sim(setup, tmp_path / "run.h5", echo=lambda m: seen.append(signal.getsignal(signal.SIGINT)))
+    assert seen and all(h is not signal.default_int_handler for h in seen)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -1,0 +1,192 @@
+"""Sections 2 and 3 of the report-replication bench: reduced-order models, noise-free and
+noisy, on the report's spectra and on the spectra that put our payload where the report's
+put its own (run from bench/replicate_report.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from report_truth import (
+    REPORT,
+    REPORT_TARGETS_HZ,
+    SPECTRA,
+    Truth,
+    fmt,
+    paired_errors,
+    run_parallel,
+    worker_truth,
+)
+from ssid.band_select import identify_mck_band_select, result_problems
+from ssid.noise import report_noise_frf
+
+def modal_cell(truth: Truth, sensors, tm, cands: dict, f_hi: float) -> str:
+    """The band-processed modal candidate's errors (``ssid.band_select.identify_mck_modal``),
+    and the modes it holds that are not targets; or why there is none."""
+    r = cands.get((f_hi, "bands"))
+    if r is None:
+        return "none (fewer modes than DOFs)"
+    cell = fmt(*paired_errors(truth, sensors, tm, r.natural_freq_hz, r.damping_ratio,
+                              r.mode_shapes))
+    other = [f for f in r.natural_freq_hz
+             if np.min(np.abs(truth.f[tm] - f) / truth.f[tm]) > 0.01]
+    return cell + (f"; holds {', '.join(f'{f:.0f}' for f in other)} Hz" if other else "")
+
+def reduced_noise_free(truth: Truth) -> None:
+    print("\n## 2. Reduced-order models, noise-free, three input spectra (Tables 6.4-6.10)\n")
+    print("frequency / damping max |% error| over the target modes: as in the report, the first "
+          "n target modes at every spectrum, also those above the band (Tables 6.4-6.10 list them "
+          "all). `default`: our default solver on the whole band. `band-selected`: "
+          "`ssid.band_select.identify_mck_band_select`, band [f0, f_hi] (f_hi = f_max / sqrt(2)^k) and solver "
+          "(ls, tls, stls, ml) chosen from the data alone: a physical model first, then the "
+          "lowest noise-weighted output error of its M, C, K over all lines; one candidate is "
+          "`modal (bands)`: `ssid.band_select.identify_mck_modal`, the n strongest modes with "
+          "independent shapes found by band processing over the whole spectrum (bands of 1/12 "
+          "of it, 50 % overlap, section 4's criteria), scaled by BP3 and assembled as real "
+          "normal modes; it holds the modes the data show most strongly, not necessarily the "
+          "report's target modes (those it holds instead are listed). `in band`: "
+          "target modes inside the spectrum, ours / the report's (our model's modes sit "
+          "elsewhere than the report's, so the same spectrum is not the same problem: the rows "
+          "`(as 300 Hz)`, `(as 650 Hz)` use the spectrum that holds as many of our targets as "
+          "the report's held of its own, with the next target as far above the edge "
+          "(`equivalent_spectrum`).")
+    jobs = [(n, label, key, spec) for n in ("10", "12", "16")
+            for label, key, spec in spectra_for(truth, int(n))]
+    rows = run_parallel(reduced_noise_free_row, jobs)
+    for n in ("10", "12", "16"):
+        sensors, tm = truth.sensors(int(n))
+        print(f"\n{n}-DOF sensors (EfI): {', '.join(sensors)}; targets (Hz): "
+              f"{', '.join(f'{truth.f[i]:.1f}' for i in tm)}\n")
+        print("| model | spectrum | in band | report | ours, default | ours, modal (bands) | "
+              "ours, band-selected | selected band, solver |")
+        print("|---|---|---|---|---|---|---|---|")
+        for (n_job, _, _, spec), (line, modal) in zip(jobs, rows):
+            if n_job == n:
+                truth.modal_possible[(int(n), spec[1])] = modal
+                print(line)
+
+
+def reduced_noise_free_row(n: str, label: str, key: int, spec) -> tuple[str, bool]:
+    """One row of section 2, and whether the modal candidate existed (worker process)."""
+    truth = worker_truth()
+    sensors, tm = truth.sensors(int(n))
+    frf = truth.frf(sensors, spec)
+    cands: dict = {}
+    r = identify_mck_band_select(frf, candidates=cands)
+    full = float(frf.freq_hz[-1])
+    d = cands[(full, "ml")]
+    cells = [fmt(*paired_errors(truth, sensors, tm, x.natural_freq_hz, x.damping_ratio,
+                                x.mode_shapes)) for x in (d, r)]
+    cells.insert(1, modal_cell(truth, sensors, tm, cands, full))
+    sel = r.info["band_select"]
+    rep_t = np.asarray(REPORT_TARGETS_HZ[: int(n)])
+    inb = f"{np.sum(truth.f[tm] <= spec[1])} / {np.sum(rep_t <= key)}"
+    line = (f"| {n}-DOF | {label} | {inb} | {fmt(*REPORT[(n, key)])} "
+            f"| {cells[0]} | {cells[1]} | {cells[2]} | 1-{r.band_hz[1]:.0f} Hz, {sel['solver']}"
+            f"{'' if result_problems(r) == 0 else ' (not physical)'} |")
+    return line, (full, "bands") in cands
+
+def equivalent_spectrum(truth: Truth, n: int, key: int) -> tuple[float, float, int] | None:
+    """Our spectrum that puts us where the report's ``key`` spectrum put it: as many of the
+    first n targets in the band, and the first target above the band as far above the edge
+    (the report's 300 Hz: 9 of 10 in band, the 10th at 1.015 x the edge, so its resonance
+    peak is half in the band); where no edge does both (or all targets are in the band),
+    the last target in the band as far below the edge. None where the report's spectrum
+    already holds the same number on our model, or for the widest spectrum (all in band)."""
+    rep_t = np.asarray(REPORT_TARGETS_HZ[:n])
+    ours = truth.f[truth.sensors(n)[1]]
+    lo, hi, lines = SPECTRA[key]
+    k = int(np.sum(rep_t <= hi))
+    if k == int(np.sum(ours <= hi)) or key == 2100:
+        return None
+    edges = ([ours[k] * hi / rep_t[k]] if k < n else []) + [ours[k - 1] * hi / rep_t[k - 1]]
+    edge = next(e for e in edges if int(np.sum(ours <= e)) == k)
+    return lo, float(np.round(edge)), lines
+
+
+def spectra_for(truth: Truth, n: int) -> list[tuple[str, int, tuple[float, float, int]]]:
+    """(label, report's spectrum key, our spectrum): the report's three, then the equivalents."""
+    out = [(f"1-{spec[1]:g} Hz, {spec[2]} lines", key, spec) for key, spec in SPECTRA.items()]
+    for key in SPECTRA:
+        eq = equivalent_spectrum(truth, n, key)
+        if eq is not None:
+            out.append((f"1-{eq[1]:g} Hz, {eq[2]} lines (as {key} Hz)", key, eq))
+    return out
+
+def reduced_noisy(truth: Truth, seeds: list[int]) -> None:
+    print("\n## 3. Noisy data: LS vs TLS vs scaled TLS vs our default (Tables 6.11-6.14)\n")
+    print("frequency / damping max |% error| over target modes, worst over seeds "
+          f"{seeds}; the report's spectrum per model (10-DOF 1-300 Hz, 12-DOF 1-650 Hz, 16-DOF "
+          "1-2300 Hz here) and, as in section 2, the equivalent spectrum (`as ... Hz`). "
+          "`band-selected` as in section 2 (its "
+          "whole-band `ml` candidate is the `ml` row, its modal candidate the `bands` row, "
+          "skipped where the noise-free data gave no modal model: noise adds no modes). "
+          "`in band`: target modes in the spectrum, ours / the report's.")
+    print("| model | spectrum | in band | solver | report | ours |")
+    print("|---|---|---|---|---|---|")
+    cases = []
+    for n, key in (("10", 300), ("12", 650), ("16", 2100)):
+        for label, spec in [(f"1-{SPECTRA[key][1]:g} Hz", SPECTRA[key])] + [
+                (f"1-{eq[1]:g} Hz (as {key} Hz)", eq)
+                for eq in [equivalent_spectrum(truth, int(n), key)] if eq is not None]:
+            cases.append((n, key, label, spec))
+    jobs = [(n, spec, seed, truth.modal_possible.get((int(n), spec[1]), True))
+            for n, _, _, spec in cases for seed in seeds]
+    results = iter(run_parallel(reduced_noisy_seed, jobs))
+    for n, key, label, spec in cases:
+        per_seed = [next(results) for _ in seeds]
+        tm = truth.sensors(int(n))[1]
+        inb = (f"{np.sum(truth.f[tm] <= spec[1])} / "
+               f"{np.sum(np.asarray(REPORT_TARGETS_HZ[:int(n)]) <= key)}")
+        for solver in per_seed[0][0]:
+            res = max(errs[solver] for errs, _ in per_seed)
+            if n == "16":
+                rep = REPORT[("noisy", "16", "any")] if solver in ("ls", "tls", "stls") else "-"
+            elif solver in ("tls", "stls"):
+                rep = fmt(*REPORT[("noisy", n, solver)])
+            else:
+                rep = "no solution" if solver == "ls" else "-"
+            extra = (f" ({'; '.join(chosen for _, chosen in per_seed)})"
+                     if solver == "band-selected" else "")
+            cell = fmt(*res) if np.isfinite(res[0]) else "no model (fewer modes than DOFs found)"
+            print(f"| {n}-DOF | {label} | {inb} | {solver} | {rep} | {cell}{extra} |")
+    print("\n" + REDUCED_NOTES)
+
+
+def reduced_noisy_seed(n: str, spec, seed: int, modal: bool) -> tuple[dict, str]:
+    """Errors of each solver and of the band search on one noisy record (worker process)."""
+    truth = worker_truth()
+    sensors, tm = truth.sensors(int(n))
+    frf = report_noise_frf(truth.frf(sensors, spec), seed=seed)
+    cands: dict = {}
+    sel = identify_mck_band_select(frf, candidates=cands, modal=modal)
+    chosen = (f"1-{sel.band_hz[1]:.0f} Hz {sel.info['band_select']['solver']}"
+              + ("" if result_problems(sel) == 0 else " (not physical)"))
+    full = float(frf.freq_hz[-1])
+    errs = {}
+    for solver in ("ls", "tls", "stls", "ml", "bands", "band-selected"):
+        r = sel if solver == "band-selected" else cands.get((full, solver))
+        errs[solver] = ((np.inf, np.inf, len(tm)) if r is None else  # no modal model
+                        paired_errors(truth, sensors, tm, r.natural_freq_hz, r.damping_ratio,
+                                      r.mode_shapes))
+    return errs, chosen
+
+
+REDUCED_NOTES = """Reading sections 2 and 3:
+
+- **Same spectrum, different problem.** The report's 1-300 Hz held 9 of its 10 targets, with
+  the 10th 1.5 % above the edge (its resonance half in the band); ours holds 7, and the 10th
+  target (559 Hz) lies 1.9 times above the edge, so the 1-300 Hz rows ask our models to
+  extrapolate much farther (in the 10-DOF default the in-band modes are within 0.07 %, the
+  318.6 and 395.2 Hz targets above the band within 0.08 %, and the 559 Hz one 2.1 % off,
+  which sets the row's 2.1 %). The `as 300 Hz`
+  and `as 650 Hz` rows put our model where the report's spectra put its own.
+- **The modal candidate** exists only when the band holds at least as many modes as the
+  model has DOFs; it then holds those modes to the accuracy of band processing, and which
+  modes it holds is the data's choice: at 12 and 16 Z sensors some rotation-dominated modes
+  (754, 832, 1486, 1515, 1604 Hz) show more strongly than some targets, so targets count as
+  missed although every mode the model holds is right.
+- **Rounding.** The reduced-order `ml` fits whose band holds fewer modes than DOFs are
+  ill-conditioned enough that the BLAS thread count changes them (10-DOF, 1-300 Hz: one
+  thread 2.1 % / 15 %, a non-physical refinement replaced by its TLS start; two threads
+  2.1 % / 3.1 %). This bench runs its cases two at a time with one BLAS thread each.
+"""

@@ -19,6 +19,7 @@ from report_truth import (
 from ssid.band_select import identify_mck_band_select, result_problems
 from ssid.noise import report_noise_frf
 
+
 def modal_cell(truth: Truth, sensors, tm, cands: dict, f_hi: float) -> str:
     """The band-processed modal candidate's errors (``ssid.band_select.identify_mck_modal``),
     and the modes it holds that are not targets; or why there is none."""
@@ -30,6 +31,7 @@ def modal_cell(truth: Truth, sensors, tm, cands: dict, f_hi: float) -> str:
     other = [f for f in r.natural_freq_hz
              if np.min(np.abs(truth.f[tm] - f) / truth.f[tm]) > 0.01]
     return cell + (f"; holds {', '.join(f'{f:.0f}' for f in other)} Hz" if other else "")
+
 
 def reduced_noise_free(truth: Truth) -> None:
     print("\n## 2. Reduced-order models, noise-free, three input spectra (Tables 6.4-6.10)\n")
@@ -85,6 +87,7 @@ def reduced_noise_free_row(n: str, label: str, key: int, spec) -> tuple[str, boo
             f"{'' if result_problems(r) == 0 else ' (not physical)'} |")
     return line, (full, "bands") in cands
 
+
 def equivalent_spectrum(truth: Truth, n: int, key: int) -> tuple[float, float, int] | None:
     """Our spectrum that puts us where the report's ``key`` spectrum put it: as many of the
     first n targets in the band, and the first target above the band as far above the edge
@@ -111,6 +114,7 @@ def spectra_for(truth: Truth, n: int) -> list[tuple[str, int, tuple[float, float
         if eq is not None:
             out.append((f"1-{eq[1]:g} Hz, {eq[2]} lines (as {key} Hz)", key, eq))
     return out
+
 
 def reduced_noisy(truth: Truth, seeds: list[int]) -> None:
     print("\n## 3. Noisy data: LS vs TLS vs scaled TLS vs our default (Tables 6.11-6.14)\n")

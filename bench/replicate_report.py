@@ -74,6 +74,7 @@ def full_order(truth: Truth) -> None:
     print(f"- ours: max |entry error| / max |entry|: M {em[0]:.1e}, C {em[1]:.1e}, K {em[2]:.1e}; "
           f"largest relative frequency error of the 52 modes {ef:.1e} ({dt:.1f} s)")
 
+
 BAND_NOTES = """Why M was not positive definite at first, and what changed (`ssid/bands.py`, `ssid/band_scaling.py`):
 
 - **Kept roots with dependent shapes.** 22 modes are in 1-2300 Hz, the model holds 16. The
@@ -310,6 +311,7 @@ def reactions(truth: Truth, seeds: list[int]) -> None:
           "adopted. Not achieved: the three suspension modes (tens of % off even at that "
           "minimum, and missed by a free substructure without reactions under the same noise: "
           "not determined by these data) and M, K entry by entry (five modes above the band).")
+
 
 def section_6_5(truth: Truth) -> None:
     print("\n## 7. SSID models against TAMs (section 6.5, Tables 6.21-6.26)\n")

@@ -26,6 +26,7 @@ REPORT = {
     "reactions": "full order, noise-free: M, C, K within 0.03 %, frequencies 0.01 %; noisy: none",
 }
 
+
 #: Our spectra: the report's (Table 6.3), the third stretched to 2300 Hz so that our 16th
 #: target mode (2200 Hz) is inside it, as the report's 16th (2031 Hz) was inside 2100 Hz.
 SPECTRA = {300: (1.0, 300.0, 512), 650: (1.0, 650.0, 512), 2100: (1.0, 2300.0, 1024)}
@@ -59,6 +60,7 @@ class Truth:
         return accelerance_from_model(self.p.M, self.C, self.p.K, self.p.dofs,
                                       np.linspace(lo, hi, n), sensors, list(inputs))
 
+
 def paired_errors(truth: Truth, sensors, tm, freq_hz, zeta, shapes) -> tuple[float, float, int]:
     """Largest |% error| of frequency and damping over targets paired by MAC x frequency
     ratio (MAC >= 0.5), and misses."""
@@ -72,13 +74,16 @@ def paired_errors(truth: Truth, sensors, tm, freq_hz, zeta, shapes) -> tuple[flo
     ez = [abs(zeta[p.test] - 0.02) / 0.02 for p in pairs]
     return 100 * max(ef), 100 * max(ez), len(tm) - len(pairs)
 
+
 def fmt(e: float, z: float | None = None, miss: int = 0) -> str:
     s = f"{e:9.4g}" + (f" / {z:8.4g}" if z is not None else "")
     return s + (f" ({miss} missed)" if miss else "")
 
+
 #: The report's target modes (Table 6.1, asterisks), Hz: how many lie in each of its spectra.
 REPORT_TARGETS_HZ = [1.1564, 6.0642, 10.783, 18.127, 109.49, 127.14, 137.82, 156.87, 297.66,
                      304.47, 606.45, 631.08, 1190.4, 1193.3, 2029.1, 2031.2]
+
 
 _WORKER_TRUTH: Truth | None = None
 

@@ -16,6 +16,7 @@ from .bands import overlapping_bands, process_bands
 from .errors import IdentificationError
 from .frf import FRFData, accelerance_under_test_loads
 from .identify import SSIDResult, _roughness_weights, identify_mck
+from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from .modal import modal_phase_collinearity, physical_checks, real_modes
 from .noise import frf_noise_weights
 
@@ -74,6 +75,8 @@ def identify_mck_modal(
     band_width_hz: float | None = None,
     scale: str = "BP3",
     solver: str = "ml",
+    prefer_shapes: np.ndarray | None = None,
+    prefer_freq_hz: np.ndarray | None = None,
 ) -> SSIDResult:
     """Reduced-order M, C, K assembled from band-processed modes (beyond the report).
 
@@ -85,8 +88,10 @@ def identify_mck_modal(
     default) and assembles M, C, K as real normal modes
     (:func:`ssid.band_scaling.normal_mode_mck`): physical whenever every kept modal mass is
     positive, with eig(K, M) the kept roots' |lambda|^2 exactly. Which n modes it holds is
-    the data's choice (their contribution to the measured FRFs), not an analyst's list of
-    target modes; the modes it leaves out are simply absent from the model.
+    the data's choice (their contribution to the measured FRFs), unless an analyst lists
+    target modes (``prefer_shapes``, e.g. an FE model's at the sensors): roots paired with
+    them (MAC x frequency ratio, MAC >= 0.8) are kept first, as the report picked its
+    band-processing roots by hand. The modes it leaves out are simply absent from the model.
 
     Parameters
     ----------
@@ -98,6 +103,9 @@ def identify_mck_modal(
     scale : {"BP1", "BP2", "BP3"}
         Scale-factor estimate (section 5.2.2).
     solver : step-1 solver in each band (as for :func:`identify_mck`).
+    prefer_shapes : (n, k) array, optional
+        Target mode shapes at ``frf.outputs`` (real or complex), with ``prefer_freq_hz``
+        (k,) their frequencies, Hz.
 
     Returns
     -------
@@ -120,7 +128,15 @@ def identify_mck_modal(
     res = process_bands(frf, overlapping_bands(float(f[0]), float(f[-1]), width, 0.5),
                         solver=solver)
     n = frf.n_out
-    kept = strongest_roots(frf, res, n)
+    prefer = None
+    if prefer_shapes is not None and res.selected:
+        if prefer_freq_hz is None or np.shape(prefer_shapes) != (n, len(prefer_freq_hz)):
+            raise ValueError("prefer_shapes must be (n_outputs, k) with prefer_freq_hz (k,)")
+        roots = np.column_stack([r.theta[:n] for r in res.selected])
+        pairs = pair_modes_by_mac_and_frequency(modal_assurance(roots, prefer_shapes),
+                                                res.freq_hz, prefer_freq_hz, 0.8)
+        prefer = [p.test for p in pairs]
+    kept = strongest_roots(frf, res, n, prefer=prefer)
     if len(kept.selected) < n:
         raise IdentificationError(
             f"band processing found {len(kept.selected)} modes with independent shapes, "

@@ -12,7 +12,7 @@ from test_identify import _four_dof_with_unmeasured_modes, true_frequencies_hz
 
 from ssid.band_select import identify_mck_band_select, identify_mck_modal
 from ssid.errors import IdentificationError
-from ssid.frf import accelerance_from_model
+from ssid.frf import FRFData, accelerance_from_model
 from ssid.models import example_system
 from ssid.models.payload import modal_damping
 from ssid.noise import report_noise_frf
@@ -84,3 +84,26 @@ def test_modal_model_holds_true_modes_when_the_band_holds_more_modes_than_dofs(s
     sel = identify_mck_band_select(frf, candidates=cands)
     assert (float(frf.freq_hz[-1]), "bands") in cands
     assert np.linalg.eigvalsh(sel.M).min() > 0
+
+
+def test_modal_model_keeps_the_analysts_target_modes_first():
+    """Five modes at three sensors (a modal sum: real shapes, 2 % damping), the two upper
+    ones the strongest (modal masses 10 times smaller). Left to the data, a 3-DOF modal model
+    holds those two; given the three lower modes' shapes (an FE model's targets, with
+    frequencies 2 % off as an FE model's would be), it holds those three, to 0.1 % (the band
+    roots' bias from modes outside each band, as above)."""
+    rng = np.random.default_rng(7)
+    f_r = np.array([50.0, 120.0, 300.0, 500.0, 800.0])
+    m_r = np.array([1.0, 1.0, 1.0, 0.1, 0.1])
+    phi = rng.standard_normal((3, 5))
+    f = np.linspace(10.0, 1000.0, 512)
+    w, wr = 2 * np.pi * f, 2 * np.pi * f_r
+    h = -(w**2)[:, None] / ((wr**2)[None] - (w**2)[:, None] + 2j * 0.02 * wr[None] * w[:, None])
+    H = np.einsum("kr,ir,jr->kij", h / m_r, phi, phi[[0, 2]])
+    dofs = ["1+Z", "2+Z", "3+Z"]
+    frf = FRFData(freq_hz=f, H=H, outputs=dofs, inputs=[dofs[0], dofs[2]])
+    auto = identify_mck_modal(frf)
+    assert np.sum(np.min(np.abs(auto.natural_freq_hz[:, None] / f_r[3:] - 1), axis=1) < 1e-3) == 2
+    chosen = identify_mck_modal(frf, prefer_shapes=phi[:, :3], prefer_freq_hz=f_r[:3] * 1.02)
+    np.testing.assert_allclose(chosen.natural_freq_hz, f_r[:3], rtol=1e-3)
+    assert np.linalg.eigvalsh(chosen.M).min() > 0

@@ -17,7 +17,7 @@ from .errors import IdentificationError
 from .frf import FRFData, accelerance_under_test_loads
 from .identify import SSIDResult, _roughness_weights, identify_mck
 from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
-from .modal import modal_phase_collinearity, physical_checks, real_modes
+from .modal import modal_phase_collinearity, physical_checks, real_modes, unit_max_shapes
 from .noise import frf_noise_weights
 
 __all__ = ["band_ladder", "identify_mck_band_select", "identify_mck_modal",
@@ -144,8 +144,7 @@ def identify_mck_modal(
     _, mck = scale_selected_roots(frf, kept, scale, assembly="normal")
     M, C, K = mck
     lam = np.array([r.lam for r in kept.selected])
-    shapes = np.column_stack([r.theta[:n] for r in kept.selected])
-    shapes = shapes / shapes[np.argmax(np.abs(shapes), axis=0), np.arange(n)]
+    shapes = unit_max_shapes(np.column_stack([r.theta[:n] for r in kept.selected]))
     try:
         wu, phi = real_modes(M, K)
     except np.linalg.LinAlgError as exc:

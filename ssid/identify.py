@@ -22,6 +22,7 @@ from .modal import (
     physical_checks,
     real_modes,
     root_frequency_damping,
+    unit_max_shapes,
 )
 from .noise import fit_additive_proportional, frf_noise_weights
 from .step1 import (
@@ -369,10 +370,7 @@ def identify_mck(
 
     m = modes.n_pairs
     wn, zeta = root_frequency_damping(modes.lam[:m])
-    shapes = modes.theta_x[:, :m].copy()
-    if m:
-        pivot = shapes[np.argmax(np.abs(shapes), axis=0), np.arange(m)]
-        shapes = shapes / pivot
+    shapes = unit_max_shapes(modes.theta_x[:, :m])
     mpc = modal_phase_collinearity(shapes)
     real_roots = modes.lam[2 * m :].real
     if real_roots.size:

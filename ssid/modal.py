@@ -17,6 +17,7 @@ __all__ = [
     "modal_damping_matrix",
     "physical_checks",
     "complex_modes",
+    "unit_max_shapes",
 ]
 
 
@@ -29,6 +30,15 @@ def root_frequency_damping(lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     wn = np.abs(lam)
     zeta = -lam.real / np.where(wn > 0, wn, 1.0)
     return wn, zeta
+
+
+def unit_max_shapes(phi: np.ndarray) -> np.ndarray:
+    """Mode shapes (n, m), real or complex, each divided by its largest-magnitude entry (which
+    becomes 1): the normalisation of identified shapes in results and files."""
+    phi = np.asarray(phi)
+    if phi.shape[1] == 0:
+        return phi.copy()
+    return phi / phi[np.argmax(np.abs(phi), axis=0), np.arange(phi.shape[1])]
 
 
 def modal_phase_collinearity(phi: np.ndarray) -> np.ndarray:

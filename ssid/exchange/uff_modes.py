@@ -95,7 +95,7 @@ def modes_from_model(M: np.ndarray, C: np.ndarray | None, K: np.ndarray,
 
     Complex shapes are scaled so that their largest entry is 1 (as an SSIDResult's).
     """
-    from ssid.modal import complex_modes, real_modes, root_frequency_damping
+    from ssid.modal import complex_modes, real_modes, root_frequency_damping, unit_max_shapes
 
     try:
         if C is None:
@@ -105,8 +105,7 @@ def modes_from_model(M: np.ndarray, C: np.ndarray | None, K: np.ndarray,
     except np.linalg.LinAlgError as exc:
         raise InputError(f"model: cannot compute its modes ({exc})") from None
     wn, zeta = root_frequency_damping(lam)
-    top = phi[np.argmax(np.abs(phi), axis=0), np.arange(phi.shape[1])]
-    return UFFModes(wn / (2 * np.pi), zeta, phi / top, list(dofs))
+    return UFFModes(wn / (2 * np.pi), zeta, unit_max_shapes(phi), list(dofs))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -40,6 +40,7 @@ __all__ = [
     "predict_accelerance",
     "reaction_transfer",
     "output_error_cost",
+    "errors_in_variables_cost",
 ]
 
 
@@ -505,3 +506,18 @@ def refine_output_error(
 def output_error_cost(d: Step1Data, est: Step1Estimate) -> float:
     """Weighted output error ``sum w^2 |H - H_model|^2`` of a step-1 estimate."""
     return _output_cost(d, predict_accelerance(d, est))
+
+
+def errors_in_variables_cost(d: Step1Data, est: Step1Estimate) -> float:
+    """``sum_kj e^H S_kj^-1 e`` of a step-1 estimate: the cost whose fixed point
+    :func:`refine_sanathanan_koerner` seeks, with noisy reactions among the regressors.
+
+    When ``d``'s weights are the noise's ``1/sigma`` (circular Gaussian), its expected value at
+    the true model is the number of complex equations (valid lines x outputs x inputs), so
+    an estimate whose cost is many times that of the true model is not the data's minimum.
+    The weights :func:`ssid.identify.identify_step1` estimates (one level per FRF from its
+    roughness) are that only approximately under noise proportional to the FRF, as the
+    report's is. Without reactions, and with no value blanked, it equals the weighted output
+    error :func:`output_error_cost`.
+    """
+    return _equation_cost(d, est)

@@ -320,28 +320,32 @@ def reactions(truth: Truth, seeds: list[int]) -> None:
 
 
 REACTION_NOTES = """- what we achieve where the report had no solution: noise-free, the substructure exactly.
-  With the report's noise on accelerances, forces and reactions, the default (the best of LS,
-  TLS and scaled TLS by output error, then SK with the equation-error covariance, which
-  includes the reaction noise) finds the in-band modes above 10 Hz to 2-13 % (rows above).
-  Two things limit it, measured for diagnosis on seed 1 (errors in this note: the largest over
-  the in-band modes above 10 Hz, each against the nearest identified frequency; default 5.7 %):
-  - the search: where SK stops, the errors-in-variables cost is up to 150 times its value at
-    the true substructure (the costs above; seed 2, 1.9 times, is the seed with 2.1 %);
-  - the noise weights: descending that cost from the true substructure (Gauss-Newton with the
-    cost's exact gradient, 40-60 steps) ends near 3.5 % with our weights (one noise level per
-    FRF, from its roughness) and near 0.65 % with each value's own noise variance (known here
-    from 60 other noise draws). The report's noise is partly proportional to the FRF (phase
-    and force noise), which one level per FRF does not describe; the FRF file holds no
-    variance or coherence for the reaction channels to say so.
+  With the report's noise on accelerances, forces and reactions, the default finds every
+  in-band mode above 10 Hz, to 2.1-3.8 % (rows above). Its step 1: SK with the equation-error
+  covariance (reaction noise included) from the best of LS, TLS and scaled TLS by output
+  error; where that stops above twice the number of equations (the cost's expected value at
+  the true model), SK again from the other starts and from LS on the columns whose every
+  accelerance's power is 4 times its noise or more, the lowest cost kept. The lines below the
+  noise (low frequencies, where the regressor h / w^2 is noise amplified by 1/w^2) bias the
+  other starts most; from the best one by output error SK stopped at 130-150 times the true
+  model's cost on seeds 1 and 3 (5.7 % with a mode lost, 12.7 %), from the high-SNR start at
+  1.6 times (3.6 %, 3.8 %). Seed 2 stops at 1.9 times from its first start and keeps it.
+- what limits it, measured for diagnosis on seed 1 (errors in this note: the largest over the
+  in-band modes above 10 Hz, each against the nearest identified frequency):
+  - the noise weights: descending the cost from the true substructure (Gauss-Newton with the
+    cost's exact gradient, 40-60 steps, not in the product) ends near 3.5 % with our weights
+    (one noise level per FRF, from its roughness) and near 0.65 % with each value's own noise
+    variance (known here from 60 other noise draws). The report's noise is partly
+    proportional to the FRF (phase and force noise), which one level per FRF does not
+    describe, and the FRF file holds no variance or coherence for the reaction channels;
+  - the search still ends at 1.5-1.9 times the true model's cost, not in its minimum: with
+    the true variances, SK and Gauss-Newton from where ours ends reach 0.7 % (seed 1), 0.9 %
+    (seed 2), 2.7 % (seed 3).
 - tried and not adopted (seed 1 unless stated):
-  - on seeds 1-3, each of the LS, TLS and scaled TLS starts refined with the reactions taken as exact (SK,
-    then output error), then by SK with the full covariance, the lowest cost kept: seed 1
-    1.5 %; seed 3 21 % against the default's 9.7 %, at an eighth of its cost (among minima
-    this far from the true one a lower cost is not a better model);
-  - Gauss-Newton on the cost from our estimate: seed 1, cost 2.6e6 to 3.2e5 in 100 steps, 5.6 %;
-  - LS on the lines where every accelerance's power is 4 times its noise variance or more,
-    then SK: cost 2.6e4 (1.5 times the true model's), 5.2 %; with the true variances, and
-    Gauss-Newton, 1.4 %;
+  - on seeds 1-3, each of the LS, TLS and scaled TLS starts refined with the reactions taken
+    as exact (SK, then output error), then by SK with the full covariance, the lowest cost
+    kept: seed 1 1.5 %; seed 3 21 % against 9.7 % then, at an eighth of its cost;
+  - Gauss-Newton on the cost from the old estimate: cost 2.6e6 to 3.2e5 in 100 steps, 5.6 %;
   - bias-compensated LS (the regressors' noise covariance taken out of the normal matrix,
     with the true variances): the normal matrix comes out indefinite;
   - an output-error refinement with the reaction noise in its weights (an earlier stop): it

@@ -1,0 +1,58 @@
+"""Noisy interface reactions (the report's open problem, section 6.6): the step-1 search.
+
+The case: the payload's 16-DOF Guyan (Z) substructure with Rayleigh damping (2 % at 10 and
+1000 Hz), bolted at 4+Z, 8+Z, 18+Z to a flexible stand (``ssid.models.frf_on_test_stand``),
+shakers at 11+Z and 16+Z, 512 lines 1-1000 Hz, the report's noise model (2 % magnitude, 2
+degree phase, 40 averages, on accelerances, forces and reactions), seeds 1-4. The eight
+substructure modes between 10 and 1000 Hz are checked; the three suspension modes below 10 Hz
+lie under the noise floor (not determined by these data, docs/replication.md section 6).
+
+Before the high-SNR start, SK from the start the output error liked best stopped far
+above the noise's expected cost on every seed (90-1500 times): 5-11 % worst errors, four
+modes lost on seed 1.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg as sla
+
+from ssid.correlate import modal_assurance, pair_modes_by_mac
+from ssid.identify import EIV_COST_FACTOR, identify_mck
+from ssid.models import frf_on_test_stand
+from ssid.models.payload import Z_DOFS, payload_simulator, rayleigh_damping
+from ssid.noise import report_noise_frf
+from ssid.tam import guyan_reduce
+
+
+@pytest.fixture(scope="module")
+def stand_case():
+    p = payload_simulator()
+    sub = guyan_reduce(p.M, p.K, p.index(Z_DOFS))
+    C = rayleigh_damping(sub.M, sub.K, 10.0, 1000.0, 0.02)
+    frf = frf_on_test_stand(sub.M, C, sub.K, list(Z_DOFS), ["11+Z", "16+Z"],
+                            ["4+Z", "8+Z", "18+Z"], np.linspace(1.0, 1000.0, 512))
+    lam, phi = sla.eigh(sub.K, sub.M)
+    f_hz = np.sqrt(lam) / (2 * np.pi)
+    mid = np.flatnonzero((f_hz > 10.0) & (f_hz < 1000.0))
+    return frf, f_hz[mid], phi[:, mid]
+
+
+def test_noisy_reactions_search_ends_at_the_noise_floor(stand_case):
+    """Every seed: the search ends within EIV_COST_FACTOR of the number of equations (the
+    cost's expected value at the true model), and no in-band mode is lost (MAC >= 0.5). The
+    worst-mode error is a noisy statistic (seed 3 puts one mode of the 313/322 Hz close pair
+    at 216 Hz, 31 %, at a cost no higher than the others'), so its median over the seeds is
+    what is asserted: 1.8 % measured, 7-11 % before."""
+    frf, f_true, phi = stand_case
+    n_eq = frf.n_freq * frf.n_out * frf.n_in
+    worst = []
+    for seed in (1, 2, 3, 4):
+        r = identify_mck(report_noise_frf(frf, seed=seed))
+        assert r.info["sk"]["cost"] < EIV_COST_FACTOR * n_eq
+        pairs = pair_modes_by_mac(modal_assurance(np.asarray(r.mode_shapes), phi), 0.5)
+        assert len(pairs) == f_true.size
+        worst.append(max(abs(r.natural_freq_hz[p.test] - f_true[p.analysis]) / f_true[p.analysis]
+                         for p in pairs))
+    assert np.median(worst) < 0.03

@@ -287,7 +287,6 @@ def test_band_select_noisy_never_worse_than_the_default(seed):
         assert err(default) > 0.5 and err(r) < 0.01
 
 
-
 def test_errors_in_variables_cost_is_chi_square_at_the_truth():
     """The cost SK seeks with noisy reactions, at the true substructure: zero on noise-free
     data, and with the noise's own weights ``1/sigma`` its expected value, the number of

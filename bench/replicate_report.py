@@ -125,10 +125,10 @@ seed 1 keeps it; with two BLAS threads seeds 2 and 3 lose it (MPC 0.77 and 0.80;
 `process_bands` on the same data). Verdicts this close to a threshold follow rounding: in one
 run of seed 3 after seeds 1 and 2 in the same process, one thread, a nearly undamped root at
 318.64 Hz beside the 318.57 Hz mode was repeated and the mode was selected twice; run alone,
-the same seed rejects that root (MPC 0.76 in one band, not repeated in the other). Letting a root be confirmed by a repeat that
-failed criterion 3 only (the pole is there, the shape is taken from the band that passed)
-was tried and did not bring the 1.29 Hz mode back: in the lost cases neither estimate
-passes. The state-space assembly (Eq. 3.26
+the same seed rejects that root (MPC 0.76 in one band, not repeated in the other). Letting a
+root be confirmed by a repeat that failed criterion 3 only (the pole is there, the shape is
+taken from the band that passed) was tried and did not bring the 1.29 Hz mode back: in the
+lost cases neither estimate passes. The state-space assembly (Eq. 3.26
 through the full inverse) stays indefinite on noisy data (see above).
 """
 
@@ -321,26 +321,27 @@ def reactions(truth: Truth, seeds: list[int]) -> None:
 
 REACTION_NOTES = """- what we achieve where the report had no solution: noise-free, the substructure exactly.
   With the report's noise on accelerances, forces and reactions, the default finds every
-  in-band mode above 10 Hz, to 2.1-3.8 % (rows above). Its step 1: SK with the equation-error
-  covariance (reaction noise included) from the best of LS, TLS and scaled TLS by output
-  error; where that stops above twice the number of equations (the cost's expected value at
-  the true model), SK again from the other starts and from LS on the columns whose every
-  accelerance's power is 4 times its noise or more, the lowest cost kept. The lines below the
-  noise (low frequencies, where the regressor h / w^2 is noise amplified by 1/w^2) bias the
-  other starts most; from the best one by output error SK stopped at 130-150 times the true
-  model's cost on seeds 1 and 3 (5.7 % with a mode lost, 12.7 %), from the high-SNR start at
-  1.6 times (3.6 %, 3.8 %). Seed 2 stops at 1.9 times from its first start and keeps it.
-- what limits it, measured for diagnosis on seed 1 (errors in this note: the largest over the
-  in-band modes above 10 Hz, each against the nearest identified frequency):
-  - the noise weights: descending the cost from the true substructure (Gauss-Newton with the
-    cost's exact gradient, 40-60 steps, not in the product) ends near 3.5 % with our weights
-    (one noise level per FRF, from its roughness) and near 0.65 % with each value's own noise
-    variance (known here from 60 other noise draws). The report's noise is partly
-    proportional to the FRF (phase and force noise), which one level per FRF does not
-    describe, and the FRF file holds no variance or coherence for the reaction channels;
-  - the search still ends at 1.5-1.9 times the true model's cost, not in its minimum: with
-    the true variances, SK and Gauss-Newton from where ours ends reach 0.7 % (seed 1), 0.9 %
-    (seed 2), 2.7 % (seed 3).
+  in-band mode above 10 Hz, to 0.9-2.1 % (rows above). Its step 1 (`ssid/step1_eiv.py`): SK
+  with the equation-error covariance (reaction noise included) from the best of LS, TLS and
+  scaled TLS by output error; where that stops above twice the number of equations (the
+  cost's expected value at the true model), SK again from the other starts and from LS on the
+  columns whose every accelerance's power is 4 times its noise or more, the lowest cost kept;
+  then, twice, noise levels flat plus proportional per FRF re-estimated for accelerances and
+  reactions at the fitted model (an EM step: each noise's conditional mean and variance given
+  the equation error), and SK again. The lines below the noise (low frequencies, where the
+  regressor h / w^2 is noise amplified by 1/w^2) bias the other starts most: from the best
+  one by output error SK stopped at 130-150 times the true model's cost on seeds 1 and 3
+  (5.7 % with a mode lost, 12.7 %), from the high-SNR start at 1.6 times (3.6 %, 3.8 %; seed
+  2 stops at 1.9 times from its first start, 2.1 %). The re-estimated levels then give
+  1.4 / 0.9 / 2.1 %; the costs printed are with those levels.
+- what limits it (diagnosis on seed 1; errors in this note: the largest over the in-band modes
+  above 10 Hz, each against the nearest identified frequency):
+  - the search ends at 1.3-1.6 times the true model's cost, not in its minimum;
+  - the noise levels: with one level per FRF (the roughness estimate, before the re-estimate),
+    descending the cost from the true substructure (Gauss-Newton with the cost's exact
+    gradient, not in the product) ended near 3.5 %, and with each value's own noise variance
+    (known here from 60 other noise draws) near 0.65 %. The FRF file holds no variance or
+    coherence for the reaction channels, so the levels come from the data.
 - tried and not adopted (seed 1 unless stated):
   - on seeds 1-3, each of the LS, TLS and scaled TLS starts refined with the reactions taken
     as exact (SK, then output error), then by SK with the full covariance, the lowest cost

@@ -19,7 +19,8 @@ import pytest
 import scipy.linalg as sla
 
 from ssid.correlate import modal_assurance, pair_modes_by_mac
-from ssid.identify import EIV_COST_FACTOR, identify_mck
+from ssid.identify import identify_mck
+from ssid.step1_eiv import EIV_COST_FACTOR
 from ssid.models import frf_on_test_stand
 from ssid.models.payload import Z_DOFS, payload_simulator, rayleigh_damping
 from ssid.noise import report_noise_frf
@@ -44,8 +45,8 @@ def test_noisy_reactions_search_ends_at_the_noise_floor(stand_case):
     cost's expected value at the true model), and no in-band mode is lost (MAC >= 0.5). The
     worst-mode error is a noisy statistic (seed 3 puts one mode of the 313/322 Hz close pair
     at 216 Hz, 31 %, at 1.5 times the number of equations, as the other seeds), so its median
-    over the seeds is what is asserted: 1.8 % measured; 7 % before, with four modes lost on
-    seed 1."""
+    over the seeds is what is asserted: 2.2 % measured (2.3, 2.1, 31, 1.9 %); 7 % before the
+    high-SNR start, with four modes lost on seed 1."""
     frf, f_true, phi = stand_case
     n_eq = frf.n_freq * frf.n_out * frf.n_in
     worst = []

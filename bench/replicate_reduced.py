@@ -64,7 +64,7 @@ def reduced_noise_free(truth: Truth) -> None:
           "(`equivalent_spectrum`).")
     jobs = [(n, label, key, spec) for n in ("10", "12", "16")
             for label, key, spec in spectra_for(truth, int(n))]
-    rows = run_parallel(reduced_noise_free_row, jobs)
+    rows = run_parallel(reduced_noise_free_row, jobs, [int(n) * spec[1] for n, _, _, spec in jobs])
     for n in ("10", "12", "16"):
         sensors, tm = truth.sensors(int(n))
         print(f"\n{n}-DOF sensors (EfI): {', '.join(sensors)}; targets (Hz): "
@@ -148,7 +148,7 @@ def reduced_noisy(truth: Truth, seeds: list[int]) -> None:
             cases.append((n, key, label, spec))
     jobs = [(n, spec, seed, truth.modal_possible.get((int(n), spec[1]), True))
             for n, _, _, spec in cases for seed in seeds]
-    results = iter(run_parallel(reduced_noisy_seed, jobs))
+    results = iter(run_parallel(reduced_noisy_seed, jobs, [int(n) * spec[1] for n, spec, _, _ in jobs]))
     for n, key, label, spec in cases:
         per_seed = [next(results) for _ in seeds]
         tm = truth.sensors(int(n))[1]

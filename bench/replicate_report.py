@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from ssid.bands import overlapping_bands, process_bands, scale_selected_roots, strongest_roots  # noqa: E402
 from replicate_reduced import reduced_noise_free, reduced_noisy  # noqa: E402
-from report_truth import REPORT, SPECTRA, Truth, fmt  # noqa: E402
+from report_truth import REPORT, SPECTRA, Truth, fmt, run_parallel  # noqa: E402
 from ssid.correlate import modal_assurance, pair_modes_by_mac  # noqa: E402
 from ssid.frf import FRFData, accelerance_from_model, selection_matrix  # noqa: E402
 from ssid.identify import identify_mck, identify_step1  # noqa: E402
@@ -286,37 +286,48 @@ def reactions(truth: Truth, seeds: list[int]) -> None:
           "at 11+Z and 16+Z; reactions at 4+Z, 8+Z, 18+Z; 512 lines 1-1000 Hz; substructure "
           f"modes in the band: {inband.size} of 16 ({fs[inband[0]]:.3g}-{fs[inband[-1]]:.4g} Hz)")
     print(f"- report: {REPORT['reactions']}")
-    for label, data in [("noise-free", frf)] + [(f"noisy seed {s}", report_noise_frf(frf, seed=s)) for s in seeds]:
-        r = identify_mck(data)
-        em = max(np.max(np.abs(A - B)) / np.max(np.abs(B)) for A, B in ((r.M, Ms), (r.K, Ks)))
-        ec = np.max(np.abs(r.C - Cs)) / np.max(np.abs(Cs))
-        fe = r.undamped_freq_hz
-        ef = np.max(np.abs(fe - fs) / fs) * 100 if np.all(np.isfinite(fe)) else np.inf
-        pairs = {pp.analysis: pp.test for pp in pair_modes_by_mac(
-            modal_assurance(np.asarray(r.mode_shapes), phi_s[:, inband]), 0.5)}
-
-        def band_err(sel):
-            e = [abs(r.natural_freq_hz[pairs[i]] - fs[m]) / fs[m] * 100
-                 for i, m in enumerate(inband) if m in sel and i in pairs]
-            miss = sum(1 for i, m in enumerate(inband) if m in sel and i not in pairs)
-            return (max(e) if e else np.inf), miss
-
-        e_mid, m_mid = band_err(mid)
-        e_low, m_low = band_err(low)
-        print(f"- ours, {label}: in-band modes {fs[mid[0]]:.3g}-{fs[mid[-1]]:.4g} Hz max frequency "
-              f"error {fmt(e_mid, None, m_mid).strip()} %; suspension modes below 10 Hz "
-              f"{fmt(e_low, None, m_low).strip()} %; M, K max entry error {100 * em:.3g} % of max "
-              f"entry (C {100 * ec:.3g} %); all 16 undamped frequencies max error {ef:.3g} %"
-              + ("" if not r.warnings else f"; warnings: {len(r.warnings)}"))
-        if label != "noise-free":
-            # The same cost at the true substructure: is the minimum the search missed there?
-            est, d, _ = identify_step1(data)
-            Mi = np.linalg.inv(Ms)
-            true_est = Step1Estimate(Mi @ Cs, Mi @ Ks, Mi[:, d.in_idx], Mi[:, d.r_idx])
-            print(f"  errors-in-variables cost (step 1, {d.omega.size * d.n * d.n_in} complex "
-                  f"equations): true substructure {errors_in_variables_cost(d, true_est):.3g}, "
-                  f"our estimate {errors_in_variables_cost(d, est):.3g}")
+    sub_model = (Ms, Cs, Ks, fs, phi_s, inband, low, mid)
+    jobs = [("noise-free", frf, sub_model)] + [
+        (f"noisy seed {s}", report_noise_frf(frf, seed=s), sub_model) for s in seeds]
+    for lines in run_parallel(reaction_row, jobs):
+        print(lines)
     print(REACTION_NOTES)
+
+
+def reaction_row(label: str, data: FRFData, sub_model: tuple) -> str:
+    """Section 6's lines for one record (worker process): the identified substructure against
+    the true one, and for noisy data the errors-in-variables cost of both."""
+    Ms, Cs, Ks, fs, phi_s, inband, low, mid = sub_model
+    r = identify_mck(data)
+    em = max(np.max(np.abs(A - B)) / np.max(np.abs(B)) for A, B in ((r.M, Ms), (r.K, Ks)))
+    ec = np.max(np.abs(r.C - Cs)) / np.max(np.abs(Cs))
+    fe = r.undamped_freq_hz
+    ef = np.max(np.abs(fe - fs) / fs) * 100 if np.all(np.isfinite(fe)) else np.inf
+    pairs = {pp.analysis: pp.test for pp in pair_modes_by_mac(
+        modal_assurance(np.asarray(r.mode_shapes), phi_s[:, inband]), 0.5)}
+
+    def band_err(sel):
+        e = [abs(r.natural_freq_hz[pairs[i]] - fs[m]) / fs[m] * 100
+             for i, m in enumerate(inband) if m in sel and i in pairs]
+        miss = sum(1 for i, m in enumerate(inband) if m in sel and i not in pairs)
+        return (max(e) if e else np.inf), miss
+
+    e_mid, m_mid = band_err(mid)
+    e_low, m_low = band_err(low)
+    out = (f"- ours, {label}: in-band modes {fs[mid[0]]:.3g}-{fs[mid[-1]]:.4g} Hz max frequency "
+           f"error {fmt(e_mid, None, m_mid).strip()} %; suspension modes below 10 Hz "
+           f"{fmt(e_low, None, m_low).strip()} %; M, K max entry error {100 * em:.3g} % of max "
+           f"entry (C {100 * ec:.3g} %); all 16 undamped frequencies max error {ef:.3g} %"
+           + ("" if not r.warnings else f"; warnings: {len(r.warnings)}"))
+    if label != "noise-free":
+        # The same cost at the true substructure: is the minimum the search missed there?
+        est, d, _ = identify_step1(data)
+        Mi = np.linalg.inv(Ms)
+        true_est = Step1Estimate(Mi @ Cs, Mi @ Ks, Mi[:, d.in_idx], Mi[:, d.r_idx])
+        out += (f"\n  errors-in-variables cost (step 1, {d.omega.size * d.n * d.n_in} complex "
+                f"equations): true substructure {errors_in_variables_cost(d, true_est):.3g}, "
+                f"our estimate {errors_in_variables_cost(d, est):.3g}")
+    return out
 
 
 REACTION_NOTES = """- what we achieve where the report had no solution: noise-free, the substructure exactly.

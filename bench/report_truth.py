@@ -99,11 +99,13 @@ def worker_truth() -> Truth:
     return _WORKER_TRUTH
 
 
-def run_parallel(fn, jobs: list[tuple]) -> list:
+def run_parallel(fn, jobs: list[tuple], size: list[float] | None = None) -> list:
     """``[fn(*job) for job in jobs]`` on two processes (the machine's two cores), in order.
 
     The cases are independent and mostly small-matrix work that one BLAS thread serves
     as well as two, so each worker gets one thread: two cases at a time instead of one.
+    ``size`` (one per job, e.g. f_max x DOFs) starts the largest first, so that no long case
+    is left running alone at the end; the results keep the order of ``jobs``.
     """
     import multiprocessing
     import os
@@ -112,8 +114,10 @@ def run_parallel(fn, jobs: list[tuple]) -> list:
     saved = {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
     os.environ.update({k: "1" for k in saved})
     try:
+        order = range(len(jobs)) if size is None else sorted(range(len(jobs)), key=lambda i: -size[i])
         with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as ex:
-            return list(ex.map(fn, *zip(*jobs)))
+            futures = {i: ex.submit(fn, *jobs[i]) for i in order}
+            return [futures[i].result() for i in range(len(jobs))]
     finally:
         for k, v in saved.items():
             if v is None:

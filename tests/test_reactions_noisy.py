@@ -58,3 +58,43 @@ def test_noisy_reactions_search_ends_at_the_noise_floor(stand_case):
         worst.append(max(abs(r.natural_freq_hz[p.test] - f_true[p.analysis]) / f_true[p.analysis]
                          for p in pairs))
     assert np.median(worst) < 0.03
+
+
+def test_reaction_noise_levels_recovered_at_the_true_model():
+    """``reaction_noise_weights`` separates accelerance and reaction noise from the equation
+    error. Noise model: circular complex Gaussian, sigma^2 = (0.3 % of the FRF's RMS)^2 +
+    (1 % of |H|)^2, on both (seed 11), 400 lines on an 8-DOF stand case. Starting from one flat
+    level per FRF (off by a factor 3.4 in the median), two rounds at the true model bring every
+    value's sigma within a median 3 % (measured); the bound is 10 %."""
+    from ssid.frf import FRFData
+    from ssid.models import example_system
+    from ssid.step1 import Step1Estimate, step1_data
+    from ssid.step1_eiv import reaction_noise_weights
+
+    M, C, K, dofs = example_system(8, seed=2)
+    frf = frf_on_test_stand(M, C, K, dofs, [dofs[2], dofs[5]], [dofs[0], dofs[7]],
+                            np.linspace(2, 500, 400))
+    Mi = np.linalg.inv(M)
+    truth = Step1Estimate(Mi @ C, Mi @ K, Mi[:, frf.input_index()], Mi[:, frf.reaction_index()])
+    rng = np.random.default_rng(11)
+
+    def noisy(X):
+        rms = np.sqrt(np.mean(np.abs(X) ** 2, axis=0, keepdims=True))
+        sigma = np.sqrt((0.003 * rms) ** 2 + (0.01 * np.abs(X)) ** 2)
+        dx = rng.standard_normal(X.shape) + 1j * rng.standard_normal(X.shape)
+        return X + sigma * dx / np.sqrt(2), sigma
+
+    H, s_h = noisy(frf.H)
+    Hr, s_r = noisy(frf.H_reaction)
+    data = FRFData(freq_hz=frf.freq_hz, H=H, outputs=frf.outputs, inputs=frf.inputs,
+                   H_reaction=Hr, reactions=frf.reactions)
+
+    def flat(s):
+        return np.broadcast_to(1.0 / np.sqrt(np.mean(s**2, axis=0, keepdims=True)), s.shape)
+
+    d = step1_data(data, flat(s_h), flat(s_r))
+    assert np.median(np.abs(np.log(d.weight * s_h))) > 1.0
+    for _ in range(2):
+        d.weight, d.weight_r = reaction_noise_weights(d, truth)
+    assert np.median(np.abs(np.log(d.weight * s_h))) < 0.1
+    assert np.median(np.abs(np.log(d.weight_r * s_r))) < 0.1

@@ -220,7 +220,12 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
             # 3.6/2.1/3.8 % -> 1.4/0.9/2.1 % (seeds 1-3), on another 16-DOF stand case
             # 2.0/0.9/31/1.6 % -> 2.3/2.1/31/1.9 %, on an 8-DOF one median 32 % -> 28 %.
             for _ in range(2):
-                d.weight, d.weight_r = reaction_noise_weights(d, est)
+                try:
+                    w, w_r = reaction_noise_weights(d, est)
+                except np.linalg.LinAlgError:  # a singular covariance: keep the levels
+                    info["reaction_levels"] = "not re-estimated (singular covariance)"
+                    break
+                d.weight, d.weight_r = w, w_r
                 est, info["sk_reweighted"] = refine_sanathanan_koerner(d, est, max_iter=40,
                                                                        rtol=1e-8)
         return est

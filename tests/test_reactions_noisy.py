@@ -19,11 +19,13 @@ import pytest
 import scipy.linalg as sla
 
 from ssid.correlate import modal_assurance, pair_modes_by_mac
+from ssid.frf import FRFData
 from ssid.identify import identify_mck
-from ssid.step1_eiv import EIV_COST_FACTOR
-from ssid.models import frf_on_test_stand
+from ssid.models import example_system, frf_on_test_stand
 from ssid.models.payload import Z_DOFS, payload_simulator, rayleigh_damping
 from ssid.noise import report_noise_frf
+from ssid.step1 import Step1Estimate, errors_in_variables_cost, step1_data
+from ssid.step1_eiv import EIV_COST_FACTOR, reaction_noise_weights
 from ssid.tam import guyan_reduce
 
 
@@ -60,27 +62,28 @@ def test_noisy_reactions_search_ends_at_the_noise_floor(stand_case):
     assert np.median(worst) < 0.03
 
 
-def test_reaction_noise_levels_recovered_at_the_true_model():
-    """``reaction_noise_weights`` separates accelerance and reaction noise from the equation
-    error. Noise model: circular complex Gaussian, sigma^2 = (0.3 % of the FRF's RMS)^2 +
-    (1 % of |H|)^2, on both (seed 11), 400 lines on an 8-DOF stand case. Starting from one flat
-    level per FRF (off by a factor 3.4 in the median), two rounds at the true model bring every
-    value's sigma within a median 3 % (measured); the bound is 10 %."""
-    from ssid.frf import FRFData
-    from ssid.models import example_system
-    from ssid.step1 import Step1Estimate, step1_data
-    from ssid.step1_eiv import reaction_noise_weights
 
+@pytest.fixture(scope="module")
+def stand8():
+    """An 8-DOF substructure on a flexible stand, 400 lines 2-500 Hz, and its true step-1
+    matrices (``M^-1 C, M^-1 K, M^-1 D_f, M^-1 D_r``)."""
     M, C, K, dofs = example_system(8, seed=2)
     frf = frf_on_test_stand(M, C, K, dofs, [dofs[2], dofs[5]], [dofs[0], dofs[7]],
                             np.linspace(2, 500, 400))
     Mi = np.linalg.inv(M)
     truth = Step1Estimate(Mi @ C, Mi @ K, Mi[:, frf.input_index()], Mi[:, frf.reaction_index()])
-    rng = np.random.default_rng(11)
+    return frf, truth
+
+
+def with_gaussian_noise(frf: FRFData, seed: int, flat: float, proportional: float):
+    """``frf`` with circular complex Gaussian noise on accelerances and reactions, ``sigma^2 =
+    (flat x the FRF's RMS)^2 + (proportional x |H|)^2``; returns (noisy FRFData, sigma_h,
+    sigma_r)."""
+    rng = np.random.default_rng(seed)
 
     def noisy(X):
         rms = np.sqrt(np.mean(np.abs(X) ** 2, axis=0, keepdims=True))
-        sigma = np.sqrt((0.003 * rms) ** 2 + (0.01 * np.abs(X)) ** 2)
+        sigma = np.sqrt((flat * rms) ** 2 + (proportional * np.abs(X)) ** 2)
         dx = rng.standard_normal(X.shape) + 1j * rng.standard_normal(X.shape)
         return X + sigma * dx / np.sqrt(2), sigma
 
@@ -88,6 +91,32 @@ def test_reaction_noise_levels_recovered_at_the_true_model():
     Hr, s_r = noisy(frf.H_reaction)
     data = FRFData(freq_hz=frf.freq_hz, H=H, outputs=frf.outputs, inputs=frf.inputs,
                    H_reaction=Hr, reactions=frf.reactions)
+    return data, s_h, s_r
+
+
+def test_errors_in_variables_cost_is_chi_square_at_the_truth(stand8):
+    """The cost SK seeks with noisy reactions, at the true substructure: zero on noise-free
+    data, and with the noise's own weights ``1/sigma`` its expected value, the number of
+    complex equations. Noise model: circular complex Gaussian, flat per FRF at 1 % of the
+    FRF's RMS, on accelerances and reactions alike (seed 5). With 400 lines x 8 outputs x 2
+    inputs = 6400 equations the cost is a Gamma(6400, 1) variable: mean 6400, std 80 (1.25 %),
+    so the band below is +-4 standard deviations."""
+    frf, truth = stand8
+    assert errors_in_variables_cost(step1_data(frf), truth) < 1e-20
+    data, s_h, s_r = with_gaussian_noise(frf, seed=5, flat=0.01, proportional=0.0)
+    d = step1_data(data, 1.0 / s_h, 1.0 / s_r)
+    n_eq = d.omega.size * d.n * d.n_in
+    assert abs(errors_in_variables_cost(d, truth) / n_eq - 1) < 0.05
+
+
+def test_reaction_noise_levels_recovered_at_the_true_model(stand8):
+    """``reaction_noise_weights`` separates accelerance and reaction noise from the equation
+    error. Noise model: circular complex Gaussian, sigma^2 = (0.3 % of the FRF's RMS)^2 +
+    (1 % of |H|)^2, on both (seed 11), 400 lines on an 8-DOF stand case. Starting from one flat
+    level per FRF (off by a factor 3.4 in the median), two rounds at the true model bring every
+    value's sigma within a median 3 % (measured); the bound is 10 %."""
+    frf, truth = stand8
+    data, s_h, s_r = with_gaussian_noise(frf, seed=11, flat=0.003, proportional=0.01)
 
     def flat(s):
         return np.broadcast_to(1.0 / np.sqrt(np.mean(s**2, axis=0, keepdims=True)), s.shape)

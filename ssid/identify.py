@@ -37,7 +37,7 @@ from .step1 import (
     refine_sanathanan_koerner,
     step1_data,
 )
-from .step1_eiv import reaction_noise_weights, refine_with_reactions
+from .step1_eiv import refine_with_reactions
 from .step2 import assemble_mck, modal_scale_factors, state_space_modes
 
 __all__ = ["SSIDResult", "identify_mck", "identify_step1", "SOLVERS"]
@@ -213,22 +213,7 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
         est, info["line_weighted"] = refine_line_weighted(d, starts[best])
         return est
     if d.n_r:
-        est = refine_with_reactions(d, starts, best, info)
-        if not know_noise:
-            # As without reactions, per-value (flat + proportional) levels only from a fitted
-            # model; two rounds: on the payload on its stand the worst in-band error went
-            # 3.6/2.1/3.8 % -> 1.4/0.9/2.1 % (seeds 1-3), on another 16-DOF stand case
-            # 2.0/0.9/31/1.6 % -> 2.3/2.1/31/1.9 %, on an 8-DOF one median 32 % -> 28 %.
-            for _ in range(2):
-                try:
-                    w, w_r = reaction_noise_weights(d, est)
-                except np.linalg.LinAlgError:  # a singular covariance: keep the levels
-                    info["reaction_levels"] = "not re-estimated (singular covariance)"
-                    break
-                d.weight, d.weight_r = w, w_r
-                est, info["sk_reweighted"] = refine_sanathanan_koerner(d, est, max_iter=40,
-                                                                       rtol=1e-8)
-        return est
+        return refine_with_reactions(d, starts, best, info, reestimate_levels=not know_noise)
     est, info["sk"] = refine_sanathanan_koerner(d, starts[best])
     est, info["refine"] = refine_output_error(d, est)
     if not know_noise:

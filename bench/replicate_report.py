@@ -30,6 +30,7 @@ import scipy.linalg as sla
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from ssid.band_scaling import root_shapes  # noqa: E402
 from ssid.bands import overlapping_bands, process_bands, scale_selected_roots, strongest_roots  # noqa: E402
 from replicate_reduced import reduced_noise_free, reduced_noisy  # noqa: E402
 from report_truth import REPORT, SPECTRA, Truth, fmt, run_parallel  # noqa: E402
@@ -171,7 +172,7 @@ def band_processing(truth: Truth, seed: int, width_hz: float) -> None:
         sel_f = res.freq_hz
         found = sum(np.min(np.abs(sel_f - truth.f[i])) / truth.f[i] < 0.01 for i in tm)
         e_sel = max(np.min(np.abs(sel_f - truth.f[i])) / truth.f[i] for i in tm) * 100
-        shapes = np.column_stack([r.theta[: len(sensors)] for r in res.selected])
+        shapes = root_shapes(res.selected, len(sensors))
         pairs = pair_modes_by_mac(modal_assurance(shapes, truth.phi[idx][:, tm]), 0.5)
         paired = [p.test for p in pairs]
         for how, prefer in (("auto", None), ("target", paired)):

@@ -34,9 +34,17 @@ __all__ = [
     "fit_scale_factors",
     "normal_mode_mck",
     "residual_runs",
+    "root_shapes",
     "scale_selected_roots",
     "strongest_roots",
 ]
+
+
+def root_shapes(roots: list[BandRoot], n: int | None = None) -> np.ndarray:
+    """The roots' state-space eigenvectors as columns, (2n, k); with ``n``, their
+    displacement partition (the mode shapes at the n outputs), (n, k)."""
+    theta = np.column_stack([r.theta for r in roots])
+    return theta if n is None else theta[:n]
 
 
 def strongest_roots(frf: FRFData, result: BandResult, n_keep: int, *,
@@ -70,7 +78,7 @@ def strongest_roots(frf: FRFData, result: BandResult, n_keep: int, *,
     if len(sel) <= n_keep and not prefer:
         return result
     u, _ = scale_selected_roots(frf, result, "BP3", assemble=False)
-    th = np.column_stack([r.theta for r in sel])[: frf.n_out]
+    th = root_shapes(sel, frf.n_out)
     drive = np.abs(th[frf.input_index()]).max(axis=0)
     wn = np.array([2 * np.pi * r.freq_hz for r in sel])
     zeta = np.array([max(r.zeta, 1e-6) for r in sel])
@@ -92,7 +100,7 @@ def strongest_roots(frf: FRFData, result: BandResult, n_keep: int, *,
 
 def _modes_of(roots: list[BandRoot]) -> StateSpaceModes:
     lam = np.array([r.lam for r in roots])
-    theta = np.column_stack([r.theta for r in roots])
+    theta = root_shapes(roots)
     return StateSpaceModes(lam=np.concatenate([lam, lam.conj()]),
                            theta=np.hstack([theta, theta.conj()]), n_pairs=len(roots))
 
@@ -396,7 +404,7 @@ def scale_selected_roots(
         # local: each root is fitted on the runs that hold its resonance only (see
         # fit_scale_factors); far runs otherwise set the suspension modes' masses.
         u = fit_scale_factors(d, np.array([r.lam for r in model]),
-                              np.column_stack([r.theta[:n] for r in model]),
+                              root_shapes(model, n),
                               residuals=residuals, local=True)[: len(sel)]
     elif method in ("BP1", "BP2"):
         u = np.empty(len(sel), dtype=complex)
@@ -414,13 +422,13 @@ def scale_selected_roots(
                 use_res = residual_runs(d.omega, one_run,
                                         [c.lam for c in companions if not c.rejected])[0]
             u[i] = fit_scale_factors(d, np.array([c.lam for c in companions]),
-                                     np.column_stack([c.theta[:n] for c in companions]),
+                                     root_shapes(companions, n),
                                      one_run, use_res)[0]
     else:
         raise ValueError(f"unknown scale-factor method {method!r}; use BP1, BP2 or BP3")
     if not assemble or len(sel) != n:
         return u, None
-    theta = np.column_stack([r.theta for r in sel])
+    theta = root_shapes(sel)
     sv = np.linalg.svd(theta[:n] / np.linalg.norm(theta[:n], axis=0), compute_uv=False)
     if sv[-1] < 1e-8 * sv[0]:
         raise IdentificationError(

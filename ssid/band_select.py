@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .band_scaling import scale_selected_roots, strongest_roots
+from .band_scaling import root_shapes, scale_selected_roots, strongest_roots
 from .bands import overlapping_bands, process_bands
 from .errors import IdentificationError
 from .frf import FRFData, accelerance_under_test_loads
@@ -132,7 +132,7 @@ def identify_mck_modal(
     if prefer_shapes is not None and res.selected:
         if prefer_freq_hz is None or np.shape(prefer_shapes) != (n, len(prefer_freq_hz)):
             raise ValueError("prefer_shapes must be (n_outputs, k) with prefer_freq_hz (k,)")
-        roots = np.column_stack([r.theta[:n] for r in res.selected])
+        roots = root_shapes(res.selected, n)
         pairs = pair_modes_by_mac_and_frequency(modal_assurance(roots, prefer_shapes),
                                                 res.freq_hz, prefer_freq_hz, 0.8)
         prefer = [p.test for p in pairs]
@@ -144,7 +144,7 @@ def identify_mck_modal(
     _, mck = scale_selected_roots(frf, kept, scale, assembly="normal")
     M, C, K = mck
     lam = np.array([r.lam for r in kept.selected])
-    shapes = unit_max_shapes(np.column_stack([r.theta[:n] for r in kept.selected]))
+    shapes = unit_max_shapes(root_shapes(kept.selected, n))
     try:
         wu, phi = real_modes(M, K)
     except np.linalg.LinAlgError as exc:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .band_scaling import root_shapes, scale_selected_roots, strongest_roots
-from .bands import overlapping_bands, process_bands
+from .bands import BandResult, overlapping_bands, process_bands
 from .errors import IdentificationError
 from .frf import FRFData, accelerance_under_test_loads
 from .identify import SSIDResult, _roughness_weights, identify_mck
@@ -69,6 +69,16 @@ def band_ladder(
     return out
 
 
+def default_band_width_hz(freq_hz: np.ndarray) -> float:
+    """Band width for band processing over a record's lines (Hz): 1/12 of its span, at least
+    24 lines (a band then holds one or two modes of a sparse spectrum, and enough lines per
+    unknown for step 1 at a few sensors)."""
+    f = np.asarray(freq_hz, dtype=float)
+    span = float(f[-1] - f[0])
+    df = span / max(f.size - 1, 1)
+    return max(span / 12.0, 24 * df)
+
+
 def identify_mck_modal(
     frf: FRFData,
     *,
@@ -82,27 +92,70 @@ def identify_mck_modal(
 
     An n-DOF model fitted to a band holding more than n modes (or whose n modes are spatially
     truncated) compromises between them; band processing (section 5.2) instead locates every
-    mode of the band in narrow overlapping bands, where each is well determined. This keeps
-    the n strongest of those modes with independent shapes at the sensors
-    (:func:`ssid.band_scaling.strongest_roots`), fits their scale factors (Eq. 3.23, BP3 by
-    default) and assembles M, C, K as real normal modes
-    (:func:`ssid.band_scaling.normal_mode_mck`): physical whenever every kept modal mass is
-    positive, with eig(K, M) the kept roots' |lambda|^2 exactly. Which n modes it holds is
-    the data's choice (their contribution to the measured FRFs), unless an analyst lists
-    target modes (``prefer_shapes``, e.g. an FE model's at the sensors): roots paired with
-    them (MAC x frequency ratio, MAC >= 0.8) are kept first, as the report picked its
-    band-processing roots by hand. The modes it leaves out are simply absent from the model.
+    mode of the band in narrow overlapping bands (50 % overlap), where each is well
+    determined, and :func:`modal_model_from_bands` assembles the model from them.
 
     Parameters
     ----------
     frf : FRFData
         Accelerances (L, n, n_in) without interface reactions.
     band_width_hz : float, optional
-        Width of the overlapping bands (50 % overlap). Default: 1/12 of the record, at
-        least 24 lines.
+        Width of the overlapping bands. Default: :func:`default_band_width_hz`.
+    scale, prefer_shapes, prefer_freq_hz
+        As for :func:`modal_model_from_bands`.
+    solver : step-1 solver in each band (as for :func:`identify_mck`).
+
+    Returns
+    -------
+    SSIDResult, as :func:`modal_model_from_bands`.
+
+    Raises
+    ------
+    IdentificationError
+        As :func:`modal_model_from_bands`.
+    """
+    if frf.H_reaction is not None:
+        raise IdentificationError("the modal (band-processed) model is not available with "
+                                  "measured interface reactions")
+    f = frf.freq_hz
+    width = band_width_hz if band_width_hz is not None else default_band_width_hz(f)
+    res = process_bands(frf, overlapping_bands(float(f[0]), float(f[-1]), width, 0.5),
+                        solver=solver)
+    return modal_model_from_bands(frf, res, scale=scale, band_width_hz=width,
+                                  prefer_shapes=prefer_shapes, prefer_freq_hz=prefer_freq_hz)
+
+
+def modal_model_from_bands(
+    frf: FRFData,
+    res: BandResult,
+    *,
+    scale: str = "BP3",
+    band_width_hz: float | None = None,
+    prefer_shapes: np.ndarray | None = None,
+    prefer_freq_hz: np.ndarray | None = None,
+) -> SSIDResult:
+    """n-DOF M, C, K from the modes band processing found (``res`` of :func:`process_bands`
+    on ``frf``).
+
+    Keeps the n strongest selected roots with independent shapes at the sensors
+    (:func:`ssid.band_scaling.strongest_roots`), fits their scale factors (Eq. 3.23) and
+    assembles M, C, K as real normal modes (:func:`ssid.band_scaling.normal_mode_mck`):
+    physical whenever every kept modal mass is positive, with eig(K, M) the kept roots'
+    |lambda|^2 exactly. Which n modes it holds is the data's choice (their contribution to
+    the measured FRFs), unless an analyst lists target modes (``prefer_shapes``, e.g. an FE
+    model's at the sensors): roots paired with them (MAC x frequency ratio, MAC >= 0.8) are
+    kept first, as the report picked its band-processing roots by hand. The modes it leaves
+    out are simply absent from the model.
+
+    Parameters
+    ----------
+    frf : FRFData
+        Accelerances (L, n, n_in) without interface reactions.
+    res : BandResult
     scale : {"BP1", "BP2", "BP3"}
         Scale-factor estimate (section 5.2.2).
-    solver : step-1 solver in each band (as for :func:`identify_mck`).
+    band_width_hz : float, optional
+        Recorded in ``info["bands"]`` (the width ``res`` was processed with).
     prefer_shapes : (n, k) array, optional
         Target mode shapes at ``frf.outputs`` (real or complex), with ``prefer_freq_hz``
         (k,) their frequencies, Hz.
@@ -115,18 +168,13 @@ def identify_mck_modal(
     Raises
     ------
     IdentificationError
-        With reactions in the data, when the bands find fewer independent modes than DOFs
+        With reactions in the data, when the bands found fewer independent modes than DOFs
         (no n-DOF modal model exists), or when a kept modal mass is not positive.
     """
     if frf.H_reaction is not None:
         raise IdentificationError("the modal (band-processed) model is not available with "
                                   "measured interface reactions")
     f = frf.freq_hz
-    span = float(f[-1] - f[0])
-    df = span / max(f.size - 1, 1)
-    width = band_width_hz if band_width_hz is not None else max(span / 12.0, 24 * df)
-    res = process_bands(frf, overlapping_bands(float(f[0]), float(f[-1]), width, 0.5),
-                        solver=solver)
     n = frf.n_out
     prefer = None
     if prefer_shapes is not None and res.selected:
@@ -159,7 +207,7 @@ def identify_mck_modal(
         undamped_freq_hz=wu / (2 * np.pi), real_mode_shapes=phi,
         real_roots=np.zeros(0), solver="bands", damping="modal",
         band_hz=(float(f[0]), float(f[-1])), checks=checks, warnings=warnings,
-        info={"bands": {"band_width_hz": width, "n_selected": len(res.selected),
+        info={"bands": {"band_width_hz": band_width_hz, "n_selected": len(res.selected),
                         "kept_freq_hz": [float(v) for v in kept.freq_hz]}},
     )
 

@@ -271,7 +271,9 @@ def _pick_representatives(roots: list[BandRoot], bands_hz) -> list[BandRoot]:
 
 
 def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | None = None) -> None:
-    """Stabilisation-style chart: each band's roots against frequency, marked by verdict."""
+    """Stabilisation-style chart: each band's roots against frequency, marked by verdict,
+    with the selected modes as green lines and ``true_freq_hz`` (Hz; known modes, or an FE
+    model's target modes) as dotted ones."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -299,7 +301,7 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
     ax.set_xlim(lo, hi)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("band")
-    ax.set_title("roots per band (green: selected; dotted: true modes if known)")
+    ax.set_title("roots per band (green: selected; dotted: reference modes, if given)")
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

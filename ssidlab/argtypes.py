@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 from pathlib import Path
 
 from ssid.errors import InputError
 
-__all__ = ["frequency_hz", "check_output_paths"]
+__all__ = ["check_output_paths", "frequency_hz", "open_fraction", "parse_mode_list",
+           "positive_number"]
 
 
 def frequency_hz(text: str) -> float:
@@ -21,6 +23,46 @@ def frequency_hz(text: str) -> float:
     if not math.isfinite(value) or value < 0:
         raise argparse.ArgumentTypeError(f"must be a finite frequency >= 0 Hz, got {text!r}")
     return value
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+
+
+def open_fraction(text: str, what: str = "a number") -> float:
+    """argparse type for a number strictly between 0 and 1 (an overlap, a damping ratio);
+    ``what`` names it in the message."""
+    value = _number(text)
+    if not 0.0 < value < 1.0:  # also refuses NaN
+        raise argparse.ArgumentTypeError(f"must be {what} between 0 and 1, got {text!r}")
+    return value
+
+
+def positive_number(text: str) -> float:
+    """argparse type for a finite number > 0."""
+    value = _number(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def parse_mode_list(text: str) -> list[int]:
+    """argparse type: ``"1-10,17,18"`` -> ``[1, ..., 10, 17, 18]`` (1-based, distinct, sorted)."""
+    out: set[int] = set()
+    for part in text.split(","):
+        part = part.strip()
+        m = re.fullmatch(r"(\d+)(?:\s*-\s*(\d+))?", part)
+        if not m:
+            raise argparse.ArgumentTypeError(f"not a mode list: {text!r} (e.g. '1-10,17,18')")
+        lo = int(m.group(1))
+        hi = int(m.group(2) or lo)
+        if lo < 1 or hi < lo:
+            raise argparse.ArgumentTypeError(f"bad mode range {part!r}: modes count from 1")
+        out.update(range(lo, hi + 1))
+    return sorted(out)
 
 
 def check_output_paths(inputs: list[str], outputs: list[str | None]) -> None:

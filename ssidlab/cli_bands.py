@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -31,7 +30,14 @@ from typing import Any
 import numpy as np
 
 from ssid.errors import IdentificationError, InputError
-from ssidlab.argtypes import check_output_paths, frequency_hz
+from ssid.jsonutil import to_jsonable
+from ssidlab.argtypes import (
+    check_output_paths,
+    frequency_hz,
+    open_fraction,
+    parse_mode_list,
+    positive_number,
+)
 
 __all__ = ["add_bands_subcommand", "run_bands"]
 
@@ -39,44 +45,6 @@ HELP = ("Band processing (report section 5.2): modes found in overlapping bands,
         "chart, and a modal M, C, K model.")
 SOLVERS = ("ml", "ls", "tls", "stls")
 SCALES = ("BP1", "BP2", "BP3")
-
-
-def _fraction(text: str) -> float:
-    """argparse type for a number strictly between 0 and 1."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"must lie between 0 and 1 (exclusive), got {text}")
-    return value
-
-
-def _positive(text: str) -> float:
-    """argparse type for a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
-
-
-def _mode_numbers(text: str) -> list[int]:
-    """argparse type for 1-based mode numbers: ``1,2,5`` or ``1-4,7``."""
-    out: list[int] = []
-    try:
-        for part in text.split(","):
-            a, _, b = part.strip().partition("-")
-            lo, hi = int(a), int(b) if b else int(a)
-            if lo < 1 or hi < lo:
-                raise ValueError
-            out += range(lo, hi + 1)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected 1-based mode numbers such as 1,2,5 or 1-4,7, got {text!r}") from None
-    return sorted(set(out))
 
 
 def add_bands_subcommand(sub: Any) -> argparse.ArgumentParser:
@@ -91,13 +59,13 @@ def add_bands_subcommand(sub: Any) -> argparse.ArgumentParser:
                    help="modal M, C, K over the FRF file's outputs (ssidlab-model file)")
     p.add_argument("--fmin", type=frequency_hz, metavar="HZ", help="lowest frequency line used")
     p.add_argument("--fmax", type=frequency_hz, metavar="HZ", help="highest frequency line used")
-    p.add_argument("--width", type=_positive, metavar="HZ",
+    p.add_argument("--width", type=positive_number, metavar="HZ",
                    help="band width (default: 1/12 of the record, at least 24 lines)")
-    p.add_argument("--overlap", type=_fraction, default=0.5, metavar="FRACTION",
+    p.add_argument("--overlap", type=open_fraction, default=0.5, metavar="FRACTION",
                    help="overlap of neighbouring bands (default 0.5: every line in two bands)")
-    p.add_argument("--mpc-min", type=_fraction, default=0.8, metavar="MPC",
+    p.add_argument("--mpc-min", type=open_fraction, default=0.8, metavar="MPC",
                    help="criterion 3: lowest modal phase collinearity of a kept root (default 0.8)")
-    p.add_argument("--repeat-tol", type=_positive, default=0.125, metavar="FRACTION",
+    p.add_argument("--repeat-tol", type=positive_number, default=0.125, metavar="FRACTION",
                    help="criterion 4: a root's estimates in two bands agree within this fraction "
                    "of max(2 zeta f, line spacing) (default 0.125)")
     p.add_argument("--solver", choices=SOLVERS, default="ml",
@@ -108,7 +76,7 @@ def add_bands_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--targets", metavar="FE_MODEL",
                    help="analysis model (ssidlab-model .h5, .mat or .op4) whose target modes "
                    "the model keeps first; its DOFs include every FRF output")
-    p.add_argument("--target-modes", type=_mode_numbers, metavar="1,2,...",
+    p.add_argument("--target-modes", type=parse_mode_list, metavar="1,2,...",
                    help="the target modes of --targets, 1-based (default: its modes inside "
                    "the band)")
     p.add_argument("--quiet", action="store_true", help="do not print the mode table")
@@ -202,7 +170,7 @@ def run_bands(args: argparse.Namespace) -> int:
 
 
 def _write_json(path: str, data: dict) -> None:
-    Path(path).write_text(json.dumps(data, indent=1, default=_jsonable) + "\n", encoding="utf-8")
+    Path(path).write_text(json.dumps(to_jsonable(data), indent=1) + "\n", encoding="utf-8")
 
 
 def _target_modes(args: argparse.Namespace, frf) -> dict:
@@ -275,11 +243,3 @@ def _table(out: dict) -> str:
         lines.append(f"model: {len(held)} DOF ({out['model']['scale']}), modes "
                      + ", ".join(f"{f:.4g}" for f in held) + f" Hz -> {out['model']['path']}")
     return "\n".join(lines)
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

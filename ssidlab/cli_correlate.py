@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import re
 from pathlib import Path
@@ -22,7 +21,7 @@ from typing import Any
 from ssid.errors import InputError
 from ssid.jsonutil import to_jsonable
 from ssid.tam import TAM_METHODS
-from ssidlab.argtypes import frequency_hz
+from ssidlab.argtypes import frequency_hz, open_fraction, parse_mode_list
 
 __all__ = ["add_correlate_subcommand", "jsonable", "parse_mode_list", "run_correlate"]
 
@@ -65,22 +64,6 @@ def add_correlate_subcommand(sub: Any) -> argparse.ArgumentParser:
     return p
 
 
-def parse_mode_list(text: str) -> list[int]:
-    """argparse type: ``"1-10,17,18"`` -> ``[1, ..., 10, 17, 18]`` (1-based, distinct, sorted)."""
-    out: set[int] = set()
-    for part in text.split(","):
-        part = part.strip()
-        m = re.fullmatch(r"(\d+)(?:\s*-\s*(\d+))?", part)
-        if not m:
-            raise argparse.ArgumentTypeError(f"not a mode list: {text!r} (e.g. '1-10,17,18')")
-        lo = int(m.group(1))
-        hi = int(m.group(2) or lo)
-        if lo < 1 or hi < lo:
-            raise argparse.ArgumentTypeError(f"bad mode range {part!r}: modes count from 1")
-        out.update(range(lo, hi + 1))
-    return sorted(out)
-
-
 def _label_list(text: str) -> list[str]:
     labels = [s.strip() for s in text.split(",")]
     if not all(labels):
@@ -93,13 +76,7 @@ def _label_list(text: str) -> list[str]:
 
 
 def _damping_ratio(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or not 0 < value < 1:
-        raise argparse.ArgumentTypeError(f"must be a damping ratio between 0 and 1, got {text!r}")
-    return value
+    return open_fraction(text, "a damping ratio")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -144,7 +144,7 @@ def test_bands_without_enough_modes_for_a_model_keeps_what_it_found(reduced):
     (["--overlap", "1.5"], "between 0 and 1"),
     (["--targets", "FE", "--target-modes", "99"], "has 8 modes"),
     (["--fmin", "600"], "fewer than two frequency lines"),
-    (["--target-modes", "2-1", "--targets", "FE"], "expected 1-based mode numbers"),
+    (["--target-modes", "2-1", "--targets", "FE"], "modes count from 1"),
 ])
 def test_bands_bad_input_is_one_line_and_status_2(reduced, extra, message):
     *_, d = reduced

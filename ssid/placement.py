@@ -14,7 +14,8 @@ __all__ = ["effective_independence"]
 
 
 def effective_independence(
-    phi: np.ndarray, n_keep: int, candidates: list[str] | None = None
+    phi: np.ndarray, n_keep: int, candidates: list[str] | None = None,
+    required: list | None = None,
 ) -> list:
     """Keep ``n_keep`` of the candidate DOFs that best observe the target modes.
 
@@ -26,6 +27,10 @@ def effective_independence(
         Number of DOFs to keep; at least ``n_modes`` (F must stay invertible).
     candidates : list, optional
         Labels of the candidate rows (default: row indices).
+    required : list, optional
+        Candidates (labels, or indices without ``candidates``) that are always kept, e.g. the
+        driving points and interface DOFs a test must measure: they are never removed, and
+        the others are chosen to complement them.
 
     Returns
     -------
@@ -37,10 +42,17 @@ def effective_independence(
         raise ValueError(f"n_keep must lie between the number of modes ({n_modes}) and of "
                          f"candidates ({n_cand}), got {n_keep}")
     labels = list(range(n_cand)) if candidates is None else list(candidates)
+    fixed = np.zeros(n_cand, dtype=bool)
+    for r in required or []:
+        if r not in labels:
+            raise ValueError(f"required DOF {r!r} is not a candidate")
+        fixed[labels.index(r)] = True
+    if fixed.sum() > n_keep:
+        raise ValueError(f"{int(fixed.sum())} required DOFs, more than the {n_keep} to keep")
     keep = np.arange(n_cand)
     while keep.size > n_keep:
         # Diagonal of the projector by QR: E_ii = |Q_i|^2, stable even when F is ill-conditioned.
         q, _ = np.linalg.qr(phi[keep])
-        e = np.sum(q * q, axis=1)
+        e = np.where(fixed[keep], np.inf, np.sum(q * q, axis=1))
         keep = np.delete(keep, int(np.argmin(e)))
     return [labels[i] for i in keep]

@@ -10,8 +10,8 @@ from pathlib import Path
 
 from ssid.errors import InputError
 
-__all__ = ["check_output_paths", "frequency_hz", "open_fraction", "parse_mode_list",
-           "positive_number"]
+__all__ = ["check_output_paths", "frequency_hz", "label_list", "open_fraction",
+           "parse_mode_list", "positive_number"]
 
 
 def frequency_hz(text: str) -> float:
@@ -63,6 +63,18 @@ def parse_mode_list(text: str) -> list[int]:
             raise argparse.ArgumentTypeError(f"bad mode range {part!r}: modes count from 1")
         out.update(range(lo, hi + 1))
     return sorted(out)
+
+
+def label_list(text: str) -> list[str]:
+    """argparse type: ``"4+Z,8+Z"`` -> ``["4+Z", "8+Z"]`` (distinct, non-empty labels)."""
+    labels = [s.strip() for s in text.split(",")]
+    if not all(labels):
+        raise argparse.ArgumentTypeError(f"empty DOF label in {text!r}")
+    if len(set(labels)) != len(labels):
+        raise argparse.ArgumentTypeError(f"a DOF label is repeated in {text!r}")
+    return labels
+
+
 
 
 def check_output_paths(inputs: list[str], outputs: list[str | None]) -> None:

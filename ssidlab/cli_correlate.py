@@ -21,7 +21,7 @@ from typing import Any
 from ssid.errors import InputError
 from ssid.jsonutil import to_jsonable
 from ssid.tam import TAM_METHODS
-from ssidlab.argtypes import frequency_hz, open_fraction, parse_mode_list
+from ssidlab.argtypes import frequency_hz, label_list, open_fraction, parse_mode_list
 
 __all__ = ["add_correlate_subcommand", "jsonable", "parse_mode_list", "run_correlate"]
 
@@ -48,7 +48,7 @@ def add_correlate_subcommand(sub: Any) -> argparse.ArgumentParser:
         "--tam", choices=TAM_METHODS, default="guyan",
         help="test-analysis model reducing the analysis model to the test DOFs (default guyan)",
     )
-    p.add_argument("--interface", type=_label_list, metavar="DOF[,DOF...]",
+    p.add_argument("--interface", type=label_list, metavar="DOF[,DOF...]",
                    help="interface (boundary) DOF labels; needed by --tam cb")
     p.add_argument("--targets", type=parse_mode_list, metavar="LIST",
                    help="target modes of serep/hybrid/cb, 1-based analysis mode numbers, e.g. "
@@ -62,17 +62,6 @@ def add_correlate_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="do not print the paired-mode table")
     p.set_defaults(run=run_correlate)
     return p
-
-
-def _label_list(text: str) -> list[str]:
-    labels = [s.strip() for s in text.split(",")]
-    if not all(labels):
-        raise argparse.ArgumentTypeError(f"empty DOF label in {text!r}")
-    if len(set(labels)) != len(labels):
-        raise argparse.ArgumentTypeError(f"a DOF label is repeated in {text!r}")
-    return labels
-
-
 
 
 def _damping_ratio(text: str) -> float:

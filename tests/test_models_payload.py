@@ -127,3 +127,18 @@ def test_effective_independence_picks_observable_dofs():
     assert not {"d2", "d5", "d9"} & set(kept)
     # Mode scaling does not change the choice.
     assert kept == effective_independence(phi * [1.0, 50.0, 0.01], 6, [f"d{i}" for i in range(12)])
+
+
+def test_effective_independence_keeps_required_dofs():
+    """A DOF the test must measure (a driving point) is kept even when it is nearly blind to
+    the targets; the other blind ones are still left out; bad requests are refused."""
+    rng = np.random.default_rng(0)
+    phi = rng.standard_normal((12, 3))
+    phi[[2, 5, 9]] *= 1e-3
+    labels = [f"d{i}" for i in range(12)]
+    kept = effective_independence(phi, 6, labels, required=["d2"])
+    assert len(kept) == 6 and "d2" in kept and not {"d5", "d9"} & set(kept)
+    with pytest.raises(ValueError, match="not a candidate"):
+        effective_independence(phi, 6, labels, required=["x"])
+    with pytest.raises(ValueError, match="more than the 3 to keep"):
+        effective_independence(phi, 3, labels, required=labels[:4])

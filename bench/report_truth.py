@@ -51,11 +51,9 @@ class Truth:
     def sensors(self, n: int) -> tuple[list[str], np.ndarray]:
         """EfI choice (Eq. 6.1) of n Z DOFs for the first n target modes; interface DOFs kept."""
         tm = target_modes(self.p, n)
-        chosen = effective_independence(self.phi[self.iz][:, tm], n, Z_DOFS)
-        for d in INTERFACE_DOFS:  # the report's inputs are at the interface: always measured
-            if d not in chosen:
-                worst = next(c for c in reversed(chosen) if c not in INTERFACE_DOFS)
-                chosen[chosen.index(worst)] = d
+        # The report's inputs are at the interface: always measured.
+        chosen = effective_independence(self.phi[self.iz][:, tm], n, Z_DOFS,
+                                        required=INTERFACE_DOFS)
         return [d for d in Z_DOFS if d in chosen], tm
 
     def frf(self, sensors, spectrum, inputs=INTERFACE_DOFS) -> FRFData:

@@ -16,7 +16,7 @@ from report_truth import (
     run_parallel,
     worker_truth,
 )
-from ssid.band_select import identify_mck_band_select, identify_mck_modal, result_problems
+from ssid.band_select import identify_mck_band_select, modal_model_from_bands, result_problems
 from ssid.noise import report_noise_frf
 
 
@@ -32,15 +32,17 @@ def modal_cell(truth: Truth, sensors, tm, cands: dict, frf) -> str:
              if np.min(np.abs(truth.f[tm] - f) / truth.f[tm]) > 0.01]
     cell = fmt(*errs) + (f"; holds {', '.join(f'{f:.0f}' for f in other)} Hz" if other else "")
     if errs[2]:
-        cell += f"; FE targets first: {fmt(*modal_fe_targets_first(truth, sensors, tm, frf))}"
+        cell += f"; FE targets first: {fmt(*modal_fe_targets_first(truth, sensors, tm, frf, r))}"
     return cell
 
 
-def modal_fe_targets_first(truth: Truth, sensors, tm, frf) -> tuple[float, float, int]:
+def modal_fe_targets_first(truth: Truth, sensors, tm, frf, auto) -> tuple[float, float, int]:
     """Errors of the modal model that keeps first the roots paired with the FE model's target
-    modes (``prefer_shapes``), as the report picked its band-processing roots by hand."""
+    modes (``prefer_shapes``), as the report picked its band-processing roots by hand; from
+    the roots of the automatic modal candidate ``auto`` (band processing is not redone)."""
     idx = truth.p.index(sensors)
-    r = identify_mck_modal(frf, prefer_shapes=truth.phi[idx][:, tm], prefer_freq_hz=truth.f[tm])
+    r = modal_model_from_bands(frf, auto.band_result, band_width_hz=auto.info["bands"]["band_width_hz"],
+                               prefer_shapes=truth.phi[idx][:, tm], prefer_freq_hz=truth.f[tm])
     return paired_errors(truth, sensors, tm, r.natural_freq_hz, r.damping_ratio, r.mode_shapes)
 
 
@@ -187,7 +189,8 @@ def reduced_noisy_seed(n: str, spec, seed: int, modal: bool) -> tuple[dict, str]
                                       r.mode_shapes))
     if n == "16" and np.isfinite(errs["bands"][0]):
         # Where the report had no solution: what the modal model does holding the targets.
-        errs["bands, FE targets first"] = (modal_fe_targets_first(truth, sensors, tm, frf)
+        errs["bands, FE targets first"] = (modal_fe_targets_first(truth, sensors, tm, frf,
+                                                                  cands[(full, "bands")])
                                            if errs["bands"][2] else errs["bands"])
     return errs, chosen
 

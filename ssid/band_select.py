@@ -163,7 +163,7 @@ def modal_model_from_bands(
     Returns
     -------
     SSIDResult with ``solver`` set to ``"bands"``; ``info["bands"]`` holds the band width,
-    how many modes the bands selected and the kept frequencies.
+    how many modes the bands selected and the kept frequencies, ``band_result`` is ``res``.
 
     Raises
     ------
@@ -209,6 +209,7 @@ def modal_model_from_bands(
         band_hz=(float(f[0]), float(f[-1])), checks=checks, warnings=warnings,
         info={"bands": {"band_width_hz": band_width_hz, "n_selected": len(res.selected),
                         "kept_freq_hz": [float(v) for v in kept.freq_hz]}},
+        band_result=res,
     )
 
 

@@ -10,6 +10,7 @@ coherence when it has them and from the fit's own residuals when it does not.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -70,6 +71,11 @@ class SSIDResult:
         Mass-normalised real modes of (K, M).
     real_roots : (q,)
         Real (non-oscillatory) state-space roots, rad/s; a clean identification has none.
+    band_result : ssid.bands.BandResult or None
+        For a band-processed modal model (``solver == "bands"``), the band-processing result
+        it was assembled from: every root and its verdict (for
+        :func:`ssid.bands.plot_band_roots`, or another choice of modes with
+        :func:`ssid.band_select.modal_model_from_bands`). Not written to JSON.
     """
 
     M: np.ndarray
@@ -89,6 +95,7 @@ class SSIDResult:
     checks: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     info: dict = field(default_factory=dict)
+    band_result: Any = field(default=None, repr=False)
 
     def to_model(self):
         """The identified M, C, K as a :class:`ssid.io.Model` over ``dofs`` (what the model

@@ -183,7 +183,11 @@ def _target_modes(args: argparse.Namespace, frf) -> dict:
     if missing:
         raise InputError(f"{args.frf}: output {missing[0]!r} is not a DOF of the model "
                          f"{args.targets}")
-    lam, phi = normal_modes(model.M, model.K)
+    try:
+        lam, phi = normal_modes(model.M, model.K)
+    except np.linalg.LinAlgError:
+        raise InputError(f"{args.targets}: M is not positive definite (massless DOFs?); "
+                         "reduce them out first, e.g. by Guyan reduction") from None
     f_fe = np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi)
     if args.target_modes is None:
         idx = np.flatnonzero((f_fe >= frf.freq_hz[0]) & (f_fe <= frf.freq_hz[-1]))

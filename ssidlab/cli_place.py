@@ -94,7 +94,11 @@ def run_place(args: argparse.Namespace) -> int:
     for r in args.require or []:
         if r not in cand:
             raise InputError(f"--require: {r!r} is not among the candidate DOFs")
-    lam, phi = normal_modes(model.M, model.K)
+    try:
+        lam, phi = normal_modes(model.M, model.K)
+    except np.linalg.LinAlgError:
+        raise InputError(f"{args.model}: M is not positive definite (massless DOFs?); reduce "
+                         "them out first, e.g. by Guyan reduction") from None
     n_modes = lam.size
     targets = (np.asarray(args.targets) - 1 if args.targets is not None
                else np.arange(min(args.sensors, n_modes)))
@@ -111,7 +115,7 @@ def run_place(args: argparse.Namespace) -> int:
                                     required=args.require)
     phi_a = phi[np.ix_([dofs.index(d) for d in chosen], targets)]
     am = auto_mac(phi_a)
-    np.fill_diagonal(am, 0.0)
+    np.fill_diagonal(am, -1.0)  # one target: no pair, reported as -1 (never a MAC)
     i, j = np.unravel_index(int(np.argmax(am)), am.shape)
     sv = np.linalg.svd(phi_a, compute_uv=False)
     f_hz = np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi)

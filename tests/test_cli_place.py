@@ -85,3 +85,16 @@ def test_place_bad_input_is_one_line_and_status_2(payload, tmp_path, extra, mess
     assert r.returncode == 2, r.stderr
     assert message in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "bad.json").exists()
+
+
+def test_place_refuses_a_model_with_massless_dofs(tmp_path):
+    """A lumped-mass FE model whose rotations carry no mass has no normal modes as it is:
+    one line, status 2, and what to do."""
+    M = np.diag([1.0, 0.0, 1.0, 0.0])
+    K = np.array([[2.0, 0.5, -1.0, 0.0], [0.5, 1.0, 0.0, 0.1], [-1.0, 0.0, 2.0, 0.5],
+                  [0.0, 0.1, 0.5, 1.0]]) * 1e4
+    fe = tmp_path / "lumped.h5"
+    write_model(str(fe), Model(M=M, K=K, C=None, dofs=["1+Z", "1+RX", "2+Z", "2+RX"]))
+    r = run(str(fe), "--sensors", "2", "--json", str(tmp_path / "o.json"))
+    assert r.returncode == 2, r.stderr
+    assert "M is not positive definite" in r.stderr and len(r.stderr.strip().splitlines()) == 1

@@ -115,8 +115,11 @@ def run_place(args: argparse.Namespace) -> int:
                                     required=args.require)
     phi_a = phi[np.ix_([dofs.index(d) for d in chosen], targets)]
     am = auto_mac(phi_a)
-    np.fill_diagonal(am, -1.0)  # one target: no pair, reported as -1 (never a MAC)
-    i, j = np.unravel_index(int(np.argmax(am)), am.shape)
+    np.fill_diagonal(am, 0.0)
+    pair = None  # the two targets the chosen DOFs tell apart least (none for one target)
+    if targets.size > 1:
+        i, j = np.unravel_index(int(np.argmax(am)), am.shape)
+        pair = {"value": float(am[i, j]), "modes": [int(targets[i]) + 1, int(targets[j]) + 1]}
     sv = np.linalg.svd(phi_a, compute_uv=False)
     f_hz = np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi)
     out = {
@@ -127,14 +130,15 @@ def run_place(args: argparse.Namespace) -> int:
         "targets": {"mode_numbers": [int(t) + 1 for t in targets],
                     "freq_hz": f_hz[targets].tolist()},
         "fisher_condition": float((sv[0] / sv[-1]) ** 2) if sv[-1] > 0 else None,
-        "max_offdiag_auto_mac": {"value": float(am[i, j]),
-                                 "modes": [int(targets[i]) + 1, int(targets[j]) + 1]},
+        "max_offdiag_auto_mac": pair,
     }
     Path(args.json).write_text(json.dumps(to_jsonable(out), indent=1) + "\n", encoding="utf-8")
     if not args.quiet:
         print(f"{len(chosen)} of {len(cand)} candidate DOFs for {targets.size} target modes "
               f"({f_hz[targets].min():.4g}-{f_hz[targets].max():.4g} Hz): {', '.join(chosen)}")
-        print(f"largest auto-MAC between targets at these DOFs: {am[i, j]:.3f} (modes "
-              f"{targets[i] + 1} and {targets[j] + 1}); condition of F: "
+        print(("largest auto-MAC between targets at these DOFs: "
+               f"{pair['value']:.3f} (modes {pair['modes'][0]} and {pair['modes'][1]})"
+               if pair else "one target: no auto-MAC")
+              + "; condition of F: "
               + (f"{out['fisher_condition']:.3g}" if out["fisher_condition"] else "inf"))
     return 0

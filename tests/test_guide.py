@@ -21,7 +21,8 @@ def guide_commands() -> list[str]:
 
 def test_guide_has_the_whole_walk_through():
     cmds = " ".join(guide_commands())
-    for sub in ("acquire", "identify", "correlate", "discrepancy", "convert", "export-model"):
+    for sub in ("place", "acquire", "identify", "correlate", "discrepancy", "convert",
+                "export-model"):
         assert f"ssidlab {sub} " in cmds
 
 
@@ -38,6 +39,8 @@ def test_guide_commands_run_as_written(tmp_path):
     disc = json.loads((tmp_path / "discrepancy.json").read_text())
     assert disc["effect"] == "added_mass" and disc["dofs"] == ["6+Z"]
     assert disc["gap_after"] < 0.01 * disc["gap_before"]
+    placement = json.loads((tmp_path / "placement.json").read_text())
+    assert {"4+Z", "8+Z", "18+Z"} <= set(placement["chosen"]) and len(placement["chosen"]) == 10
     for name in ("run.h5", "run.uff", "identified.h5", "correlation.json", "updated.h5",
                  "run_copy.uff", "identified.mat"):
         assert (tmp_path / name).stat().st_size > 0, name

@@ -287,6 +287,12 @@ def _add_bands(sub: Any) -> None:
     add_bands_subcommand(sub)
 
 
+def _add_pseudo(sub: Any) -> None:
+    from ssidlab.cli_pseudo import add_pseudo_subcommand
+
+    add_pseudo_subcommand(sub)
+
+
 def _add_place(sub: Any) -> None:
     from ssidlab.cli_place import add_place_subcommand
 
@@ -365,7 +371,7 @@ def _add_tui(sub: Any) -> None:
 # Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
 # `run=_run_<name>`; list it here. Errors follow the same rules through main().
 _SUBCOMMANDS = (
-    _add_identify, _add_bands, _add_place, _add_demo, _add_correlate, _add_sim_lab, _add_convert, _add_export_model,
+    _add_identify, _add_bands, _add_pseudo, _add_place, _add_demo, _add_correlate, _add_sim_lab, _add_convert, _add_export_model,
     _add_discrepancy, _add_acquire, _add_tui, _add_sim_model,
 )
 

@@ -12,7 +12,7 @@ structural roots' scale factors are fitted to the measured FRFs, a root asking f
 independent modes over the n measured DOFs, or with ``--all-modes`` every one of them over the
 measured DOFs plus generalised coordinates ``q1, q2, ...`` the sensors do not see.
 ``docs/replication.md`` section 5 says how well this works on the payload: the structural
-roots find target modes the plain model cannot, and the models' FRFs are 57-66 % off.
+roots find target modes the plain model cannot, and the models' FRFs are 61-66 % off.
 
 Bad input raises :class:`ssid.errors.InputError`; ``ssidlab.cli.main`` prints it as one line
 and exits with status 2.

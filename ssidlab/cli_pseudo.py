@@ -86,7 +86,10 @@ def run_pseudo(args: argparse.Namespace) -> int:
     mass = np.full(res.freq_hz.size, np.nan)
     model = None
     if res.structural.any():
-        model = pseudo_modal_model(frf, res)
+        try:
+            model = pseudo_modal_model(frf, res)
+        except (IdentificationError, np.linalg.LinAlgError) as exc:
+            raise InputError(f"{args.frf}: the structural roots cannot be scaled ({exc})") from None
         mass[model.roots] = model.modal_mass
     out: dict[str, Any] = {
         "source": args.frf,

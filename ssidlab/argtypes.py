@@ -1,17 +1,23 @@
-"""argparse value types and output-path checks shared by the ``ssidlab`` subcommands."""
+"""argparse value types, output-path checks and file helpers shared by the ``ssidlab``
+subcommands."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import re
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from ssid.errors import InputError
+from ssid.jsonutil import to_jsonable
 
-__all__ = ["check_output_paths", "frequency_hz", "label_list", "open_fraction",
-           "parse_mode_list", "positive_number"]
+__all__ = ["check_output_paths", "fe_normal_modes", "frequency_hz", "label_list",
+           "open_fraction", "parse_mode_list", "positive_number", "write_json"]
 
 
 def frequency_hz(text: str) -> float:
@@ -99,3 +105,24 @@ def check_output_paths(inputs: list[str], outputs: list[str | None]) -> None:
         parent = Path(path).parent
         if not parent.is_dir():
             raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")
+
+
+def write_json(path: str, data: dict) -> None:
+    """Write ``data`` as strict, indented JSON (numpy types as Python ones, NaN as null)."""
+    Path(path).write_text(json.dumps(to_jsonable(data), indent=1) + "\n", encoding="utf-8")
+
+
+def fe_normal_modes(path: str) -> tuple[Any, np.ndarray, np.ndarray]:
+    """An analysis model file and its normal modes: ``(model, f_hz (m,), phi (n, m))``,
+    mass-normalised, ascending. A model whose M is not positive definite (massless DOFs of a
+    lumped model) is bad input, with what to do about it."""
+    from ssid.matrix_io import read_analysis_model
+    from ssid.tam import normal_modes
+
+    model = read_analysis_model(path)
+    try:
+        lam, phi = normal_modes(model.M, model.K)
+    except np.linalg.LinAlgError:
+        raise InputError(f"{path}: M is not positive definite (massless DOFs?); reduce them "
+                         "out first, e.g. by Guyan reduction") from None
+    return model, np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi), phi

@@ -22,21 +22,20 @@ and exits with status 2.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ssid.errors import IdentificationError, InputError
-from ssid.jsonutil import to_jsonable
 from ssidlab.argtypes import (
     check_output_paths,
+    fe_normal_modes,
     frequency_hz,
     open_fraction,
     parse_mode_list,
     positive_number,
+    write_json,
 )
 
 __all__ = ["add_bands_subcommand", "run_bands"]
@@ -150,7 +149,7 @@ def run_bands(args: argparse.Namespace) -> int:
         except IdentificationError as exc:
             # The bands' findings are kept (JSON, chart) even when no model can be made.
             out["model_error"] = str(exc)
-            _write_json(args.json, out)
+            write_json(args.json, out)
             hint = ("; another --scale may give positive modal masses (docs/algorithm.md, "
                     "known limits)" if "modal mass" in str(exc) else "")
             raise InputError(f"{args.frf}: no modal model ({exc}){hint}; the modes found are "
@@ -161,7 +160,7 @@ def run_bands(args: argparse.Namespace) -> int:
             raise RuntimeError(f"modal model failed validation: {exc}") from exc
         out["model"] = {"path": args.out, "scale": args.scale, **model.to_json_dict()}
         warnings = list(model.warnings)
-    _write_json(args.json, out)
+    write_json(args.json, out)
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     if not args.quiet:
@@ -169,26 +168,13 @@ def run_bands(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_json(path: str, data: dict) -> None:
-    Path(path).write_text(json.dumps(to_jsonable(data), indent=1) + "\n", encoding="utf-8")
-
-
 def _target_modes(args: argparse.Namespace, frf) -> dict:
     """The FE model's target modes at the FRF outputs: numbers (1-based), frequencies, shapes."""
-    from ssid.matrix_io import read_analysis_model
-    from ssid.tam import normal_modes
-
-    model = read_analysis_model(args.targets)
+    model, f_fe, phi = fe_normal_modes(args.targets)
     missing = [d for d in frf.outputs if d not in set(model.dofs)]
     if missing:
         raise InputError(f"{args.frf}: output {missing[0]!r} is not a DOF of the model "
                          f"{args.targets}")
-    try:
-        lam, phi = normal_modes(model.M, model.K)
-    except np.linalg.LinAlgError:
-        raise InputError(f"{args.targets}: M is not positive definite (massless DOFs?); "
-                         "reduce them out first, e.g. by Guyan reduction") from None
-    f_fe = np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi)
     if args.target_modes is None:
         idx = np.flatnonzero((f_fe >= frf.freq_hz[0]) & (f_fe <= frf.freq_hz[-1]))
         if idx.size == 0:

@@ -18,15 +18,18 @@ and exits with status 2.
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ssid.errors import InputError
-from ssid.jsonutil import to_jsonable
-from ssidlab.argtypes import check_output_paths, label_list, parse_mode_list
+from ssidlab.argtypes import (
+    check_output_paths,
+    fe_normal_modes,
+    label_list,
+    parse_mode_list,
+    write_json,
+)
 
 __all__ = ["add_place_subcommand", "run_place"]
 
@@ -74,11 +77,9 @@ def run_place(args: argparse.Namespace) -> int:
     check_output_paths([args.model], [args.json])
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
     from ssid.correlate import auto_mac
-    from ssid.matrix_io import read_analysis_model
     from ssid.placement import effective_independence
-    from ssid.tam import normal_modes
 
-    model = read_analysis_model(args.model)
+    model, f_hz, phi = fe_normal_modes(args.model)
     dofs = list(model.dofs)
     if args.candidates is not None:
         unknown = [d for d in args.candidates if d not in dofs]
@@ -94,12 +95,7 @@ def run_place(args: argparse.Namespace) -> int:
     for r in args.require or []:
         if r not in cand:
             raise InputError(f"--require: {r!r} is not among the candidate DOFs")
-    try:
-        lam, phi = normal_modes(model.M, model.K)
-    except np.linalg.LinAlgError:
-        raise InputError(f"{args.model}: M is not positive definite (massless DOFs?); reduce "
-                         "them out first, e.g. by Guyan reduction") from None
-    n_modes = lam.size
+    n_modes = f_hz.size
     targets = (np.asarray(args.targets) - 1 if args.targets is not None
                else np.arange(min(args.sensors, n_modes)))
     if targets.max() >= n_modes:
@@ -121,7 +117,6 @@ def run_place(args: argparse.Namespace) -> int:
         i, j = np.unravel_index(int(np.argmax(am)), am.shape)
         pair = {"value": float(am[i, j]), "modes": [int(targets[i]) + 1, int(targets[j]) + 1]}
     sv = np.linalg.svd(phi_a, compute_uv=False)
-    f_hz = np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi)
     out = {
         "source": args.model,
         "chosen": chosen,
@@ -132,7 +127,7 @@ def run_place(args: argparse.Namespace) -> int:
         "fisher_condition": float((sv[0] / sv[-1]) ** 2) if sv[-1] > 0 else None,
         "max_offdiag_auto_mac": pair,
     }
-    Path(args.json).write_text(json.dumps(to_jsonable(out), indent=1) + "\n", encoding="utf-8")
+    write_json(args.json, out)
     if not args.quiet:
         print(f"{len(chosen)} of {len(cand)} candidate DOFs for {targets.size} target modes "
               f"({f_hz[targets].min():.4g}-{f_hz[targets].max():.4g} Hz): {', '.join(chosen)}")

@@ -21,16 +21,13 @@ and exits with status 2.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ssid.errors import IdentificationError, InputError
-from ssid.jsonutil import to_jsonable
-from ssidlab.argtypes import check_output_paths, open_fraction
+from ssidlab.argtypes import check_output_paths, open_fraction, write_json
 
 __all__ = ["add_pseudo_subcommand", "run_pseudo"]
 
@@ -106,8 +103,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
         try:
             mck = pseudo_dof_mck(frf, model, n_keep=None if args.all_modes else frf.n_out)
         except IdentificationError as exc:
-            Path(args.json).write_text(json.dumps(to_jsonable(out), indent=1) + "\n",
-                                       encoding="utf-8")
+            write_json(args.json, out)
             raise InputError(f"{args.frf}: no model ({exc}); the roots are in {args.json}") from None
         n = frf.n_out
         dofs = list(frf.outputs) + [f"q{i}" for i in range(1, mck.M.shape[0] - n + 1)]
@@ -120,7 +116,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
                         "frf_relative_rms_error": err}
         warnings.append(f"the model's FRFs at the measured DOFs are {100 * err:.0f} % off the "
                         "data (relative RMS); docs/replication.md section 5")
-    Path(args.json).write_text(json.dumps(to_jsonable(out), indent=1) + "\n", encoding="utf-8")
+    write_json(args.json, out)
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     if not args.quiet:

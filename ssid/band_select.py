@@ -15,10 +15,10 @@ from .band_scaling import root_shapes, scale_selected_roots, strongest_roots
 from .bands import BandResult, overlapping_bands, process_bands
 from .errors import IdentificationError
 from .frf import FRFData, accelerance_under_test_loads
-from .identify import SSIDResult, _roughness_weights, identify_mck
+from .identify import (SSIDResult, data_noise_weights, identify_mck, model_frf_errors,
+                       model_output_error)
 from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from .modal import modal_phase_collinearity, physical_checks, real_modes, unit_max_shapes
-from .noise import frf_noise_weights
 
 __all__ = ["band_ladder", "identify_mck_band_select", "identify_mck_modal",
            "model_accelerance", "result_problems"]
@@ -200,6 +200,7 @@ def modal_model_from_bands(
                                   "physical") from exc
     zeta = -lam.real / np.abs(lam)
     checks, warnings = physical_checks(M, C, K, zeta)
+    checks["frf_relative_rms_error"] = model_frf_errors(frf, M, C, K, data_noise_weights(frf))[1]
     return SSIDResult(
         M=M, C=C, K=K, dofs=list(frf.outputs),
         natural_freq_hz=np.abs(lam) / (2 * np.pi), damping_ratio=zeta,
@@ -218,7 +219,7 @@ def identify_mck_band_select(
     *,
     band_max_hz: list[float] | None = None,
     n_refine: int = 2,
-    damping: str = "identified",
+    damping: str = "auto",
     candidates: dict | None = None,
     modal: bool = True,
 ) -> SSIDResult:
@@ -256,7 +257,7 @@ def identify_mck_band_select(
         Upper band edges to try (default: :func:`band_ladder`, steps of sqrt(2)).
     n_refine : int
         How many of the best sub-bands get the ``ml`` refinement (besides the whole band).
-    damping : {"identified", "modal"}
+    damping : {"auto", "identified", "modal"}
         As in :func:`identify_mck`.
     modal : bool
         Also try :func:`identify_mck_modal` on the whole band.
@@ -270,12 +271,7 @@ def identify_mck_band_select(
         The chosen candidate; ``info["band_select"]`` lists every candidate's band, solver,
         physicality and output error, and the choice.
     """
-    valid = frf.valid_mask()
-    w = frf_noise_weights(frf)
-    if w is None:
-        w = _roughness_weights(np.where(valid, frf.H, 0.0).astype(complex), valid)
-    w = np.where(valid, w, 0.0)
-    H = np.where(valid, frf.H, 0.0)
+    w = data_noise_weights(frf)
     n_r = 0 if frf.H_reaction is None else frf.H_reaction.shape[1]
     p = 2 * frf.n_out + frf.n_in + n_r
     his = band_max_hz if band_max_hz is not None else band_ladder(frf.freq_hz, p, frf.n_in)
@@ -290,10 +286,9 @@ def identify_mck_band_select(
                 r = identify_mck_modal(frf.band(float(frf.freq_hz[0]), hi))
             else:
                 r = identify_mck(frf, solver=solver, f_max_hz=hi, damping=damping)
-            Hm = model_accelerance(frf, r.M, r.C, r.K)
+            c = model_output_error(frf, r.M, r.C, r.K, w)
         except (IdentificationError, np.linalg.LinAlgError):
             return
-        c = float(np.sum((w * np.abs(H - Hm)) ** 2))
         # Physical or not is a gate, not a grade: among non-physical models, one with fewer
         # kinds of problem is not closer to the structure, so the output error decides.
         cands.append(((int(result_problems(r) > 0), c if np.isfinite(c) else np.inf), hi, solver,

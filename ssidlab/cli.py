@@ -40,7 +40,7 @@ EXIT_BAD_INPUT = 2
 DEBUG_ENV = "SSIDLAB_DEBUG"
 
 SOLVERS = ("ml", "ls", "tls", "stls")
-DAMPING_CHOICES = ("identified", "modal")
+DAMPING_CHOICES = ("auto", "identified", "modal")  # ssid.identify.DAMPING_OPTIONS
 
 
 # ----------------------------------------------------------------------------------------------
@@ -167,8 +167,10 @@ def _add_identify(sub: Any) -> None:
     p.add_argument("--fmin", type=frequency_hz, metavar="HZ", help="lowest frequency line used")
     p.add_argument("--fmax", type=frequency_hz, metavar="HZ", help="highest frequency line used")
     p.add_argument(
-        "--damping", choices=DAMPING_CHOICES, default="identified",
-        help="identified: C as identified (default); modal: C rebuilt from modal damping ratios",
+        "--damping", choices=DAMPING_CHOICES, default="auto",
+        help="identified: C from the identified state-space matrices; modal: C rebuilt from "
+        "the identified damping ratios on the real modes; auto (default): the one whose model "
+        "reproduces the measured FRFs better",
     )
     p.add_argument(
         "--select-band", action="store_true",
@@ -222,6 +224,10 @@ def _run_identify(args: argparse.Namespace) -> int:
         _say(f"warning: {message}")
     if not args.quiet:
         print(_mode_table(summary))
+        err = (summary.get("checks") or {}).get("frf_relative_rms_error")
+        if err is not None:
+            print(f"written model: damping matrix {summary.get('damping_matrix')}; its FRFs differ from the "
+                  f"data by {_fmt(err, 100.0, '.3g')} % (relative RMS over the band)")
     return EXIT_OK
 
 

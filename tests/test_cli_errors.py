@@ -232,7 +232,7 @@ def test_identify_defaults_and_quiet(tmp_path, good_file, fake_identify, capsys)
     captured = capsys.readouterr()
     assert rc == 0
     assert fake_identify.calls == [
-        {"solver": "ml", "f_min_hz": None, "f_max_hz": None, "damping": "identified"}
+        {"solver": "ml", "f_min_hz": None, "f_max_hz": None, "damping": "auto"}
     ]
     assert captured.out == ""
 

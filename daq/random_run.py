@@ -107,7 +107,7 @@ class RandomRun:
         d = self.result()
         self.rf.write_arrays("random", {"Gxx": self.S.Gxx, "Gyx": self.S.Gyx, "Gyy": self.S.Gyy,
                                         "n_avg": np.int64(self.S.n_avg), "test_time_s": self.test_time_s})
-        self.rf.write_view(d["H"], d["var"], d["coherence"], d["valid"], d.get("Hr"))
+        self.rf.write_view(d["H"], d["var"], d["coherence"], d["valid"], d.get("Hr"), d.get("Hr_var"))
         self.rf.commit(self.S.n_avg)
         self.echo(f"  average {self.S.n_avg}/{self.spec.averages}  min coherence "
                   f"{np.min(d['coherence']):.3f}  [{self.test_time_s:.1f} s test time]")
@@ -190,6 +190,7 @@ class RandomRun:
         out = {"H": d["H"][:, :no], "var": d["var"][:, :no], "coherence": d["coherence"][:, :no], "valid": valid}
         if self.roles["reaction"]:
             out["Hr"] = d["H"][:, no:]
+            out["Hr_var"] = d["var"][:, no:]
         return out
 
     def frf(self) -> FRFData:
@@ -200,6 +201,7 @@ class RandomRun:
                       H_var=np.nan_to_num(d["var"]), n_avg=int(self.S.n_avg))
         if s.reactions:
             frf.H_reaction = np.nan_to_num(d["Hr"])
+            frf.H_reaction_var = np.nan_to_num(d["Hr_var"])
             frf.reactions = s.reactions
         return frf
 

@@ -181,22 +181,25 @@ class SteppedSineRun:
         if any(int(x["status"]) != STATUS_OK for x in rows):
             return {"H": np.full((n_out, self.n_pat), np.nan + 0j), "var": np.zeros((n_out, self.n_pat)),
                     "coh": np.zeros((n_out, self.n_pat)), "valid": np.zeros((n_out, self.n_pat), bool),
-                    "Hr": np.zeros((n_r, self.n_pat), complex)}
+                    "Hr": np.zeros((n_r, self.n_pat), complex), "Hr_var": np.zeros((n_r, self.n_pat))}
         X = np.stack([np.asarray(x["X"]) for x in rows], axis=1)  # (n_ch, n_pat)
         # The transient left at the end of settling counts as uncertainty, like noise.
         V = np.stack([np.asarray(x["X_var"]) + (float(x["transient"]) * np.abs(np.asarray(x["X"]))) ** 2
                       for x in rows], axis=1)
         H, var = multi_input_frf(X[a], X[fi], V[a], V[fi])
-        Hr = multi_input_frf(X[r], X[fi], V[r], V[fi])[0] if n_r else np.zeros((0, self.n_pat), complex)
+        Hr, Hr_var = (multi_input_frf(X[r], X[fi], V[r], V[fi]) if n_r
+                      else (np.zeros((0, self.n_pat), complex), np.zeros((0, self.n_pat))))
         with np.errstate(divide="ignore", invalid="ignore"):
             coh = np.abs(H) ** 2 / (np.abs(H) ** 2 + var)
         coh = np.nan_to_num(coh)
         valid = (coh >= self.setup.min_coherence) & np.isfinite(H)
-        return {"H": H, "var": var, "coh": coh, "valid": valid, "Hr": Hr}
+        return {"H": H, "var": var, "coh": coh, "valid": valid, "Hr": Hr, "Hr_var": Hr_var}
 
     def _write_line(self, k: int) -> None:
         d = self.line_frf(k)
-        self.rf.write_line(k, d["H"], d["var"], d["coh"], d["valid"], d["Hr"] if self.roles["reaction"] else None)
+        react = bool(self.roles["reaction"])
+        self.rf.write_line(k, d["H"], d["var"], d["coh"], d["valid"], d["Hr"] if react else None,
+                           d["Hr_var"] if react else None)
         if self.events:
             self.events.emit("line", grid_index=int(k), **frf_line_event(self.grid[k], d["H"], d["coh"], d["valid"]))
 
@@ -235,6 +238,8 @@ class SteppedSineRun:
             H_var=np.array([np.where(np.isfinite(d["var"]), d["var"], 0.0) for d in parts]))
         if setup.reactions:
             frf.H_reaction = np.array([np.nan_to_num(d["Hr"]) for d in parts])
+            frf.H_reaction_var = np.array([np.where(np.isfinite(d["Hr_var"]), d["Hr_var"], 0.0)
+                                           for d in parts])
             frf.reactions = setup.reactions
         return frf
 

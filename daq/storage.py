@@ -86,6 +86,7 @@ class RunFile:
             f.create_dataset("inputs", data=inputs, dtype=_STR)
             if nr:
                 f.create_dataset("H_reaction", shape=(nf, nr, ni), dtype="c16", fillvalue=0j)
+                f.create_dataset("H_reaction_var", shape=(nf, nr, ni), dtype="f8", fillvalue=0.0)
                 f.create_dataset("reactions", data=reactions, dtype=_STR)
             acq = f.create_group("acq")
             acq.attrs["kind"] = kind
@@ -182,27 +183,27 @@ class RunFile:
             ds[n] = v
 
     def write_line(self, k: int, H: np.ndarray, H_var: np.ndarray, coherence: np.ndarray, valid: np.ndarray,
-                   H_reaction: np.ndarray | None) -> None:
+                   H_reaction: np.ndarray | None, H_reaction_var: np.ndarray | None = None) -> None:
         """Contract rows of grid line ``k`` (all its sub-lines are measured)."""
+        self._write(k, H, H_var, coherence, valid, H_reaction, H_reaction_var)
+        self.acq["line_done"][k] = True
+
+    def write_view(self, H, H_var, coherence, valid, H_reaction=None, H_reaction_var=None) -> None:
+        """The whole contract view at once (random runs: every average refines every bin)."""
+        self._write(Ellipsis, H, H_var, coherence, valid, H_reaction, H_reaction_var)
+        self.acq["line_done"][...] = True
+
+    def _write(self, k, H, H_var, coherence, valid, H_reaction, H_reaction_var) -> None:
+        # A variance of 0 where a value is unknown: readers treat it as "no estimate".
         f = self.f
-        f["H"][k] = np.where(valid, H, np.nan + 0j) if np.iscomplexobj(H) else H
+        f["H"][k] = np.where(valid, H, np.nan + 0j)
         f["H_var"][k] = np.where(np.isfinite(H_var), H_var, 0.0)
         f["coherence"][k] = np.clip(np.nan_to_num(coherence), 0.0, 1.0)
         if H_reaction is not None and "H_reaction" in f:
             f["H_reaction"][k] = np.nan_to_num(H_reaction)
+            if H_reaction_var is not None and "H_reaction_var" in f:
+                f["H_reaction_var"][k] = np.where(np.isfinite(H_reaction_var), H_reaction_var, 0.0)
         f["valid"][k] = valid
-        self.acq["line_done"][k] = True
-
-    def write_view(self, H, H_var, coherence, valid, H_reaction=None) -> None:
-        """The whole contract view at once (random runs: every average refines every bin)."""
-        f = self.f
-        f["H"][...] = np.where(valid, H, np.nan + 0j)
-        f["H_var"][...] = np.where(np.isfinite(H_var), H_var, 0.0)
-        f["coherence"][...] = np.clip(np.nan_to_num(coherence), 0.0, 1.0)
-        if H_reaction is not None and "H_reaction" in f:
-            f["H_reaction"][...] = np.nan_to_num(H_reaction)
-        f["valid"][...] = valid
-        self.acq["line_done"][...] = True
 
     def write_arrays(self, group: str, arrays: dict[str, np.ndarray]) -> None:
         """Fixed-shape arrays under ``/acq/<group>`` (created on first use, then overwritten)."""

@@ -46,6 +46,8 @@ class FRFData:
         Variance of each H value, E|H - H_true|^2, when known (e.g. from averages).
     n_avg : int or None
         Number of averages behind each value, when known.
+    H_reaction_var : (n_freq, n_react, n_in) float or None
+        Variance of each reaction value, (N/N)^2, when known (e.g. from averages).
     """
 
     freq_hz: np.ndarray
@@ -58,6 +60,7 @@ class FRFData:
     reactions: list[str] | None = None
     H_var: np.ndarray | None = None
     n_avg: int | None = None
+    H_reaction_var: np.ndarray | None = None
     attrs: dict = field(default_factory=dict)
 
     @property
@@ -112,6 +115,7 @@ class FRFData:
             valid=cut(self.valid),
             H_reaction=cut(self.H_reaction),
             H_var=cut(self.H_var),
+            H_reaction_var=cut(self.H_reaction_var),
         )
 
 

@@ -123,7 +123,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
          "(FE payload + stand), never told the hidden effect")
     nominal = nominal_model(setup)
     write_model(out / "nominal_mounted.h5", nominal)
-    measured = dataclasses.replace(frf, H_reaction=None, reactions=None)
+    measured = dataclasses.replace(frf, H_reaction=None, H_reaction_var=None, reactions=None)
     disc = find_discrepancy(nominal, measured)
     dj = disc.to_json_dict()
     (out / "discrepancy.json").write_text(json.dumps(jsonable(dj), indent=2) + "\n", encoding="utf-8")

@@ -44,6 +44,7 @@ def full_frf() -> FRFData:
         size=(frf.n_freq, 1, frf.n_in)
     )
     frf.n_avg = 20
+    frf.H_reaction_var = rng.uniform(1e-6, 1e-4, frf.H_reaction.shape)
     frf.attrs = {"operator": "test bench", "temperature_c": 21.5}
     return frf
 

@@ -56,6 +56,24 @@ def test_noise_on_errors_within_predicted_variance(tmp_path):
     assert np.all(frf.coherence[ok] >= 0.9) and np.all(frf.coherence <= 1)
 
 
+def test_reaction_variance_recorded_and_predicts_its_errors(tmp_path):
+    """The load cells' FRFs get the variance of their estimate too (H_reaction_var), the same
+    first-order propagation as the accelerances'; nothing measured is dropped."""
+    setup = parse_setup(sine_setup(noise=True, reaction=True, n_lines=12,
+                                   sim_extra="sensor_noise_volt_rms = 3e-3\nseed = 4",
+                                   extra="max_dwell_s = 0.5"), str(tmp_path / "s.toml"))
+    run_on_sim(setup, tmp_path / "run.h5")
+    frf = read_frf(tmp_path / "run.h5")
+    ref = build_world(setup).frf(frf.freq_hz, outputs=frf.outputs, inputs=frf.inputs)
+    assert frf.H_reaction_var is not None and frf.H_reaction_var.shape == frf.H_reaction.shape
+    ok = frf.valid_mask().any(axis=1)[:, None, :] & (frf.H_reaction_var > 0)  # line measured
+    z = np.abs(frf.H_reaction - ref.H_reaction)[ok] ** 2 / frf.H_reaction_var[ok]
+    assert ok.sum() >= 25
+    # E|dHr|^2 = var: |dHr|^2 / var is exponential with mean 1, so the mean of ~30 values is
+    # 1 +- 0.19; a variance off by a factor 2 either way fails.
+    assert 0.5 < np.mean(z) < 1.6, np.mean(z)
+
+
 def test_coherence_blanking_and_limit_abort(tmp_path):
     """A response limit aborts lines (drive ramped to zero, line marked), the run goes on;
     lines whose quality is below min_coherence are blanked in `valid`."""

@@ -50,7 +50,7 @@ def test_frf_round_trip_minimal(tmp_path, frf):
     np.testing.assert_array_equal(back.H, frf.H)
     assert back.outputs == frf.outputs and back.inputs == frf.inputs
     assert all(type(lbl) is str for lbl in back.outputs + back.inputs)
-    for name in ("coherence", "valid", "H_reaction", "reactions", "H_var", "n_avg"):
+    for name in ("coherence", "valid", "H_reaction", "reactions", "H_var", "n_avg", "H_reaction_var"):
         assert getattr(back, name) is None, name
     assert back.attrs == {}
 
@@ -79,7 +79,7 @@ def test_frf_round_trip_with_all_optional_items(tmp_path, frf_full):
 
     np.testing.assert_array_equal(back.H, frf_full.H)  # NaN at the blanked value compares equal
     assert np.isnan(back.H[5, 1, 0]) and not back.valid[5, 1, 0]
-    for name in ("freq_hz", "coherence", "valid", "H_reaction", "H_var"):
+    for name in ("freq_hz", "coherence", "valid", "H_reaction", "H_var", "H_reaction_var"):
         np.testing.assert_array_equal(getattr(back, name), getattr(frf_full, name), err_msg=name)
     assert back.reactions == ["1+Z"]
     assert back.n_avg == 20
@@ -259,6 +259,16 @@ def _reaction_pair(labels, n_react=None):
     return corrupt
 
 
+def _reaction_var(make):
+    """A valid reaction pair, then ``H_reaction_var = make(H_reaction)``."""
+
+    def corrupt(f):
+        _reaction_pair(["1+Z"])(f)
+        f.create_dataset("H_reaction_var", data=make(f["H_reaction"][()]))
+
+    return corrupt
+
+
 def _one_nan(H):
     out = np.full(H.shape, 0.9)
     out[0, 1, 1] = np.nan
@@ -333,6 +343,11 @@ FRF_CORRUPTIONS = [
     ("reactions-alone", _labels_to("reactions", ["1+Z"]), "H_reaction is missing"),
     ("reaction-not-output", _reaction_pair(["7+Z"]), "reactions label '7+Z' is not among"),
     ("H_reaction-shape", _reaction_pair(["1+Z"], n_react=2), "(n_freq, n_react, n_in)"),
+    ("H_reaction_var-alone", _add("H_reaction_var", lambda H: np.ones(H[:, :1, :].shape)),
+     "H_reaction_var is given but H_reaction is missing"),
+    ("H_reaction_var-shape", _reaction_var(lambda R: np.ones(R.shape[:2])), "H_reaction_var must be 3-D"),
+    ("H_reaction_var-negative", _reaction_var(lambda R: -np.ones(R.shape)), "H_reaction_var is a variance"),
+    ("H_reaction_var-nan", _reaction_var(lambda R: np.full(R.shape, np.nan)), "H_reaction_var holds NaN"),
     # n_avg
     ("n_avg-zero", _set_attr("n_avg", 0), "n_avg must be a whole number >= 1"),
     ("n_avg-fraction", _set_attr("n_avg", 2.5), "n_avg must be a whole number >= 1"),

@@ -116,7 +116,7 @@ def analyse_run(path: str | Path, setup=None, *, sim: bool = False, model_path: 
     try:
         from ssid.discrepancy import find_discrepancy
 
-        measured = dataclasses.replace(frf, H_reaction=None, reactions=None)
+        measured = dataclasses.replace(frf, H_reaction=None, H_reaction_var=None, reactions=None)
         disc = find_discrepancy(disc_model, measured)
         out.discrepancy = disc.to_json_dict()
         out.updated_model = upd = disc.updated_model

@@ -85,6 +85,7 @@ def read_frf(path: PathLike) -> FRFData:
             H_reaction=_read_numeric(src, f, "H_reaction", required=False),
             reactions=_read_labels(src, f, "reactions") if has_reactions else None,
             H_var=_read_numeric(src, f, "H_var", required=False),
+            H_reaction_var=_read_numeric(src, f, "H_reaction_var", required=False),
             n_avg=_plain(f.attrs["n_avg"]) if "n_avg" in f.attrs else None,
             attrs=_read_extra_attrs(f, _FRF_RESERVED_ATTRS),
         )
@@ -126,7 +127,7 @@ def write_frf(path: PathLike, frf: FRFData) -> None:
         f.create_dataset("H", data=data.H)
         _write_labels(f, "outputs", data.outputs)
         _write_labels(f, "inputs", data.inputs)
-        for name in ("coherence", "valid", "H_var", "H_reaction"):
+        for name in ("coherence", "valid", "H_var", "H_reaction", "H_reaction_var"):
             value = getattr(data, name)
             if value is not None:
                 f.create_dataset(name, data=value)
@@ -142,7 +143,7 @@ def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:
     ``(n_freq, n_out, n_in)``; ``coherence``, ``valid`` and ``H_var`` have the shape of ``H``;
     ``H_reaction`` is complex ``(n_freq, n_react, n_in)`` and comes with ``reactions``; no NaN
     or Inf anywhere, except NaN in ``H`` where ``valid`` is False (blanked values);
-    ``0 <= coherence <= 1``; ``H_var >= 0``; ``n_avg`` is a whole number >= 1.
+    ``0 <= coherence <= 1``; ``H_var >= 0``; ``H_reaction_var`` (with ``H_reaction``, its shape) ``>= 0``; ``n_avg`` is a whole number >= 1.
 
     Parameters
     ----------
@@ -258,6 +259,18 @@ def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:
             "(n_freq, n_react, n_in) from freq_hz, reactions, inputs",
         )
         _require_finite(src, "H_reaction", H_reaction, at(reactions, "reaction"))
+    H_reaction_var = None
+    if frf.H_reaction_var is not None:
+        if H_reaction is None:
+            raise _error(src, "H_reaction_var is given but H_reaction is missing")
+        H_reaction_var = _real(src, "H_reaction_var", frf.H_reaction_var)
+        _require_shape(src, "H_reaction_var", H_reaction_var, H_reaction.shape,
+                       "the shape of H_reaction")
+        _require_finite(src, "H_reaction_var", H_reaction_var, at(reactions, "reaction"))
+        if (H_reaction_var < 0).any():
+            idx = _first(H_reaction_var < 0)
+            raise _error(src, f"H_reaction_var is a variance and must be >= 0, got "
+                              f"{H_reaction_var[idx]:g} at {at(reactions, 'reaction')(idx)}")
 
     n_avg = None
     if frf.n_avg is not None:
@@ -276,6 +289,7 @@ def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:
         reactions=reactions,
         H_var=H_var,
         n_avg=n_avg,
+        H_reaction_var=H_reaction_var,
         attrs=_extra_attrs(src, frf.attrs, _FRF_RESERVED_ATTRS),
     )
 

@@ -369,8 +369,13 @@ REACTION_NOTES = """- what we achieve where the report had no solution: noise-fr
   - the noise levels: with one level per FRF (the roughness estimate, before the re-estimate),
     descending the cost from the true substructure (Gauss-Newton with the cost's exact
     gradient, not in the product) ended near 3.5 %, and with each value's own noise variance
-    (known here from 60 other noise draws) near 0.65 %. The FRF file holds no variance or
-    coherence for the reaction channels, so the levels come from the data.
+    (known here from 60 other noise draws) near 0.65 %. Acquisition now records the
+    variances of the averages for the reaction channels too (`H_reaction_var`), but the
+    search from those variances (`report_noise_frf(..., with_variance=True)`) did worse: worst
+    mode 4.3 / 0.5 / 2.9 / 22 % (7 modes lost) on seeds 1-4 against 1.4 / 0.9 / 2.1 / 0.5 %
+    with levels estimated from the data, though it ended at a lower cost under the recorded
+    variances on seeds 1-3; so with reactions the levels come from the data
+    (docs/algorithm.md, known limits).
 - tried and not adopted (seed 1 unless stated):
   - on seeds 1-3, each of the LS, TLS and scaled TLS starts refined with the reactions taken
     as exact (SK, then output error), then by SK with the full covariance, the lowest cost

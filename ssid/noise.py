@@ -22,7 +22,8 @@ def add_report_noise(
     n_avg: int = 40,
     mag_noise: float = 0.02,
     phase_noise_rad: float = 2 * np.pi / 180,
-) -> np.ndarray:
+    return_variance: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """The report's ``addnoise`` applied along axis 0 (frequency) of ``X``.
 
     Parameters
@@ -33,10 +34,14 @@ def add_report_noise(
     n_avg, mag_noise, phase_noise_rad
         Number of averages, magnitude noise as a fraction of the record's RMS magnitude, and
         phase noise half-width in radians (report: 40, 2 %, 2 degrees).
+    return_variance : bool
+        Also return each value's variance of the average, estimated from the spread of the
+        copies as an analyser does (``sum |x_i - mean|^2 / (n_avg (n_avg - 1))``); the noise
+        drawn is the same either way.
 
     Returns
     -------
-    The average of ``n_avg`` noisy copies, same shape as ``X``.
+    The average of ``n_avg`` noisy copies, same shape as ``X`` (and its variance, real).
     """
     X = np.asarray(X, dtype=complex)
     mag = np.abs(X)
@@ -44,40 +49,56 @@ def add_report_noise(
     # The report normalises by norm/length for both signal and noise; the ratio is an RMS ratio.
     rms = np.sqrt(np.mean(mag**2, axis=0, keepdims=True))
     acc = np.zeros_like(X)
+    acc2 = np.zeros(X.shape)
     for _ in range(n_avg):
         nm = 1 - 2 * rng.random(X.shape)
         nm -= nm.mean(axis=0, keepdims=True)
         nm *= mag_noise * rms / np.sqrt(np.mean(nm**2, axis=0, keepdims=True))
         npn = 1 - 2 * rng.random(X.shape)
         npn -= npn.mean(axis=0, keepdims=True)
-        acc += (mag + nm) * np.exp(1j * (ph + phase_noise_rad * npn))
-    return acc / n_avg
+        x = (mag + nm) * np.exp(1j * (ph + phase_noise_rad * npn))
+        acc += x
+        acc2 += np.abs(x) ** 2
+    mean = acc / n_avg
+    if not return_variance:
+        return mean
+    spread = np.maximum(acc2 - n_avg * np.abs(mean) ** 2, 0.0) / max(n_avg - 1, 1)
+    return mean, spread / n_avg
 
 
 def report_noise_frf(frf: FRFData, seed: int, n_avg: int = 40, mag_noise: float = 0.02,
-                     phase_noise_deg: float = 2.0) -> FRFData:
+                     phase_noise_deg: float = 2.0, with_variance: bool = False) -> FRFData:
     """Noisy copy of ``frf`` under the report's noise model (response and force both noisy).
 
     Each input is taken as a unit force applied alone (the report's ``P``); its spectrum gets
-    the same noise model, and ``H = A_noisy / F_noisy`` (and likewise the reactions).
+    the same noise model, and ``H = A_noisy / F_noisy`` (and likewise the reactions). With
+    ``with_variance`` the copy also holds ``H_var`` and ``H_reaction_var`` as an analyser
+    estimates them from the spread of its averages, propagated to first order through the
+    ratio, ``var H = (var A + |H|^2 var F) / |F|^2``; the noisy values are the same.
     """
     rng = np.random.default_rng(seed)
     ph = np.deg2rad(phase_noise_deg)
-    A = add_report_noise(frf.H, rng, n_avg, mag_noise, ph)
-    F = add_report_noise(np.ones((frf.n_freq, frf.n_in), dtype=complex), rng, n_avg, mag_noise, ph)
-    Hr = None
+    A, vA = add_report_noise(frf.H, rng, n_avg, mag_noise, ph, return_variance=True)
+    F, vF = add_report_noise(np.ones((frf.n_freq, frf.n_in), dtype=complex), rng, n_avg, mag_noise,
+                             ph, return_variance=True)
+    F2, vF = (np.abs(F) ** 2)[:, None, :], vF[:, None, :]
+    H = A / F[:, None, :]
+    Hr = var_r = None
     if frf.H_reaction is not None:
-        Hr = add_report_noise(frf.H_reaction, rng, n_avg, mag_noise, ph) / F[:, None, :]
-    out = FRFData(
+        R, vR = add_report_noise(frf.H_reaction, rng, n_avg, mag_noise, ph, return_variance=True)
+        Hr = R / F[:, None, :]
+        var_r = (vR + np.abs(Hr) ** 2 * vF) / F2
+    return FRFData(
         freq_hz=frf.freq_hz.copy(),
-        H=A / F[:, None, :],
+        H=H,
         outputs=list(frf.outputs),
         inputs=list(frf.inputs),
         H_reaction=Hr,
         reactions=None if frf.reactions is None else list(frf.reactions),
+        H_var=(vA + np.abs(H) ** 2 * vF) / F2 if with_variance else None,
+        H_reaction_var=var_r if with_variance else None,
         n_avg=n_avg,
     )
-    return out
 
 
 def frf_noise_weights(frf: FRFData, floor: float = 1e-6) -> np.ndarray | None:

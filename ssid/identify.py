@@ -363,7 +363,8 @@ def identify_step1(
         # 7 modes missed) and 3-4 % on two others; from levels estimated from the data and
         # re-estimated at the fit, 0.5-2.1 % on seeds 1-7 (docs/algorithm.md, known limits).
         weights = None
-        info["noise_levels"] = "estimated from the data (file variances not used with reactions)"
+        info["noise_levels"] = ("estimated from the data (the file's variances or coherence are "
+                                "not used with reactions)")
     know_noise = weights is not None
     d = step1_data(frf, weights)
     warnings: list[str] = []

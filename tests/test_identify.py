@@ -329,11 +329,10 @@ def test_auto_damping_keeps_identified_c_for_non_proportional_damping(system14, 
 def test_auto_damping_gives_reduced_order_model_the_identified_damping():
     # 5 of 14 DOFs measured, 1-66 Hz (five modes; the roots hold four of them, 9.8, 21.5,
     # 48.0 and 58.7 Hz, and one above the band), 2 % modal damping, noise-free. Those four
-    # roots carry 2 % within 3 %; the A_s partition's C does not (a reduced-order fit is
-    # not one second-order system),
-    # so the written model's own damping was 20-200 % off, one mode negative. The choice
-    # from the data must deliver a model whose own modes carry the roots' damping and whose
-    # FRFs are closer to the data.
+    # roots carry 2 % within 3 %; the A_s partition's C does not (a reduced-order fit is not
+    # one second-order system), so the written model's own damping was 20-200 % off, one
+    # mode negative. The choice from the data must deliver a model whose own modes carry the
+    # roots' damping and whose FRFs are closer to the data.
     from ssid.models.payload import modal_damping
 
     M, _, K, dofs = example_system(14, seed=1)

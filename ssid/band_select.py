@@ -14,21 +14,15 @@ import numpy as np
 from .band_scaling import root_shapes, scale_selected_roots, strongest_roots
 from .bands import BandResult, overlapping_bands, process_bands
 from .errors import IdentificationError
-from .frf import FRFData, accelerance_under_test_loads
-from .identify import (SSIDResult, data_noise_weights, identify_mck, model_frf_errors,
-                       model_output_error)
+from .frf import FRFData
+from .identify import (SSIDResult, data_noise_weights, identify_mck, model_accelerance,
+                       model_frf_errors, model_output_error)
 from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from .modal import modal_phase_collinearity, physical_checks, real_modes, unit_max_shapes
 
 __all__ = ["band_ladder", "identify_mck_band_select", "identify_mck_modal",
            "model_accelerance", "result_problems"]
 
-
-def model_accelerance(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Accelerances of an identified model (over ``frf.outputs``) at the lines, outputs and
-    inputs of ``frf``, measured reactions applied as the known forces they are (Eq. 3.6):
-    :func:`ssid.frf.accelerance_under_test_loads`, (L, n, n_in) in (m/s^2)/N."""
-    return accelerance_under_test_loads(M, C, K, list(frf.outputs), frf)
 
 def result_problems(r: SSIDResult) -> int:
     """How many ways an identified model is not physical (see ``_hard_problems``): real

@@ -42,7 +42,7 @@ from .step1_eiv import refine_with_reactions
 from .step2 import assemble_mck, modal_scale_factors, state_space_modes
 
 __all__ = ["SSIDResult", "identify_mck", "identify_step1", "SOLVERS", "DAMPING_OPTIONS",
-           "data_noise_weights", "model_frf_errors", "model_output_error"]
+           "data_noise_weights", "model_accelerance", "model_frf_errors", "model_output_error"]
 
 SOLVERS = ("ml", "ls", "tls", "stls")
 #: ``damping`` of :func:`identify_mck`: the damping matrix the delivered model carries.
@@ -184,11 +184,17 @@ def data_noise_weights(frf: FRFData) -> np.ndarray:
     return np.where(valid, w, 0.0)
 
 
+def model_accelerance(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Accelerances of an identified model (over ``frf.outputs``) at the lines, outputs and
+    inputs of ``frf``, measured reactions applied as the known forces they are (Eq. 3.6):
+    :func:`ssid.frf.accelerance_under_test_loads`, (L, n, n_in) in (m/s^2)/N."""
+    return accelerance_under_test_loads(M, C, K, list(frf.outputs), frf)
+
+
 def model_output_error(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray,
                        weight: np.ndarray) -> float:
     """Weighted output error ``sum_kij w_kij^2 |H_kij - H^model_kij|^2`` of a model over the
-    outputs of ``frf`` (Eq. 3.6 solved for the accelerance, measured reactions applied as the
-    known forces they are: :func:`ssid.frf.accelerance_under_test_loads`)."""
+    outputs of ``frf`` (:func:`model_accelerance`)."""
     return model_frf_errors(frf, M, C, K, weight)[0]
 
 
@@ -196,7 +202,7 @@ def model_frf_errors(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray,
                      weight: np.ndarray) -> tuple[float, float]:
     """(:func:`model_output_error`, relative RMS error ``||H - H_model|| / ||H||``), both over
     the values with ``weight > 0``; inf when not finite."""
-    Hm = accelerance_under_test_loads(M, C, K, list(frf.outputs), frf)
+    Hm = model_accelerance(frf, M, C, K)
     valid = weight > 0
     r = np.where(valid, frf.H - Hm, 0.0)
     scale = np.linalg.norm(np.where(valid, frf.H, 0.0))

@@ -49,7 +49,12 @@ async def wait_for(pilot, cond, timeout: float, what: str) -> None:
     deadline = time.monotonic() + timeout
     while not cond():
         if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+            # The run's own log tells where a stalled run stopped (a CI stall once went unexplained).
+            try:
+                tail = "\n".join(log_text(pilot.app).splitlines()[-25:])
+            except Exception as exc:  # noqa: BLE001 -- the timeout is the failure; the log is extra
+                tail = f"(no log: {exc})"
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}; the TUI log ends:\n{tail}")
         await pilot.pause(0.05)
 
 

@@ -6,11 +6,20 @@ outputs for n sensors. Step 1 then has a model of order 2n, and Eq. 3.12 gives u
 Each element of the stacked regressor keeps its own frequency (``H/(j w)``, ``H/w^2`` with the
 w of its half).
 
+The report split the record in two. We allow ``p`` contiguous partitions of ``N // p`` lines
+each (``n_partitions``; pseudo line k carries ``[H(w_k); H(w_k+L); ...]``, a model of order
+``p n``): where the record holds more than 2n modes, two partitions cannot hold them all
+(the payload of Table 6.18: 21 modes in 1-2100 Hz at 10 sensors, docs/replication.md
+section 5). The top ``N mod p`` lines are left out.
+
 Step 1 and the eigenproblem are what the report did. To tell structural from computational
 modes (the report asks for an indicator) we use the *partition consistency* of a mode:
-a structural mode below the split lives in the upper (low-frequency) partition of its shape,
-one above the split in the lower partition. ``q = |phi_own|^2 / |phi|^2`` is near 1 for
-structural modes and splits between both partitions for computational ones.
+a structural mode lives in the partition whose lines hold its frequency (its "own"
+partition; the nearest one for a root between or outside them). ``q = |phi_own|^2 / |phi|^2``
+is near 1 for structural modes and spreads over the partitions for computational ones.
+:func:`identify_pseudo_dof_auto` chooses p from the data and adds a second indicator: a
+structural root is found again by the model with one partition more (a stabilisation test
+across model orders); computational roots come and go.
 
 Step 2 (the report left it open). What is physical in the pseudo model is a structural root
 ``lambda_r`` and the partition of its shape that carries its frequency, ``phi_r`` (n,): the
@@ -63,11 +72,13 @@ from .step2 import state_space_modes
 
 __all__ = [
     "PseudoDofMCK",
+    "PartitionScan",
     "PseudoDofResult",
     "PseudoModalModel",
     "free_residue_error",
     "frf_relative_error",
     "identify_pseudo_dof",
+    "identify_pseudo_dof_auto",
     "mck_accelerance",
     "modal_model_accelerance",
     "pseudo_dof_fit_error",
@@ -84,10 +95,14 @@ class PseudoDofResult:
     ----------
     freq_hz, zeta, mpc, consistency : (m,) per oscillatory root, ascending frequency.
     structural : (m,) bool, the indicator's verdict (in band, positive damping,
-        consistency >= threshold).
-    lam : (m,) roots; theta : (4n, m) state eigenvectors of the pseudo model.
+        consistency >= threshold; from :func:`identify_pseudo_dof_auto` also repeated).
+    lam : (m,) roots; theta : (2 p n, m) state eigenvectors of the pseudo model.
     u : (m,) complex modal scale factors from the step-2 attempt.
-    f_split_hz : the frequency at which the record was split.
+    split_hz : (p - 1,) the frequencies at which the record was split (between partitions).
+    own : (m,) int, the partition carrying each root (0 = lowest frequencies).
+    repeated : (m,) bool or None, whether the model with one partition more finds the root
+        again (:func:`identify_pseudo_dof_auto`; None from :func:`identify_pseudo_dof`).
+    scan : how the number of partitions was chosen, or None.
     """
 
     freq_hz: np.ndarray
@@ -98,32 +113,79 @@ class PseudoDofResult:
     lam: np.ndarray
     theta: np.ndarray
     u: np.ndarray
-    f_split_hz: float
+    split_hz: np.ndarray
+    own: np.ndarray
+    repeated: np.ndarray | None = None
+    scan: PartitionScan | None = None
+
+    @property
+    def n_partitions(self) -> int:
+        return self.split_hz.size + 1
 
 
-def _stack(frf: FRFData) -> tuple[np.ndarray, np.ndarray, int]:
-    """Pseudo lines: (Ne, 2n, n_in) accelerances and (Ne, 2n) frequencies (rad/s)."""
+@dataclass
+class PartitionScan:
+    """How :func:`identify_pseudo_dof_auto` chose the number of partitions.
+
+    Attributes
+    ----------
+    n_partitions : (k,) the p tried (each compared with p + 1).
+    n_consistent : (k,) roots passing the consistency indicator at each p.
+    n_repeated : (k,) of those, the ones the model with p + 1 partitions repeats.
+    chosen : the p used.
+    settled : whether the chosen p met ``repeat_min`` (else it is the best fraction seen).
+    repeat_min, repeat_rtol : the rule's thresholds.
+    """
+
+    n_partitions: np.ndarray
+    n_consistent: np.ndarray
+    n_repeated: np.ndarray
+    chosen: int
+    settled: bool
+    repeat_min: float
+    repeat_rtol: float
+
+
+def _stack(frf: FRFData, n_partitions: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Pseudo lines: (L, p n, n_in) accelerances and (L, p n) frequencies (rad/s), L = N // p."""
     if frf.H_reaction is not None:
         raise IdentificationError("pseudo DOFs with measured reactions are not supported")
-    ne = frf.n_freq // 2
+    ne = frf.n_freq // n_partitions
     w = frf.omega
-    H = np.concatenate([frf.H[:ne], frf.H[ne : 2 * ne]], axis=1)
-    W = np.concatenate([np.repeat(w[:ne, None], frf.n_out, 1),
-                        np.repeat(w[ne : 2 * ne, None], frf.n_out, 1)], axis=1)
+    blocks = [slice(i * ne, (i + 1) * ne) for i in range(n_partitions)]
+    H = np.concatenate([frf.H[b] for b in blocks], axis=1)
+    W = np.concatenate([np.repeat(w[b, None], frf.n_out, 1) for b in blocks], axis=1)
     return H, W, ne
 
 
-def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8) -> PseudoDofResult:
+def _own_partition(f_hz: np.ndarray, freq_hz: np.ndarray, ne: int, n_partitions: int) -> np.ndarray:
+    """Index of the partition whose lines hold each frequency (the nearest one otherwise)."""
+    lo = np.array([freq_hz[i * ne] for i in range(n_partitions)])
+    hi = np.array([freq_hz[(i + 1) * ne - 1] for i in range(n_partitions)])
+    gap = np.maximum(lo[None, :] - f_hz[:, None], 0) + np.maximum(f_hz[:, None] - hi[None, :], 0)
+    return np.argmin(gap, axis=1)
+
+
+def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
+                        n_partitions: int = 2) -> PseudoDofResult:
     """Step 1 with pseudo DOFs (Eq. 5.24), Eq. 3.12, the indicator, and our step-2 attempt.
 
     Parameters
     ----------
     frf : FRFData without reactions and without blanked values, noise-free or not.
     consistency_min : threshold of the partition-consistency indicator.
+    n_partitions : p, the number of partitions stacked (the report's Eq. 5.24: 2); the
+        model has order p n for n sensors.
     """
     if not frf.valid_mask().all():
         raise IdentificationError("pseudo DOFs need a record without blanked values")
-    H, W, ne = _stack(frf)
+    if n_partitions < 2:
+        raise ValueError("pseudo DOFs need at least 2 partitions")
+    if 2 * (frf.n_freq // n_partitions) * frf.n_in < 2 * n_partitions * frf.n_out + frf.n_in:
+        # fewer real equations per pseudo output than unknowns (Eq. 3.7 per column)
+        raise IdentificationError(f"{frf.n_freq} lines cannot make {n_partitions} partitions "
+                                  f"for {frf.n_out} outputs (too few lines per partition)")
+    H, W, ne = _stack(frf, n_partitions)
     n2, n_in = H.shape[1], frf.n_in
     h = np.swapaxes(H, 1, 2)  # (Ne, n_in, 2n)
     Wt = W[:, None, :]
@@ -136,56 +198,137 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8) -> PseudoDof
     m = modes.n_pairs
     wn, zeta = root_frequency_damping(modes.lam[:m])
     f = wn / (2 * np.pi)
-    f_split = 0.5 * (frf.freq_hz[ne - 1] + frf.freq_hz[ne])
-    th = modes.theta_x[:, :m]
+    split = np.array([0.5 * (frf.freq_hz[i * ne - 1] + frf.freq_hz[i * ne])
+                      for i in range(1, n_partitions)])
     n = frf.n_out
-    low = np.sum(np.abs(th[:n]) ** 2, axis=0)
-    high = np.sum(np.abs(th[n:]) ** 2, axis=0)
-    consistency = np.where(f < f_split, low, high) / (low + high)
-    in_band = (f >= frf.freq_hz[0]) & (f <= frf.freq_hz[-1])
+    th = modes.theta_x[:, :m].reshape(n_partitions, n, m)
+    energy = np.sum(np.abs(th) ** 2, axis=1)  # (p, m)
+    own = _own_partition(f, frf.freq_hz, ne, n_partitions)
+    cols = np.arange(m)
+    consistency = energy[own, cols] / energy.sum(axis=0)
+    in_band = (f >= frf.freq_hz[0]) & (f <= frf.freq_hz[n_partitions * ne - 1])
     structural = in_band & (zeta > 0) & (consistency >= consistency_min)
-    mpc = modal_phase_collinearity(np.where(f < f_split, 1, 0)[None] * th[:n]
-                                   + np.where(f < f_split, 0, 1)[None] * th[n:])
-    u = _pseudo_scale_factors(frf, modes, ne)
+    mpc = modal_phase_collinearity(th[own, :, cols].T)
+    u = _pseudo_scale_factors(frf, modes, ne, n_partitions)
     return PseudoDofResult(freq_hz=f, zeta=zeta, mpc=mpc, consistency=consistency,
                            structural=structural, lam=modes.lam[:m], theta=modes.theta[:, :m],
-                           u=u, f_split_hz=float(f_split))
+                           u=u, split_hz=split, own=own)
 
 
-def _pseudo_design(frf: FRFData, lam: np.ndarray, theta_x: np.ndarray, ne: int) -> np.ndarray:
-    """Columns of the step-2 model, (n_freq * n_out * n_in, n_modes), for all roots given."""
+def _repeated(freq_hz: np.ndarray, other_hz: np.ndarray, rtol: float) -> np.ndarray:
+    """For each frequency, whether a root of ``other_hz`` within ``rtol`` of it repeats it.
+
+    Matched one to one, closest pairs first (as criterion 4 of band processing), so that two
+    roots of one model beside one mode are not both confirmed by its single estimate.
+    """
+    out = np.zeros(freq_hz.size, dtype=bool)
+    if other_hz.size == 0 or freq_hz.size == 0:
+        return out
+    d = np.abs(other_hz[None, :] - freq_hz[:, None]) / freq_hz[:, None]
+    used = np.zeros(other_hz.size, dtype=bool)
+    for flat in np.argsort(d, axis=None):
+        i, j = np.unravel_index(flat, d.shape)
+        if d[i, j] >= rtol:
+            break
+        if not out[i] and not used[j]:
+            out[i] = used[j] = True
+    return out
+
+
+def identify_pseudo_dof_auto(frf: FRFData, consistency_min: float = 0.8, max_partitions: int = 6,
+                             repeat_min: float = 0.8, repeat_rtol: float = 0.01) -> PseudoDofResult:
+    """Pseudo-DOF model with the number of partitions chosen from the data (stabilisation).
+
+    A pseudo model of order p n holds at most p n modes, and the report's p = 2 is too few
+    when the record holds more than about 2n modes (21 modes in 1-2100 Hz at 10 sensors in
+    Table 6.18's case). A structural root of the model with p partitions is found again by
+    the model with p + 1 (the stabilisation diagram's test across model orders, as criterion
+    4 of band processing repeats a root across bands); a computational one comes and goes.
+    p = 2, 3, ... is raised until at least ``repeat_min`` of the consistent roots repeat at
+    p + 1 within ``repeat_rtol`` in frequency, and those repeated roots are the structural
+    ones (``repeated``): consistency and repetition are both required.
+
+    Parameters
+    ----------
+    frf : as for :func:`identify_pseudo_dof`.
+    consistency_min : threshold of the partition-consistency indicator.
+    max_partitions : largest p considered (p + 1 is computed to test it).
+    repeat_min : fraction of consistent roots that must repeat at p + 1.
+    repeat_rtol : relative frequency tolerance of a repeat.
+
+    Returns
+    -------
+    PseudoDofResult with ``repeated`` and ``scan`` set. When no p meets ``repeat_min``
+    (noisy data: the least-squares roots of Eq. 3.7 move with the order) the p with the
+    largest repeated fraction is used and ``scan.settled`` is False.
+    """
+    results = {2: identify_pseudo_dof(frf, consistency_min, 2)}
+    ps, n_cons, n_rep = [], [], []
+    for p in range(2, max_partitions + 1):
+        try:
+            results[p + 1] = identify_pseudo_dof(frf, consistency_min, p + 1)
+        except IdentificationError:  # too few lines per partition: p is the last one testable
+            break
+        a, b = results[p], results[p + 1]
+        rep = _repeated(a.freq_hz[a.structural], b.freq_hz[b.structural], repeat_rtol)
+        ps.append(p)
+        n_cons.append(int(a.structural.sum()))
+        n_rep.append(int(rep.sum()))
+        if rep.size and rep.mean() >= repeat_min:
+            break
+    if not ps:
+        raise IdentificationError("too few lines to compare pseudo models of 2 and 3 partitions")
+    frac = np.array(n_rep) / np.maximum(n_cons, 1)
+    settled = bool(frac[-1] >= repeat_min and n_cons[-1] > 0)
+    chosen = ps[-1] if settled else ps[int(np.argmax(frac))]
+    res = results[chosen]
+    nxt = results[chosen + 1]
+    repeated = np.zeros(res.freq_hz.size, dtype=bool)
+    repeated[res.structural] = _repeated(res.freq_hz[res.structural], nxt.freq_hz[nxt.structural],
+                                         repeat_rtol)
+    res.structural = res.structural & repeated
+    res.repeated = repeated
+    res.scan = PartitionScan(np.array(ps), np.array(n_cons), np.array(n_rep), chosen, settled,
+                             repeat_min, repeat_rtol)
+    return res
+
+
+def _pseudo_design(frf: FRFData, lam: np.ndarray, theta_x: np.ndarray, ne: int,
+                   n_partitions: int) -> np.ndarray:
+    """Columns of the step-2 model, (n_lines * n_out * n_in, n_modes), for all roots given."""
     n = frf.n_out
-    w = frf.omega[: 2 * ne]
+    w = frf.omega[: n_partitions * ne]
     R = -(w[:, None] ** 2) / (1j * w[:, None] - lam[None, :])  # (L, r)
-    part = np.where(np.arange(2 * ne) < ne, 0, 1)
-    Dp = np.vstack([np.eye(n)[:, frf.input_index()]] * 2)  # (2n, n_in)
+    part = np.arange(n_partitions * ne) // ne
+    Dp = np.vstack([np.eye(n)[:, frf.input_index()]] * n_partitions)  # (p n, n_in)
     q = theta_x.T @ Dp  # (r, n_in)
-    rows = np.stack([theta_x[:n], theta_x[n:]])[part]  # (L, n, r)
+    rows = theta_x.reshape(n_partitions, n, -1)[part]  # (L, n, r)
     return np.einsum("kr,kir,rj->kijr", R, rows, q).reshape(-1, lam.size)
 
 
-def _pseudo_scale_factors(frf: FRFData, modes, ne: int) -> np.ndarray:
+def _pseudo_scale_factors(frf: FRFData, modes, ne: int, n_partitions: int) -> np.ndarray:
     """Least-squares ``1/a~_r`` of the pseudo model's oscillatory pairs (conjugates tied)."""
     m = modes.n_pairs
     lam = modes.lam[: 2 * m]
     th = modes.theta_x[:, : 2 * m]
-    E = _pseudo_design(frf, lam, th, ne)
+    E = _pseudo_design(frf, lam, th, ne, n_partitions)
     Et = np.hstack([E[:, :m] + E[:, m:], 1j * (E[:, :m] - E[:, m:])])
-    y = frf.H[: 2 * ne].reshape(-1)
+    y = frf.H[: n_partitions * ne].reshape(-1)
     v = solve_ls(np.vstack([Et.real, Et.imag]), np.concatenate([y.real, y.imag])[:, None])[:, 0]
     return v[:m] + 1j * v[m:]
 
 
 def pseudo_dof_fit_error(frf: FRFData, res: PseudoDofResult, structural_only: bool = True) -> float:
     """Relative RMS error of the step-2 pseudo-DOF modal model against the measured FRFs."""
-    ne = frf.n_freq // 2
+    p = res.n_partitions
+    ne = frf.n_freq // p
     keep = res.structural if structural_only else np.ones(res.freq_hz.size, bool)
     lam = np.concatenate([res.lam[keep], res.lam[keep].conj()])
     th = res.theta[: res.theta.shape[0] // 2][:, keep]
     th = np.hstack([th, th.conj()])
     u = np.concatenate([res.u[keep], res.u[keep].conj()])
-    Hm = (_pseudo_design(frf, lam, th, ne) @ u).reshape(2 * ne, frf.n_out, frf.n_in)
-    Hd = frf.H[: 2 * ne]
+    Hm = (_pseudo_design(frf, lam, th, ne, p) @ u).reshape(p * ne, frf.n_out, frf.n_in)
+    Hd = frf.H[: p * ne]
     return float(np.linalg.norm(Hm - Hd) / np.linalg.norm(Hd))
 
 
@@ -280,10 +423,10 @@ def pseudo_modal_model(frf: FRFData, res: PseudoDofResult, roots: np.ndarray | N
     if roots.size == 0:
         raise IdentificationError("no pseudo-DOF roots to scale")
     n = frf.n_out
-    th = res.theta[: 2 * n][:, roots]  # displacement partitions [upper; lower], (2n, m)
-    below = res.freq_hz[roots] < res.f_split_hz
+    # displacement partitions, lowest frequencies first: (p, n, m)
+    th = res.theta[: res.n_partitions * n][:, roots].reshape(res.n_partitions, n, roots.size)
     # The shape at the measured DOFs is the partition that carries the root's frequency.
-    phi = np.where(below[None, :], th[:n], th[n:])
+    phi = th[res.own[roots], :, np.arange(roots.size)].T
     lam = res.lam[roots]
     w = frf_noise_weights(frf)
     d = step1_data(frf, w)

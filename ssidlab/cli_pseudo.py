@@ -1,18 +1,21 @@
 """``ssidlab pseudo-dof``: more modes than sensors with pseudo degrees of freedom (report 5.3).
 
     ssidlab pseudo-dof FRF.h5 --json RESULT.json [--out MODEL.h5 [--all-modes]]
-                       [--consistency-min Q] [--quiet]
+                       [--partitions auto|P] [--consistency-min Q] [--quiet]
 
-The record is split at its middle line and its halves stacked (Eq. 5.24): step 1 and the
-eigenproblem then give up to twice as many modes as sensors. Each root is flagged structural
-(in the band, positive damping, partition consistency >= ``--consistency-min``) or
-computational. Step 2, which the report left open, is ours (``ssid.pseudo_dof``): the
+The record is split into P partitions of equal length and these are stacked (Eq. 5.24, where
+the report used P = 2): step 1 and the eigenproblem then give up to P times as many modes as
+sensors. By default P is chosen from the data (``identify_pseudo_dof_auto``): raised from 2
+until the roots repeat in the model with one partition more. Each root is flagged structural
+(in the band, positive damping, partition consistency >= ``--consistency-min``, and, with P
+chosen, repeated) or computational. Step 2, which the report left open, is ours
+(``ssid.pseudo_dof``): the
 structural roots' scale factors are fitted to the measured FRFs, a root asking for a modal mass
 <= 0 is not a passive mode, and ``--out`` writes M, C, K of the others: the n strongest
 independent modes over the n measured DOFs, or with ``--all-modes`` every one of them over the
 measured DOFs plus generalised coordinates ``q1, q2, ...`` the sensors do not see.
-``docs/replication.md`` section 5 says how well this works on the payload: the structural
-roots find target modes the plain model cannot, and the models' FRFs are 61-66 % off.
+``docs/replication.md`` section 5 says how well this works on the payload (noise-free, and
+under the report's noise, where the roots do not settle and a warning says so).
 
 Bad input raises :class:`ssid.errors.InputError`; ``ssidlab.cli.main`` prints it as one line
 and exits with status 2.
@@ -47,11 +50,26 @@ def add_pseudo_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--all-modes", action="store_true",
                    help="with --out: every physical mode, over the measured DOFs and "
                    "generalised coordinates q1, q2, ... (default: the n strongest, n x n)")
+    p.add_argument("--partitions", type=_partitions, default="auto", metavar="auto|P",
+                   help="number of stacked partitions P >= 2 (the report's: 2), or auto: the "
+                   "smallest P whose roots repeat with P + 1 (default auto)")
     p.add_argument("--consistency-min", type=open_fraction, default=0.8, metavar="Q",
                    help="partition consistency of a structural root (default 0.8)")
     p.add_argument("--quiet", action="store_true", help="do not print the root table")
     p.set_defaults(run=run_pseudo)
     return p
+
+
+def _partitions(text: str) -> str | int:
+    if text == "auto":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto or an integer >= 2, got {text!r}") from None
+    if value < 2:
+        raise argparse.ArgumentTypeError(f"expected auto or an integer >= 2, got {value}")
+    return value
 
 
 def run_pseudo(args: argparse.Namespace) -> int:
@@ -64,6 +82,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
     from ssid.pseudo_dof import (
         frf_relative_error,
         identify_pseudo_dof,
+        identify_pseudo_dof_auto,
         mck_accelerance,
         pseudo_dof_mck,
         pseudo_modal_model,
@@ -75,9 +94,13 @@ def run_pseudo(args: argparse.Namespace) -> int:
                          "are not supported (use ssidlab identify)")
     if not frf.valid_mask().all():
         raise InputError(f"{args.frf}: holds blanked values; pseudo DOFs need every line "
-                         "(stacking pairs line k with line k + N/2)")
+                         "(stacking pairs line k with line k + N/P)")
     try:
-        res = identify_pseudo_dof(frf, consistency_min=args.consistency_min)
+        if args.partitions == "auto":
+            res = identify_pseudo_dof_auto(frf, consistency_min=args.consistency_min)
+        else:
+            res = identify_pseudo_dof(frf, consistency_min=args.consistency_min,
+                                      n_partitions=args.partitions)
     except IdentificationError as exc:
         raise InputError(f"{args.frf}: {exc}") from None
     mass = np.full(res.freq_hz.size, np.nan)
@@ -90,13 +113,28 @@ def run_pseudo(args: argparse.Namespace) -> int:
         mass[model.roots] = model.modal_mass
     out: dict[str, Any] = {
         "source": args.frf,
-        "f_split_hz": res.f_split_hz,
+        "n_partitions": res.n_partitions,
+        "split_hz": res.split_hz.tolist(),
         "consistency_min": args.consistency_min,
         "roots": [{"freq_hz": res.freq_hz[k], "damping_ratio": res.zeta[k], "mpc": res.mpc[k],
-                   "consistency": res.consistency[k], "structural": bool(res.structural[k]),
+                   "consistency": res.consistency[k],
+                   "repeated": None if res.repeated is None else bool(res.repeated[k]),
+                   "structural": bool(res.structural[k]),
                    "modal_mass": mass[k]} for k in range(res.freq_hz.size)],
     }
     warnings: list[str] = []
+    if res.scan is not None:
+        sc = res.scan
+        out["partition_scan"] = {"n_partitions": sc.n_partitions.tolist(),
+                                 "n_consistent": sc.n_consistent.tolist(),
+                                 "n_repeated": sc.n_repeated.tolist(), "settled": sc.settled,
+                                 "repeat_min": sc.repeat_min, "repeat_rtol": sc.repeat_rtol}
+        if not sc.settled:
+            warnings.append(
+                f"the roots did not settle: at no P up to {sc.n_partitions[-1]} did "
+                f"{100 * sc.repeat_min:.0f} % of them repeat with P + 1 (noisy data?); P = "
+                f"{sc.chosen} repeats most, and only its repeated roots are called structural. "
+                "For noisy records band processing (ssidlab bands) is the better tool")
     if args.out is not None:
         if model is None:
             raise InputError(f"{args.frf}: no root is structural; no model to write")
@@ -125,15 +163,21 @@ def run_pseudo(args: argparse.Namespace) -> int:
 
 
 def _table(out: dict) -> str:
-    lines = [f"split at {out['f_split_hz']:.4g} Hz; {len(out['roots'])} roots, "
-             f"{sum(r['structural'] for r in out['roots'])} structural",
-             f"{'f_n [Hz]':>12}  {'damping [%]':>11}  {'MPC':>6}  {'consist.':>8}  verdict"]
+    scan = out.get("partition_scan")
+    chosen = "" if scan is None else (" (chosen: its roots repeat with one more)" if scan["settled"]
+                                      else " (chosen, though the roots did not settle)")
+    lines = [f"{out['n_partitions']} partitions{chosen}, split at "
+             + ", ".join(f"{f:.4g}" for f in out["split_hz"]) + " Hz; "
+             f"{len(out['roots'])} roots, {sum(r['structural'] for r in out['roots'])} structural",
+             f"{'f_n [Hz]':>12}  {'damping [%]':>11}  {'MPC':>6}  {'consist.':>8}  "
+             f"{'repeated':>8}  verdict"]
     for r in out["roots"]:
         verdict = "structural" if r["structural"] else "computational"
         if r["structural"] and not (r["modal_mass"] > 0):
             verdict += ", modal mass <= 0"
+        rep = "-" if r["repeated"] is None else ("yes" if r["repeated"] else "no")
         lines.append(f"{r['freq_hz']:>12.4f}  {100 * r['damping_ratio']:>11.3f}  "
-                     f"{r['mpc']:>6.3f}  {r['consistency']:>8.3f}  {verdict}")
+                     f"{r['mpc']:>6.3f}  {r['consistency']:>8.3f}  {rep:>8}  {verdict}")
     if "model" in out:
         m = out["model"]
         lines.append(f"model: {len(m['dofs'])} DOF, modes "

@@ -18,6 +18,8 @@ from ssid.pseudo_dof import (
     PseudoDofResult,
     free_residue_error,
     frf_relative_error,
+    identify_pseudo_dof,
+    identify_pseudo_dof_auto,
     mck_accelerance,
     modal_model_accelerance,
     pseudo_dof_mck,
@@ -67,7 +69,8 @@ def _result_from_truth(f_hz, phi_s, f_split):
     one = np.ones(m)
     return PseudoDofResult(freq_hz=f_hz, zeta=ZETA * one, mpc=one, consistency=one,
                            structural=one.astype(bool), lam=lam, theta=theta,
-                           u=np.zeros(m, complex), f_split_hz=f_split)
+                           u=np.zeros(m, complex), split_hz=np.array([f_split]),
+                           own=(~below).astype(int))
 
 
 def test_scale_factors_give_the_true_modal_masses():
@@ -123,3 +126,23 @@ def test_negative_modal_mass_flags_non_passive_data():
     assert not mm.physical.any()
     with pytest.raises(IdentificationError):
         pseudo_dof_mck(frf, mm)
+
+
+def test_partitions_chosen_from_the_data_find_every_mode():
+    """6 modes at 3 sensors: the report's 2 partitions give a 6-DOF pseudo model with no room
+    for computational roots, and it misses a mode (no consistent root within 1 % of the
+    117 Hz mode). Chosen from the data, the partitions settle above 2, and the structural
+    roots are the 6 modes, one each. The stacked model is an approximation even on exact data
+    (each partition also carries the other partitions' modes' tails), so the roots are not
+    exact: measured worst 0.21 % (the 70 Hz mode); the bound is 0.5 %."""
+    _, _, _, f, _, frf = _data()
+    two = identify_pseudo_dof(frf, n_partitions=2)
+    f2 = two.freq_hz[two.structural]
+    assert min(np.min(np.abs(f2 - fr)) / fr for fr in f) < 0.01  # it finds some...
+    assert max(np.min(np.abs(f2 - fr)) / fr for fr in f) > 0.01  # ...not all
+    res = identify_pseudo_dof_auto(frf)
+    assert res.scan.settled and res.n_partitions > 2
+    assert res.repeated is not None and not np.any(res.structural & ~res.repeated)
+    fs = np.sort(res.freq_hz[res.structural])
+    assert fs.size == f.size
+    np.testing.assert_allclose(fs, f, rtol=5e-3)

@@ -36,6 +36,7 @@ from ssidlab.argtypes import check_output_paths, frequency_hz
 EXIT_OK = 0
 EXIT_INTERNAL = 1
 EXIT_BAD_INPUT = 2
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a tool killed by it
 
 DEBUG_ENV = "SSIDLAB_DEBUG"
 
@@ -87,6 +88,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (InputError, IdentificationError) as exc:
         _say(f"{prog}: error: {exc}")
         return EXIT_BAD_INPUT
+    except BrokenPipeError:
+        # The reader of stdout went away (``ssidlab ... | head``): its files are written, only
+        # the printout was cut. Quiet, as a Unix tool killed by SIGPIPE; stdout goes to
+        # /dev/null so that the interpreter's final flush does not raise again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except OSError as exc:  # an output path that cannot be written
         _say(f"{prog}: error: {exc}")
         return EXIT_BAD_INPUT

@@ -144,3 +144,18 @@ def test_pseudo_dof_bad_input_is_one_line_and_status_2(case, tmp_path):
     p = run(str(tmp_path / "blank.h5"), "--json", str(tmp_path / "b.json"))
     assert p.returncode == 2 and "blanked values" in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1
+
+
+def test_output_cut_by_the_reader_is_not_an_error(case, tmp_path):
+    """``ssidlab ... | head`` closes stdout before the table is printed: the command ends quiet
+    with the shell's SIGPIPE status, and what it writes to files is complete."""
+    _, _, d = case
+    js = tmp_path / "p.json"
+    proc = subprocess.Popen([sys.executable, "-m", "ssidlab", "pseudo-dof", str(d / "frf.h5"),
+                             "--json", str(js), "--partitions", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc.stdout.close()  # the reader goes away before anything is printed
+    err = proc.stderr.read()
+    assert proc.wait(timeout=300) == 141, err
+    assert "error" not in err
+    assert len(json.loads(js.read_text())["roots"]) > 0

@@ -34,7 +34,7 @@ physical.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -67,6 +67,7 @@ __all__ = [
     "modal_model_accelerance",
     "pseudo_dof_fit_error",
     "pseudo_dof_mck",
+    "plot_partition_scan",
     "pseudo_modal_model",
 ]
 
@@ -119,6 +120,11 @@ class PartitionScan:
     chosen : the p used.
     settled : whether the chosen p met ``repeat_min`` (else it is the best fraction seen).
     repeat_min, repeat_rtol : the rule's thresholds.
+    roots_hz : {p: (m_p,)} every oscillatory root of each model computed (p tried and the
+        last p + 1), Hz; ``consistent`` {p: (m_p,) bool} its consistency verdict (in band,
+        positive damping, consistency); ``repeated`` {p: (m_p,) bool} for each p tried,
+        whether the p + 1 model repeats it. The stabilisation diagram
+        (:func:`plot_partition_scan`) draws these.
     """
 
     n_partitions: np.ndarray
@@ -128,6 +134,9 @@ class PartitionScan:
     settled: bool
     repeat_min: float
     repeat_rtol: float
+    roots_hz: dict[int, np.ndarray] = field(default_factory=dict)
+    consistent: dict[int, np.ndarray] = field(default_factory=dict)
+    repeated: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 def _stack(frf: FRFData, n_partitions: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -248,6 +257,7 @@ def identify_pseudo_dof_auto(frf: FRFData, consistency_min: float = 0.8, max_par
     """
     results = {2: identify_pseudo_dof(frf, consistency_min, 2)}
     ps, n_cons, n_rep = [], [], []
+    repeated_by_p: dict[int, np.ndarray] = {}
     for p in range(2, max_partitions + 1):
         try:
             results[p + 1] = identify_pseudo_dof(frf, consistency_min, p + 1)
@@ -255,6 +265,8 @@ def identify_pseudo_dof_auto(frf: FRFData, consistency_min: float = 0.8, max_par
             break
         a, b = results[p], results[p + 1]
         rep = _repeated(a.freq_hz[a.structural], b.freq_hz[b.structural], repeat_rtol)
+        repeated_by_p[p] = np.zeros(a.freq_hz.size, dtype=bool)
+        repeated_by_p[p][a.structural] = rep
         ps.append(p)
         n_cons.append(int(a.structural.sum()))
         n_rep.append(int(rep.sum()))
@@ -265,16 +277,70 @@ def identify_pseudo_dof_auto(frf: FRFData, consistency_min: float = 0.8, max_par
     frac = np.array(n_rep) / np.maximum(n_cons, 1)
     settled = bool(frac[-1] >= repeat_min and n_cons[-1] > 0)
     chosen = ps[-1] if settled else ps[int(np.argmax(frac))]
+    scan = PartitionScan(np.array(ps), np.array(n_cons), np.array(n_rep), chosen, settled,
+                         repeat_min, repeat_rtol,
+                         roots_hz={p: r.freq_hz for p, r in results.items()},
+                         consistent={p: r.structural.copy() for p, r in results.items()},
+                         repeated=repeated_by_p)
     res = results[chosen]
-    nxt = results[chosen + 1]
-    repeated = np.zeros(res.freq_hz.size, dtype=bool)
-    repeated[res.structural] = _repeated(res.freq_hz[res.structural], nxt.freq_hz[nxt.structural],
-                                         repeat_rtol)
-    res.structural = res.structural & repeated
-    res.repeated = repeated
-    res.scan = PartitionScan(np.array(ps), np.array(n_cons), np.array(n_rep), chosen, settled,
-                             repeat_min, repeat_rtol)
+    res.repeated = repeated_by_p[chosen]
+    res.structural = res.structural & res.repeated
+    res.scan = scan
     return res
+
+
+def plot_partition_scan(path: str, res: PseudoDofResult, true_freq_hz: np.ndarray | None = None) -> None:
+    """Stabilisation diagram of the partition scan: each pseudo model's roots against
+    frequency, one row per number of partitions, marked by verdict (repeated by the next
+    model, consistent only, computational); the chosen model's row is shaded, its structural
+    roots drawn as green lines, and ``true_freq_hz`` (Hz; known modes, or an FE model's) as
+    dotted ones. ``res`` must come from :func:`identify_pseudo_dof_auto`."""
+    if res.scan is None:
+        raise ValueError("the stabilisation diagram needs a scan (identify_pseudo_dof_auto)")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sc = res.scan
+    fig, ax = plt.subplots(figsize=(9, 5))
+    ax.axhspan(sc.chosen - 0.4, sc.chosen + 0.4, color="0.9", zorder=0)
+    marks = (("repeated by the next model", "o", "tab:green"),
+             ("consistent, not repeated", "x", "tab:orange"),
+             ("consistent (top row: no next model)", "+", "tab:blue"),
+             ("computational", ".", "0.6"))
+    seen = set()
+    for p, f in sc.roots_hz.items():
+        cons = sc.consistent[p]
+        none = np.zeros(f.size, dtype=bool)
+        if p in sc.repeated:
+            rep = sc.repeated[p]
+            groups = (rep, cons & ~rep, none, ~cons)
+        else:  # the p + 1 model of the last p tried: nothing to compare it with
+            groups = (none, none, cons, ~cons)
+        for (label, mk, col), sel in zip(marks, groups, strict=True):
+            if sel.any():
+                ax.scatter(f[sel], np.full(int(sel.sum()), p), marker=mk, color=col, s=28,
+                           zorder=2, label=None if label in seen else label)
+                seen.add(label)
+    for f in res.freq_hz[res.structural]:
+        ax.axvline(f, color="tab:green", lw=0.6, alpha=0.5, zorder=1)
+    if true_freq_hz is not None:
+        for f in true_freq_hz:
+            ax.axvline(f, color="k", lw=0.5, ls=":", zorder=1)
+    # Up to the highest root in the band (consistent roots are in the band by definition).
+    in_band = [f[sc.consistent[p]] for p, f in sc.roots_hz.items()]
+    hi = max((float(np.max(f)) for f in in_band if f.size), default=1.0)
+    ax.set_xlim(0.0, hi * 1.05)
+    ax.set_yticks(sorted(sc.roots_hz))
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("partitions P (model order P n)")
+    ax.set_title(f"pseudo-DOF roots per number of partitions (shaded: P = {sc.chosen}, "
+                 f"{'settled' if sc.settled else 'not settled'})")
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _pseudo_design(frf: FRFData, lam: np.ndarray, theta_x: np.ndarray, ne: int,

@@ -1,7 +1,8 @@
 """``ssidlab pseudo-dof``: more modes than sensors with pseudo degrees of freedom (report 5.3).
 
     ssidlab pseudo-dof FRF.h5 --json RESULT.json [--out MODEL.h5 [--all-modes]]
-                       [--partitions auto|P] [--consistency-min Q] [--quiet]
+                       [--partitions auto|P] [--plot STAB.png] [--consistency-min Q]
+                       [--quiet]
 
 The record is split into P partitions of equal length and these are stacked (Eq. 5.24, where
 the report used P = 2): step 1 and the eigenproblem then give up to P times as many modes as
@@ -55,6 +56,9 @@ def add_pseudo_subcommand(sub: Any) -> argparse.ArgumentParser:
                    "smallest P whose roots repeat with P + 1 (default auto)")
     p.add_argument("--consistency-min", type=open_fraction, default=0.8, metavar="Q",
                    help="partition consistency of a structural root (default 0.8)")
+    p.add_argument("--plot", metavar="STAB.png",
+                   help="stabilisation diagram of the roots per number of partitions (PNG; "
+                   "with --partitions auto)")
     p.add_argument("--quiet", action="store_true", help="do not print the root table")
     p.set_defaults(run=run_pseudo)
     return p
@@ -76,7 +80,10 @@ def run_pseudo(args: argparse.Namespace) -> int:
     """Carry out ``ssidlab pseudo-dof``; returns 0, raises InputError on bad input."""
     if args.all_modes and args.out is None:
         raise InputError("--all-modes needs --out (it chooses the model written there)")
-    check_output_paths([args.frf], [args.json, args.out])
+    if args.plot is not None and args.partitions != "auto":
+        raise InputError("--plot draws the scan over the number of partitions: it needs "
+                         "--partitions auto")
+    check_output_paths([args.frf], [args.json, args.out, args.plot])
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
     from ssid.io import Model, read_frf, write_model
     from ssid.pseudo_dof import (
@@ -84,6 +91,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
         identify_pseudo_dof,
         identify_pseudo_dof_auto,
         mck_accelerance,
+        plot_partition_scan,
         pseudo_dof_mck,
         pseudo_modal_model,
     )
@@ -155,6 +163,11 @@ def run_pseudo(args: argparse.Namespace) -> int:
         warnings.append(f"the model's FRFs at the measured DOFs are {100 * err:.0f} % off the "
                         "data (relative RMS); docs/replication.md section 5")
     write_json(args.json, out)
+    if args.plot is not None:
+        try:
+            plot_partition_scan(args.plot, res)
+        except OSError as exc:
+            raise InputError(f"{args.plot}: cannot write the chart ({exc.strerror or exc})") from None
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     if not args.quiet:

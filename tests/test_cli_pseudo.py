@@ -50,9 +50,10 @@ def test_partitions_chosen_from_the_data_hold_every_target(case):
     1.29 Hz mode between the first two lines). No structural root is farther than 1 % from
     a mode of the full model: the repeat test removed the false ones that consistency kept."""
     f_fe, _, d = case
-    js = d / "auto.json"
-    p = run(str(d / "frf.h5"), "--json", str(js))
+    js, png = d / "auto.json", d / "stab.png"
+    p = run(str(d / "frf.h5"), "--json", str(js), "--plot", str(png))
     assert p.returncode == 0, p.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the stabilisation diagram
     res = json.loads(js.read_text())
     assert res["n_partitions"] == 3 and res["partition_scan"]["settled"]
     assert "3 partitions (chosen" in p.stdout and "repeated" in p.stdout
@@ -132,6 +133,10 @@ def test_pseudo_dof_bad_input_is_one_line_and_status_2(case, tmp_path):
     _, frf, d = case
     p = run(str(d / "frf.h5"), "--json", str(tmp_path / "x.json"), "--all-modes")
     assert p.returncode == 2 and "--all-modes needs --out" in p.stderr
+    p = run(str(d / "frf.h5"), "--json", str(tmp_path / "x.json"), "--partitions", "2",
+            "--plot", str(tmp_path / "s.png"))
+    assert p.returncode == 2 and "needs --partitions auto" in p.stderr
+    assert not (tmp_path / "x.json").exists()
     p = run(str(d / "frf.h5"), "--json", str(tmp_path / "x.json"), "--partitions", "1")
     assert p.returncode == 2 and "integer >= 2" in p.stderr
     p = run(str(d / "frf.h5"), "--json", str(tmp_path / "x.json"), "--partitions", "400")

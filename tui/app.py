@@ -12,7 +12,8 @@ Three tabs:
   --control-stdin`` in a subprocess owned by a thread worker (:mod:`tui.session` says why).
 * **Results** - identified frequencies and damping, MAC against the analysis model, an FRF
   overlay (measured, SSID model, model with the discrepancy workflow's effect), the
-  discrepancy finding with the gap before and after, and exports (HDF5, UFF, PNG).
+  discrepancy finding with the gap before and after, and exports (HDF5, UFF, PNG)
+  (:mod:`tui.results_pane`).
 
 No science or device logic lives here (:mod:`tui.session`, :mod:`tui.results`).
 """
@@ -22,7 +23,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import ClassVar
 
-import numpy as np
 from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
@@ -44,6 +44,7 @@ from textual.widgets import (
 )
 
 from .results import RunResults, analyse_run, export_results
+from .results_pane import ResultsPane
 from .session import Acquisition, LiveRun, ProgressParser, RunOutcome, parse_event, run_file_state
 from .widgets import FrfPlot
 
@@ -161,31 +162,15 @@ class LabApp(App):
                         yield Static("no line measured yet", id="line-status")
                         yield Static("instruments: waiting for the run", id="inst-status")
                 yield RichLog(id="log", max_lines=5000, wrap=False, markup=False)
-            with TabPane("Results F3", id="results"), VerticalScroll(id="results-scroll"):
-                yield Static("no results yet: run a test first", id="results-status")
-                with Horizontal(id="tables"):
-                    yield DataTable(id="modes", cursor_type="row", zebra_stripes=True)
-                    yield DataTable(id="mac", cursor_type="row", zebra_stripes=True)
-                yield Static("", id="discrepancy")
-                yield Select([], prompt="channel", id="result-channel", allow_blank=True)
-                yield FrfPlot(id="overlay")
-                with Horizontal(id="export-buttons"):
-                    yield Button("HDF5 h", id="export-hdf5", disabled=True)
-                    yield Button("UFF u", id="export-uff", disabled=True)
-                    yield Button("PNG p", id="export-png", disabled=True)
-                yield Static("", id="export-status")
+            with TabPane("Results F3", id="results"):
+                yield ResultsPane(id="results-scroll")
         yield Footer(compact=True)
 
     def on_mount(self) -> None:
         self.query_one("#channels", DataTable).add_columns(
             "name", "in", "dof", "quantity", "mV/unit", "range V", "coupl.")
         self.query_one("#instruments", DataTable).add_columns("instrument", "kind", "address", "state", "identity")
-        self.query_one("#modes", DataTable).add_columns("mode", "f [Hz]", "zeta %", "MPC")
-        # MAC pairs the identified model's normal modes (undamped, of its M and K) with the
-        # analysis model's: both frequencies shown, as the mode numbers differ from the table left.
-        self.query_one("#mac", DataTable).add_columns("SSID Hz", "model Hz", "df %", "MAC")
         self.query_one("#live-plot", FrfPlot).show_message("live FRF: start a run (F5)")
-        self.query_one("#overlay", FrfPlot).show_message("FRF overlay: after a run")
         self.set_interval(0.25, self._redraw_live)
         if self._initial["setup"]:
             self.action_load()
@@ -219,8 +204,7 @@ class LabApp(App):
         self.query_one("#pause", Button).disabled = not running or self.pause_pending
         self.query_one("#resume", Button).disabled = not (running and self.pause_pending)
         self.query_one("#abort", Button).disabled = not running
-        for kind in ("hdf5", "uff", "png"):
-            self.query_one(f"#export-{kind}", Button).disabled = self.results is None
+        self.query_one(ResultsPane).enable_exports(self.results is not None)
         self.refresh_bindings()
 
     # ------------------------------------------------------------------ setup
@@ -394,7 +378,7 @@ class LabApp(App):
             if sel.value != event.value:
                 sel.value = event.value
         self._plot_dirty = True
-        self._draw_overlay()
+        self.query_one(ResultsPane).draw_overlay(self.results, self.channel)
 
     def _status(self, text: str) -> None:
         self.query_one("#run-status", Static).update(text)
@@ -428,11 +412,7 @@ class LabApp(App):
         self.results_message = ""
         self.pause_pending = False
         self.live = LiveRun(self.setup.outputs, self.setup.inputs)
-        for t in ("#modes", "#mac"):
-            self.query_one(t, DataTable).clear()
-        self.query_one("#discrepancy", Static).update("")
-        self.query_one("#export-status", Static).update("")
-        self.query_one("#results-status", Static).update("run in progress...")
+        self.query_one(ResultsPane).clear("run in progress...")
         self.query_one("#log", RichLog).clear()
         self.query_one("#progress", ProgressBar).update(total=1.0, progress=0.0)
         self.acquisition = Acquisition(self.setup.source, out_path.resolve(), sim=sim, resume=resume)
@@ -537,52 +517,21 @@ class LabApp(App):
             self._progress(1.0)
         else:
             resumable = outcome.state and outcome.state != "complete"
-            self.query_one("#results-status", Static).update(
+            self.query_one(ResultsPane).status(
                 f"no results: {text}" + ("; F5 resumes the run file" if resumable else ""))
             if resumable:
                 self._status(f"{text} - F5 resumes it")
         self._refresh_controls()
 
     def _results_status(self, text: str) -> None:
-        self.query_one("#results-status", Static).update(text)
+        self.query_one(ResultsPane).status(text)
 
     def _show_results(self, results: RunResults | None, message: str) -> None:
-        modes = self.query_one("#modes", DataTable)
-        mac = self.query_one("#mac", DataTable)
-        modes.clear()
-        mac.clear()
         self.results = results
         self.results_message = message
-        if results is not None:
-            for r in results.modes:  # * marks a mode outside the measured band
-                modes.add_row(f"{r.mode}{'' if r.in_band else '*'}", f"{r.freq_hz:.2f}",
-                              f"{100 * r.damping_ratio:.2f}", f"{r.mpc:.2f}")
-            for p in results.pairs:
-                mac.add_row(f"{p['test_freq_hz']:.2f}", f"{p['analysis_freq_hz']:.2f}",
-                            f"{p['freq_error_percent']:+.2f}", f"{p['mac']:.3f}")
-            notes = [n for n in results.notes if not n.startswith("discrepancy")]
-            message = (message + ("; * outside the band" if any(not r.in_band for r in results.modes) else "")
-                       + (f"\nMAC (right) vs the {results.model_source}" if results.pairs else "")
-                       + "".join(f"\n{n}" for n in notes))
-            self.query_one("#discrepancy", Static).update(results.discrepancy_text())
-        self._results_status(message)
-        self._draw_overlay()
+        self.query_one(ResultsPane).show(results, message, self.channel)
         self._refresh_controls()
         self.action_show_tab("results")
-
-    def _draw_overlay(self) -> None:
-        res = self.results
-        if res is None:
-            return
-        o, i = self.channel
-        frf = res.frf
-        if o >= frf.n_out or i >= frf.n_in:
-            return
-        H = np.where(frf.valid_mask()[:, o, i], np.abs(frf.H[:, o, i]), np.nan)
-        curves = [("measured", H), ("SSID", np.abs(res.predicted[:, o, i]))]
-        if res.updated is not None:
-            curves.append(("model+effect", np.abs(res.updated[:, o, i])))
-        self.query_one("#overlay", FrfPlot).show_overlay(f"{frf.outputs[o]} / {frf.inputs[i]}", frf.freq_hz, curves)
 
     def action_pause(self) -> None:
         if self.acquisition is not None and self.acquisition.pause():
@@ -619,9 +568,9 @@ class LabApp(App):
         try:
             paths = export_results(self.results, kind, *self.channel)
         except Exception as exc:  # noqa: BLE001 -- an export failure is one line; nothing else is lost
-            self.query_one("#export-status", Static).update(f"export {kind} failed: {_one_line(exc)}")
+            self.query_one(ResultsPane).export_status(f"export {kind} failed: {_one_line(exc)}")
             return
-        self.query_one("#export-status", Static).update("wrote " + ", ".join(str(p) for p in paths))
+        self.query_one(ResultsPane).export_status("wrote " + ", ".join(str(p) for p in paths))
 
     async def action_quit(self) -> None:
         self._stop_acquisition()

@@ -167,8 +167,9 @@ def band_processing(truth: Truth, seed: int, width_hz: float) -> None:
     print("| data | roots kept | selected roots | targets found | BP2 report | BP2 state space | "
           "BP2 normal | BP3 report | BP3 state space | BP3 normal |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for label, frf, solver in (("clean", clean, "ls"),
-                               ("noisy", report_noise_frf(clean, seed=seed), "ml")):
+    for key, label, frf, solver in (("clean", "clean", clean, "ls"),
+                                    ("noisy", f"noisy (seed {seed})", report_noise_frf(clean, seed=seed),
+                                     "ml")):
         res = process_bands(frf, bands, solver=solver)
         sel_f = res.freq_hz
         found = sum(np.min(np.abs(sel_f - truth.f[i])) / truth.f[i] < 0.01 for i in tm)
@@ -198,8 +199,8 @@ def band_processing(truth: Truth, seed: int, width_hz: float) -> None:
                         cells.append(f"{max(err):.3g}" + ("" if len(hit) == len(tm) else
                                      f" ({max(hit):.3g} over the {len(hit)} found)"))
             print(f"| {label} | {how} | {sel_f.size} | {found}/16 (max err {e_sel:.3g} %) | "
-                  f"{REPORT[('bands', label, 'BP2')]} | {cells[0]} | {cells[1]} | "
-                  f"{REPORT[('bands', label, 'BP3')]} | {cells[2]} | {cells[3]} |")
+                  f"{REPORT[('bands', key, 'BP2')]} | {cells[0]} | {cells[1]} | "
+                  f"{REPORT[('bands', key, 'BP3')]} | {cells[2]} | {cells[3]} |")
     print("\n" + BAND_NOTES)
 
 

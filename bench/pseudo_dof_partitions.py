@@ -25,7 +25,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from report_truth import Truth  # noqa: E402
 from ssid.noise import report_noise_frf  # noqa: E402
-from ssid.pseudo_dof import identify_pseudo_dof, identify_pseudo_dof_auto  # noqa: E402
+from ssid.pseudo_dof import (  # noqa: E402
+    identify_pseudo_dof,
+    identify_pseudo_dof_auto,
+    matched_one_to_one,
+)
 
 RECORDS = [(10, 300.0), (10, 600.0), (10, 1000.0), (10, 2100.0), (12, 2100.0), (16, 2100.0),
            (16, 3000.0)]
@@ -35,17 +39,9 @@ def held_and_false(roots_hz: np.ndarray, modes_hz: np.ndarray, rtol: float = 0.0
     """Modes with their own root within ``rtol`` (matched one to one), roots near no mode."""
     if roots_hz.size == 0:
         return 0, 0
+    held = int(matched_one_to_one(modes_hz, roots_hz, rtol).sum())
     d = np.abs(roots_hz[None, :] - modes_hz[:, None]) / modes_hz[:, None]
-    used_m, used_r = set(), set()
-    for flat in np.argsort(d, axis=None):
-        i, j = np.unravel_index(flat, d.shape)
-        if d[i, j] >= rtol:
-            break
-        if i not in used_m and j not in used_r:
-            used_m.add(i)
-            used_r.add(j)
-    false = int(np.sum(np.min(d, axis=0) >= rtol))
-    return len(used_m), false
+    return held, int(np.sum(np.min(d, axis=0) >= rtol))
 
 
 def main() -> None:

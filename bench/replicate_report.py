@@ -50,6 +50,7 @@ from ssid.pseudo_dof import (  # noqa: E402
     frf_relative_error,
     identify_pseudo_dof,
     identify_pseudo_dof_auto,
+    matched_one_to_one,
     mck_accelerance,
     modal_model_accelerance,
     pseudo_dof_fit_error,
@@ -215,19 +216,8 @@ def pseudo_dof(truth: Truth) -> None:
 
     def found(freqs):
         """Targets with a root within 1 %, matched one to one (closest pairs first)."""
-        freqs = np.asarray(freqs, dtype=float)
-        if freqs.size == 0:
-            return []
-        d = np.abs(freqs[None, :] - truth.f[tm][:, None]) / truth.f[tm][:, None]
-        hit, used = set(), set()
-        for flat in np.argsort(d, axis=None):
-            i, j = np.unravel_index(flat, d.shape)
-            if d[i, j] >= 0.01:
-                break
-            if i not in hit and j not in used:
-                hit.add(i)
-                used.add(j)
-        return [f"{truth.f[tm[i]]:.0f}" for i in sorted(hit)]
+        hit = matched_one_to_one(truth.f[tm], freqs, 0.01)
+        return [f"{f:.0f}" for f in truth.f[tm][hit]]
 
     print(f"- report: {REPORT['pseudo']}")
     print(f"- ours, original 10-DOF model: targets found within 1 %: {', '.join(found(r10.natural_freq_hz))}")

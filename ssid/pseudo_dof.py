@@ -63,6 +63,7 @@ __all__ = [
     "frf_relative_error",
     "identify_pseudo_dof",
     "identify_pseudo_dof_auto",
+    "matched_one_to_one",
     "mck_accelerance",
     "modal_model_accelerance",
     "pseudo_dof_fit_error",
@@ -208,12 +209,15 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
                            u=u, split_hz=split, own=own)
 
 
-def _repeated(freq_hz: np.ndarray, other_hz: np.ndarray, rtol: float) -> np.ndarray:
+def matched_one_to_one(freq_hz: np.ndarray, other_hz: np.ndarray, rtol: float) -> np.ndarray:
     """For each frequency, whether a root of ``other_hz`` within ``rtol`` of it repeats it.
 
     Matched one to one, closest pairs first (as criterion 4 of band processing), so that two
-    roots of one model beside one mode are not both confirmed by its single estimate.
+    roots of one model beside one mode are not both confirmed by its single estimate. The
+    distance is relative to ``freq_hz`` (Hz, (m,)); ``other_hz`` (Hz, (k,)); returns (m,) bool.
     """
+    freq_hz = np.asarray(freq_hz, dtype=float)
+    other_hz = np.asarray(other_hz, dtype=float)
     out = np.zeros(freq_hz.size, dtype=bool)
     if other_hz.size == 0 or freq_hz.size == 0:
         return out
@@ -264,7 +268,7 @@ def identify_pseudo_dof_auto(frf: FRFData, consistency_min: float = 0.8, max_par
         except IdentificationError:  # too few lines per partition: p is the last one testable
             break
         a, b = results[p], results[p + 1]
-        rep = _repeated(a.freq_hz[a.structural], b.freq_hz[b.structural], repeat_rtol)
+        rep = matched_one_to_one(a.freq_hz[a.structural], b.freq_hz[b.structural], repeat_rtol)
         repeated_by_p[p] = np.zeros(a.freq_hz.size, dtype=bool)
         repeated_by_p[p][a.structural] = rep
         ps.append(p)

@@ -17,7 +17,7 @@ from ssid.errors import InputError
 from ssid.jsonutil import to_jsonable
 
 __all__ = ["check_output_paths", "fe_normal_modes", "frequency_hz", "label_list",
-           "open_fraction", "parse_mode_list", "positive_number", "write_json"]
+           "open_fraction", "parse_mode_list", "positive_number", "whole_number", "write_json"]
 
 
 def frequency_hz(text: str) -> float:
@@ -52,6 +52,17 @@ def positive_number(text: str) -> float:
     value = _number(text)
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def whole_number(text: str, minimum: int = 1) -> int:
+    """argparse type for an integer >= ``minimum`` (a count: sensors, partitions)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {text!r}")
     return value
 
 

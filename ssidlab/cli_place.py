@@ -28,6 +28,7 @@ from ssidlab.argtypes import (
     fe_normal_modes,
     label_list,
     parse_mode_list,
+    whole_number,
     write_json,
 )
 
@@ -38,23 +39,13 @@ HELP = ("Choose sensor DOFs for target modes from an analysis model (Effective I
 TRANSLATIONS = ("X", "Y", "Z")
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
-    return value
-
-
 def add_place_subcommand(sub: Any) -> argparse.ArgumentParser:
     """Add the ``place`` subparser to ``sub`` (an argparse subparsers action); returns it."""
     p = sub.add_parser("place", prog="ssidlab place", help=HELP, description=HELP,
                        allow_abbrev=False)
     p.add_argument("model", metavar="FE_MODEL",
                    help="analysis model (ssidlab-model .h5, .mat or .op4) with DOF labels")
-    p.add_argument("--sensors", type=_positive_int, required=True, metavar="N",
+    p.add_argument("--sensors", type=whole_number, required=True, metavar="N",
                    help="number of DOFs to measure (at least the number of target modes)")
     p.add_argument("--json", metavar="OUT.json", required=True,
                    help="chosen DOFs, targets and the checks of the choice")

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ssid.errors import IdentificationError, InputError
-from ssidlab.argtypes import check_output_paths, open_fraction, write_json
+from ssidlab.argtypes import check_output_paths, open_fraction, whole_number, write_json
 
 __all__ = ["add_pseudo_subcommand", "run_pseudo"]
 
@@ -68,12 +68,9 @@ def _partitions(text: str) -> str | int:
     if text == "auto":
         return text
     try:
-        value = int(text)
-    except ValueError:
+        return whole_number(text, 2)
+    except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(f"expected auto or an integer >= 2, got {text!r}") from None
-    if value < 2:
-        raise argparse.ArgumentTypeError(f"expected auto or an integer >= 2, got {value}")
-    return value
 
 
 def run_pseudo(args: argparse.Namespace) -> int:

@@ -115,9 +115,6 @@ class PartitionScan:
 
     Attributes
     ----------
-    n_partitions : (k,) the p tried (each compared with p + 1).
-    n_consistent : (k,) roots passing the consistency indicator at each p.
-    n_repeated : (k,) of those, the ones the model with p + 1 partitions repeats.
     chosen : the p used.
     settled : whether the chosen p met ``repeat_min`` (else it is the best fraction seen).
     repeat_min, repeat_rtol : the rule's thresholds.
@@ -126,11 +123,10 @@ class PartitionScan:
         positive damping, consistency); ``repeated`` {p: (m_p,) bool} for each p tried,
         whether the p + 1 model repeats it. The stabilisation diagram
         (:func:`plot_partition_scan`) draws these.
+    n_partitions, n_consistent, n_repeated : (k,) per p tried (each compared with p + 1):
+        p, its consistent roots, and how many of those the p + 1 model repeats.
     """
 
-    n_partitions: np.ndarray
-    n_consistent: np.ndarray
-    n_repeated: np.ndarray
     chosen: int
     settled: bool
     repeat_min: float
@@ -138,6 +134,18 @@ class PartitionScan:
     roots_hz: dict[int, np.ndarray] = field(default_factory=dict)
     consistent: dict[int, np.ndarray] = field(default_factory=dict)
     repeated: dict[int, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def n_partitions(self) -> np.ndarray:
+        return np.array(sorted(self.repeated), dtype=int)
+
+    @property
+    def n_consistent(self) -> np.ndarray:
+        return np.array([int(self.consistent[p].sum()) for p in self.n_partitions], dtype=int)
+
+    @property
+    def n_repeated(self) -> np.ndarray:
+        return np.array([int(self.repeated[p].sum()) for p in self.n_partitions], dtype=int)
 
 
 def _stack(frf: FRFData, n_partitions: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -260,7 +268,6 @@ def identify_pseudo_dof_auto(frf: FRFData, consistency_min: float = 0.8, max_par
     largest repeated fraction is used and ``scan.settled`` is False.
     """
     results = {2: identify_pseudo_dof(frf, consistency_min, 2)}
-    ps, n_cons, n_rep = [], [], []
     repeated_by_p: dict[int, np.ndarray] = {}
     for p in range(2, max_partitions + 1):
         try:
@@ -271,23 +278,20 @@ def identify_pseudo_dof_auto(frf: FRFData, consistency_min: float = 0.8, max_par
         rep = matched_one_to_one(a.freq_hz[a.structural], b.freq_hz[b.structural], repeat_rtol)
         repeated_by_p[p] = np.zeros(a.freq_hz.size, dtype=bool)
         repeated_by_p[p][a.structural] = rep
-        ps.append(p)
-        n_cons.append(int(a.structural.sum()))
-        n_rep.append(int(rep.sum()))
         if rep.size and rep.mean() >= repeat_min:
             break
-    if not ps:
+    if not repeated_by_p:
         raise IdentificationError("too few lines to compare pseudo models of 2 and 3 partitions")
-    frac = np.array(n_rep) / np.maximum(n_cons, 1)
-    settled = bool(frac[-1] >= repeat_min and n_cons[-1] > 0)
-    chosen = ps[-1] if settled else ps[int(np.argmax(frac))]
-    scan = PartitionScan(np.array(ps), np.array(n_cons), np.array(n_rep), chosen, settled,
-                         repeat_min, repeat_rtol,
+    scan = PartitionScan(0, False, repeat_min, repeat_rtol,
                          roots_hz={p: r.freq_hz for p, r in results.items()},
                          consistent={p: r.structural.copy() for p, r in results.items()},
                          repeated=repeated_by_p)
-    res = results[chosen]
-    res.repeated = repeated_by_p[chosen]
+    ps = scan.n_partitions
+    frac = scan.n_repeated / np.maximum(scan.n_consistent, 1)
+    scan.settled = bool(frac[-1] >= repeat_min and scan.n_consistent[-1] > 0)
+    scan.chosen = int(ps[-1] if scan.settled else ps[int(np.argmax(frac))])
+    res = results[scan.chosen]
+    res.repeated = repeated_by_p[scan.chosen]
     res.structural = res.structural & res.repeated
     res.scan = scan
     return res

@@ -46,6 +46,13 @@ from textual.widgets import (
 from .results import RunResults, analyse_run, export_results
 from .results_pane import ResultsPane
 from .session import Acquisition, LiveRun, ProgressParser, RunOutcome, parse_event, run_file_state
+from .setup_view import (
+    channel_options,
+    channel_rows,
+    configured_instrument_rows,
+    describe_setup,
+    instruments_in_use_rows,
+)
 from .widgets import FrfPlot
 
 __all__ = ["LabApp"]
@@ -61,39 +68,7 @@ class LabApp(App):
     ENABLE_COMMAND_PALETTE = False  # every action has its key; the footer needs the room
     TITLE = "ssidlab"
     SUB_TITLE = "lab run"
-    CSS = """
-    TabPane { padding: 0 1; }
-    .row { height: 1; }
-    .row Label { width: 14; }
-    .row Input { width: 1fr; height: 1; border: none; padding: 0 1; }
-    .row Switch { height: 1; border: none; padding: 0; width: 6; }
-    #sim-state { width: 1fr; }
-    #setup-error { color: $error; height: auto; }
-    #excitation { height: auto; color: $text-muted; }
-    #check-status { height: 1; }
-    #instruments { height: auto; max-height: 7; }
-    #channels { height: auto; max-height: 23; }
-    #run-buttons { height: 1; margin-bottom: 1; }
-    #run-buttons Button { margin-right: 1; height: 1; border: none; min-width: 11; }
-    #run-status { height: auto; max-height: 2; }
-    #progress { height: 1; }
-    #live { height: 1fr; min-height: 9; }
-    #live-plot { width: 1fr; }
-    #side { width: 32; padding-left: 1; }
-    #line-status { height: auto; }
-    #inst-status { height: auto; margin-top: 1; }
-    #log { height: 6; border: round $panel; }
-    #results-status { height: auto; }
-    #tables { height: 12; }
-    #modes { width: 1fr; }
-    #mac { width: 1fr; margin-left: 1; }
-    #discrepancy { height: auto; margin: 1 0; }
-    #result-channel { width: 44; }
-    #overlay { height: 16; }
-    #export-buttons { height: 1; margin-top: 1; }
-    #export-buttons Button { margin-right: 1; height: 1; border: none; min-width: 10; }
-    #export-status { height: auto; }
-    """
+    CSS_PATH = "app.tcss"  # every tab's styles, the Results pane's included
     BINDINGS: ClassVar[list[Binding]] = [
         # The tab titles carry F1-F3; the footer keeps its width for what applies now.
         Binding("f1", "show_tab('setup')", "Setup", priority=True, show=False),
@@ -255,19 +230,13 @@ class LabApp(App):
             return
         self.setup = setup
         err.update("")
-        for c in setup.channels:
-            table.add_row(c.name, str(c.input), c.dof, c.quantity, f"{c.sensitivity_mv_per_unit:g}",
-                          f"{c.range_volt:g}", c.coupling)
-        self.query_one("#excitation", Static).update(self._describe(setup))
+        table.add_rows(channel_rows(setup))
+        self.query_one("#excitation", Static).update(describe_setup(setup))
         out = self.query_one("#out-path", Input)
         if not out.value.strip():
             out.value = setup.output_file
-        self._fill_instruments([(g.name, "generator", g.url, "not checked (F4)", "") for g in setup.generators]
-                               + [(a.name, "amplifier", f"{a.host}:{a.port}", "not checked (F4)", "")
-                                  for a in setup.amplifiers]
-                               + [("daq", "daq", f"{setup.daq.interface}:{setup.daq.channel}", "not checked (F4)",
-                                   "")])
-        options = [(f"{o} / {i}", (k, j)) for j, i in enumerate(setup.inputs) for k, o in enumerate(setup.outputs)]
+        self._fill_instruments(configured_instrument_rows(setup))
+        options = channel_options(setup)
         if self.channel not in {v for _, v in options}:  # keep the engineer's choice across reloads
             self.channel = (setup.outputs.index(setup.inputs[0]), 0) if setup.inputs[0] in setup.outputs else (0, 0)
         for sel_id in ("#channel", "#result-channel"):
@@ -298,23 +267,6 @@ class LabApp(App):
         t.clear()
         for r in rows:
             t.add_row(*r)
-
-    @staticmethod
-    def _describe(setup) -> str:
-        head = (f"{setup.name}: {len(setup.channels)} channels, {len(setup.shakers)} shakers "
-                f"({', '.join(s.dof for s in setup.shakers)}), DAQ {setup.daq.sample_rate_hz} S/s")
-        if setup.excitation == "stepped_sine":
-            s = setup.sine
-            exc = (f"stepped sine {s.f_min_hz:g}-{s.f_max_hz:g} Hz, {s.n_lines} lines {s.spacing} "
-                   f"x refine {s.refine}, force {s.force_n:g} N, accuracy {s.accuracy:g}")
-        else:
-            r = setup.random
-            exc = (f"random ({r.kind}) {r.f_min_hz:g}-{r.f_max_hz:g} Hz, block {r.block_size}, "
-                   f"{r.averages} averages, {r.window}, {r.estimator}, drive {r.drive_vpp:g} Vpp")
-        lim = setup.limits
-        return (f"{head}\n{exc}\nlimits: drive {lim.max_drive_vpp:g} Vpp, force {lim.max_force_n:g} N, "
-                f"accel {lim.max_accel_m_per_s2:g} m/s2, reaction {lim.max_reaction_n:g} N; "
-                f"min coherence {setup.min_coherence:g}")
 
     def action_check(self) -> None:
         if self.running:
@@ -439,7 +391,7 @@ class LabApp(App):
         if kind in ("line", "spectrum"):
             self._plot_dirty = True
         if kind == "instruments":
-            self._fill_instruments(self._instruments_in_use(ev))
+            self._fill_instruments(instruments_in_use_rows(ev, self.setup))
         if kind == "paused":
             self.pause_pending = True
             self._status("PAUSED: generator outputs off, amplifiers disabled - F7 resumes, F8 aborts")
@@ -449,24 +401,6 @@ class LabApp(App):
         self.query_one("#line-status", Static).update(live.line_text())
         self.query_one("#inst-status", Static).update(live.instrument_text())
         self._refresh_controls()
-
-    def _instruments_in_use(self, ev: dict) -> list[tuple[str, str, str, str, str]]:
-        """Instrument table rows from the run's ``instruments`` event (identities as read)."""
-        sim = bool(ev.get("simulated"))
-        addr = {}
-        if self.setup is not None and not sim:
-            addr = {g.name: g.url for g in self.setup.generators}
-            addr.update({a.name: f"{a.host}:{a.port}" for a in self.setup.amplifiers})
-            addr["daq"] = f"{self.setup.daq.interface}:{self.setup.daq.channel}"
-        rows = []
-        for group, items in ev.get("identities", {}).items():
-            if group == "daq":
-                ident = ", ".join(f"{k} {v}" for k, v in items.items() if k in ("serial", "fw_version", "n_inputs"))
-                rows.append(("daq", "daq", addr.get("daq", "simulated" if sim else ""), "in use by the run", ident))
-            else:
-                rows += [(name, group.rstrip("s"), addr.get(name, "simulated" if sim else ""), "in use by the run",
-                          str(idn)) for name, idn in items.items()]
-        return rows
 
     def _redraw_live(self) -> None:
         if not self._plot_dirty or self.live is None or self.setup is None:

@@ -24,7 +24,7 @@ class ResultsPane(VerticalScroll):
     """Results of the last run. Children keep the ids the app and its tests query
     (``#results-status``, ``#modes``, ``#mac``, ``#discrepancy``, ``#result-channel``,
     ``#overlay``, ``#export-<kind>``, ``#export-status``); their styles are in the app's CSS,
-    with the other tabs'."""
+    with the other tabs' (tui/app.tcss)."""
 
     def compose(self) -> ComposeResult:
         yield Static("no results yet: run a test first", id="results-status")

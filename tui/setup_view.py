@@ -1,0 +1,74 @@
+"""What the Setup tab and the instrument table show of a test setup, as plain text and rows.
+
+Pure functions of a loaded ``daq.setup.TestSetup`` (and of the run's ``instruments`` event),
+kept out of the app so that the widgets only place them.
+"""
+
+from __future__ import annotations
+
+__all__ = ["channel_options", "channel_rows", "configured_instrument_rows", "describe_setup",
+           "instruments_in_use_rows"]
+
+#: One instrument table row: name, kind, address, state, identity.
+InstrumentRow = tuple[str, str, str, str, str]
+
+
+def describe_setup(setup) -> str:
+    """Three lines: channels and shakers, the excitation, and the safety limits."""
+    head = (f"{setup.name}: {len(setup.channels)} channels, {len(setup.shakers)} shakers "
+            f"({', '.join(s.dof for s in setup.shakers)}), DAQ {setup.daq.sample_rate_hz} S/s")
+    if setup.excitation == "stepped_sine":
+        s = setup.sine
+        exc = (f"stepped sine {s.f_min_hz:g}-{s.f_max_hz:g} Hz, {s.n_lines} lines {s.spacing} "
+               f"x refine {s.refine}, force {s.force_n:g} N, accuracy {s.accuracy:g}")
+    else:
+        r = setup.random
+        exc = (f"random ({r.kind}) {r.f_min_hz:g}-{r.f_max_hz:g} Hz, block {r.block_size}, "
+               f"{r.averages} averages, {r.window}, {r.estimator}, drive {r.drive_vpp:g} Vpp")
+    lim = setup.limits
+    return (f"{head}\n{exc}\nlimits: drive {lim.max_drive_vpp:g} Vpp, force {lim.max_force_n:g} N, "
+            f"accel {lim.max_accel_m_per_s2:g} m/s2, reaction {lim.max_reaction_n:g} N; "
+            f"min coherence {setup.min_coherence:g}")
+
+
+def channel_rows(setup) -> list[tuple[str, ...]]:
+    """The channel table: name, input, DOF, quantity, sensitivity (mV/unit), range (V), coupling."""
+    return [(c.name, str(c.input), c.dof, c.quantity, f"{c.sensitivity_mv_per_unit:g}",
+             f"{c.range_volt:g}", c.coupling) for c in setup.channels]
+
+
+def channel_options(setup) -> list[tuple[str, tuple[int, int]]]:
+    """The (output, input) pairs a plot can show, as ``(label, (output index, input index))``."""
+    return [(f"{o} / {i}", (k, j)) for j, i in enumerate(setup.inputs) for k, o in enumerate(setup.outputs)]
+
+
+def _addresses(setup) -> dict[str, str]:
+    addr = {g.name: g.url for g in setup.generators}
+    addr.update({a.name: f"{a.host}:{a.port}" for a in setup.amplifiers})
+    addr["daq"] = f"{setup.daq.interface}:{setup.daq.channel}"
+    return addr
+
+
+def configured_instrument_rows(setup) -> list[InstrumentRow]:
+    """The setup's instruments before they are checked (F4) or used by a run."""
+    kinds = ([(g.name, "generator") for g in setup.generators]
+             + [(a.name, "amplifier") for a in setup.amplifiers] + [("daq", "daq")])
+    addr = _addresses(setup)
+    return [(name, kind, addr[name], "not checked (F4)", "") for name, kind in kinds]
+
+
+def instruments_in_use_rows(ev: dict, setup) -> list[InstrumentRow]:
+    """Instrument table rows from the run's ``instruments`` event (identities as read).
+
+    ``setup`` gives the addresses of real instruments; simulated ones are marked so."""
+    sim = bool(ev.get("simulated"))
+    addr = _addresses(setup) if setup is not None and not sim else {}
+    rows: list[InstrumentRow] = []
+    for group, items in ev.get("identities", {}).items():
+        if group == "daq":
+            ident = ", ".join(f"{k} {v}" for k, v in items.items() if k in ("serial", "fw_version", "n_inputs"))
+            rows.append(("daq", "daq", addr.get("daq", "simulated" if sim else ""), "in use by the run", ident))
+        else:
+            rows += [(name, group.rstrip("s"), addr.get(name, "simulated" if sim else ""), "in use by the run",
+                      str(idn)) for name, idn in items.items()]
+    return rows

@@ -59,6 +59,9 @@ class BandRoot:
     zeta: float
     mpc: float
     rejected: str = ""  # "" if kept, else the first criterion that rejected it
+    #: False when criterion 3 was not applied: no line sees the phase of its shape
+    #: (:func:`_phase_seen_by_lines`) and no resolved root crowds it.
+    mpc_applied: bool = True
     cluster: int = -1  # index of the physical mode it was matched to
 
 
@@ -170,6 +173,7 @@ def process_bands(
                 if _phase_seen_by_lines(f, zeta[r], sub.freq_hz):
                     root.rejected = "low MPC"
                 else:
+                    root.mpc_applied = False
                     unresolved_low_mpc.append(root)
             roots.append(root)
     _screen_unresolved(roots, unresolved_low_mpc, df_hz)
@@ -251,6 +255,7 @@ def _screen_unresolved(roots: list[BandRoot], candidates: list[BandRoot], df_hz:
             for other in roots)
         if crowded:
             root.rejected = "low MPC"
+            root.mpc_applied = True
 
 
 def _cluster_repeated(roots: list[BandRoot], tol: float, df_hz: float) -> None:

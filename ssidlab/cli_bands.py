@@ -127,7 +127,8 @@ def run_bands(args: argparse.Namespace) -> int:
                      "solver": args.solver},
         "bands_hz": [list(b) for b in bands],
         "roots": [{"band": r.band, "freq_hz": r.freq_hz, "damping_ratio": r.zeta,
-                   "mpc": r.mpc, "verdict": r.rejected or "kept", "mode": r.cluster}
+                   "mpc": r.mpc, "mpc_applied": r.mpc_applied, "verdict": r.rejected or "kept",
+                   "mode": r.cluster}
                   for r in res.roots],
         "modes": _modes(res, targets),
     }
@@ -204,7 +205,8 @@ def _modes(res, targets: dict | None) -> list[dict]:
             paired[p.test] = (targets["numbers"][p.analysis], float(mac[p.test, p.analysis]))
     modes = []
     for i, r in enumerate(sel):
-        entry = {"freq_hz": r.freq_hz, "damping_ratio": r.zeta, "mpc": r.mpc, "band": r.band,
+        entry = {"freq_hz": r.freq_hz, "damping_ratio": r.zeta, "mpc": r.mpc,
+                 "mpc_applied": r.mpc_applied, "band": r.band,
                  "n_bands": sum(1 for q in res.roots if q.cluster == r.cluster and not q.rejected)}
         if i in paired:
             entry["target_mode"], entry["target_mac"] = paired[i]
@@ -224,10 +226,16 @@ def _table(out: dict) -> str:
              head + ("  target (MAC)" if with_t else "")]
     for k, m in enumerate(out["modes"], start=1):
         row = (f"{k:>4}  {m['freq_hz']:>12.4f}  {100 * m['damping_ratio']:>11.3f}  "
-               f"{m['mpc']:>6.3f}  {m['n_bands']:>5}")
+               f"{m['mpc']:>6.3f}{' ' if m['mpc_applied'] else '*'} {m['n_bands']:>5}")
         if with_t and "target_mode" in m:
             row += f"  {m['target_mode']} ({m['target_mac']:.3f})"
         lines.append(row)
+    if not all(m["mpc_applied"] for m in out["modes"]):
+        from ssid.bands import PHASE_SEEN_HALF_WIDTHS
+
+        lines.append(f"* MPC not applied: no line lies within {PHASE_SEEN_HALF_WIDTHS:g} half-power "
+                     "half-widths of the mode, so the noise sets its shape's phase; kept as repeated "
+                     "in another band")
     if "model" in out:
         held = out["model"].get("natural_freq_hz", [])
         lines.append(f"model: {len(held)} DOF ({out['model']['scale']}), modes "

@@ -314,27 +314,6 @@ def test_bp3_scale_factors_of_a_low_mode_come_from_its_own_lines():
         assert err[True][0] < err[False][0], (seed, err)
 
 
-@pytest.fixture(scope="module")
-def payload_10dof_300hz():
-    """The payload's 10 EfI sensors (Eq. 6.1) for its first 10 target modes, inputs at the
-    interface, 1-300 Hz in 512 lines (the report's first spectrum; df = 0.585 Hz). Seven
-    modes lie in the record; the 1.29 Hz suspension mode's half-power band (2 zeta f =
-    0.05 Hz) falls between two lines."""
-    from ssid.models.payload import INTERFACE_DOFS, Z_DOFS, payload_simulator, target_modes
-    from ssid.placement import effective_independence
-
-    p = payload_simulator()
-    lam, phi = sla.eigh(p.K, p.M)
-    f_true = np.sqrt(lam) / (2 * np.pi)
-    tm = target_modes(p, 10)
-    iz = p.index(Z_DOFS)
-    chosen = effective_independence(phi[iz][:, tm], 10, Z_DOFS, required=INTERFACE_DOFS)
-    sensors = [d for d in Z_DOFS if d in chosen]
-    frf = accelerance_from_model(p.M, modal_damping(p.M, p.K, 0.02), p.K, p.dofs,
-                                 np.linspace(1.0, 300.0, 512), sensors, list(INTERFACE_DOFS))
-    return frf, f_true[f_true <= 300.0]
-
-
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_mpc_criterion_spares_a_mode_whose_phase_no_line_sees(payload_10dof_300hz, seed):
     """Report noise model (2 % of each FRF's RMS magnitude, 2 degrees, uniform, 40 averages),

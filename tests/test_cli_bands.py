@@ -53,6 +53,26 @@ def test_bands_finds_every_mode_writes_chart_json_and_modal_model(tmp_path):
     assert np.allclose(res["model"]["natural_freq_hz"], f_true, rtol=1e-6)
     assert np.all(np.linalg.eigvalsh(model.M) > 0)
     assert str(found.size) in p.stdout and f"{f_true[0]:.4f}" in p.stdout
+    assert all(r["mpc_applied"] for r in res["roots"]) and "MPC not applied" not in p.stdout
+
+
+def test_bands_marks_a_mode_kept_without_the_mpc_criterion(tmp_path, payload_10dof_300hz):
+    """The payload at 1-300 Hz with the report's noise (seed 2): the 1.29 Hz suspension mode,
+    11 half-widths from the nearest line, has a noise-set MPC far below 0.8 and is kept by
+    the repeat criterion alone; the table marks its MPC and says why, the JSON says so."""
+    frf, f_true = payload_10dof_300hz
+    src, js = tmp_path / "frf.h5", tmp_path / "bands.json"
+    write_frf(str(src), report_noise_frf(frf, seed=2))
+    p = run(str(src), "--json", str(js))
+    assert p.returncode == 0, p.stderr
+    modes = json.loads(js.read_text())["modes"]
+    first = modes[0]
+    assert abs(first["freq_hz"] - f_true[0]) < 0.02 * f_true[0]
+    assert first["mpc"] < 0.8 and first["mpc_applied"] is False
+    assert all(m["mpc_applied"] for m in modes[1:])
+    row = next(line for line in p.stdout.splitlines() if line.split()[:1] == ["1"])
+    assert f"{first['mpc']:.3f}*" in row
+    assert "* MPC not applied" in p.stdout
 
 
 @pytest.fixture(scope="module")

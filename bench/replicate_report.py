@@ -57,7 +57,8 @@ from ssid.pseudo_dof import (  # noqa: E402
     pseudo_dof_mck,
     pseudo_modal_model,
 )
-from ssid.step1 import Step1Estimate, errors_in_variables_cost, step1_data  # noqa: E402
+from ssid.step1 import Step1Estimate, step1_data  # noqa: E402
+from ssid.step1_refine import errors_in_variables_cost  # noqa: E402
 from ssid.errors import IdentificationError  # noqa: E402
 from ssid.tam import guyan_reduce  # noqa: E402
 

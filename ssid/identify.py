@@ -30,13 +30,15 @@ from .step1 import (
     Step1Data,
     Step1Estimate,
     estimate_equation_error,
-    output_error_cost,
     predict_accelerance,
     reaction_transfer,
+    step1_data,
+)
+from .step1_refine import (
+    output_error_cost,
     refine_line_weighted,
     refine_output_error,
     refine_sanathanan_koerner,
-    step1_data,
 )
 from .step1_eiv import refine_with_reactions
 from .step2 import assemble_mck, modal_scale_factors, state_space_modes

@@ -1,9 +1,9 @@
 """Step 1 with measured interface reactions: an errors-in-variables problem.
 
 The reactions enter Eq. 3.6 as forces, but they are measured, so their noise sits in the
-regressors. The cost is ``sum_kj e^H S_kj^-1 e`` (:func:`ssid.step1.errors_in_variables_cost`)
+regressors. The cost is ``sum_kj e^H S_kj^-1 e`` (:func:`ssid.step1_refine.errors_in_variables_cost`)
 with ``S_kj = A_k diag(s_h^2) A_k^H + D^_r diag(s_r^2) D^_r^T``; SK iterations
-(:func:`ssid.step1.refine_sanathanan_koerner`) seek it. Two things decide how well: where the
+(:func:`ssid.step1_refine.refine_sanathanan_koerner`) seek it. Two things decide how well: where the
 search starts, and the noise levels ``s_h``, ``s_r``.
 """
 
@@ -21,8 +21,8 @@ from .step1 import (
     _line_blocks,
     _regressors,
     estimate_equation_error,
-    refine_sanathanan_koerner,
 )
+from .step1_refine import refine_sanathanan_koerner
 
 __all__ = ["EIV_COST_FACTOR", "SNR_START_MIN", "refine_with_reactions", "reaction_noise_weights"]
 

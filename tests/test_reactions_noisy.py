@@ -24,7 +24,8 @@ from ssid.identify import identify_mck
 from ssid.models import example_system, frf_on_test_stand
 from ssid.models.payload import Z_DOFS, payload_simulator, rayleigh_damping
 from ssid.noise import report_noise_frf
-from ssid.step1 import Step1Estimate, errors_in_variables_cost, step1_data
+from ssid.step1 import Step1Estimate, step1_data
+from ssid.step1_refine import errors_in_variables_cost
 from ssid.step1_eiv import EIV_COST_FACTOR, reaction_noise_weights
 from ssid.tam import guyan_reduce
 

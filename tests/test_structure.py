@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import ssid.step1 as s1
+import ssid.step1_refine as s1r
 from ssid.models import example_system, frf_on_test_stand
 from ssid.solvers import solve_ls, solve_tls
 import ssid.step2 as step2
@@ -60,7 +61,7 @@ def test_step1_normal_equations_equal_explicit_jacobian(small):
     w2 = d.weight**2
     W = np.einsum("kia,kij,kic->kjac", Ainv.conj(), w2, Ainv)
     V = np.einsum("kia,kij->kja", Ainv.conj(), w2 * (d.H - Hm))
-    ne = s1._NormalEquations(d.n, d.p)
+    ne = s1r._NormalEquations(d.n, d.p)
     for sl in (slice(0, 7), slice(7, None)):  # accumulated over two blocks of lines
         ne.add(Z[sl], W[sl], V[sl])
     N, g = ne.matrix()

@@ -1,0 +1,268 @@
+"""SSID step 1, refined: from an equation-error start (:func:`ssid.step1.estimate_equation_error`)
+to the weighted output error or errors-in-variables cost (report Eqs. 3.6-3.9).
+
+Three refinements of a :class:`~ssid.step1.Step1Estimate`, each returning the best iterate
+and an ``info`` dict (``cost_start``, ``cost``, ``iterations``):
+
+* :func:`refine_sanathanan_koerner` - iteratively reweighted equation error with the
+  equation-error covariance as a matrix weight (noisy reactions included);
+* :func:`refine_line_weighted` - the same with one scalar weight per column, for models too
+  large for the (n p)^2 normal matrix;
+* :func:`refine_output_error` - Levenberg-Marquardt on the weighted output error, the
+  maximum-likelihood estimate for Gaussian FRF noise with exact reactions.
+
+The costs they minimise are :func:`output_error_cost` and :func:`errors_in_variables_cost`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import IdentificationError
+from .step1 import (
+    Step1Data,
+    Step1Estimate,
+    _dynamic_matrix,
+    _equation_weights,
+    _line_blocks,
+    _regressors,
+    _weighted_gram,
+    estimate_equation_error,
+    predict_accelerance,
+)
+
+__all__ = [
+    "refine_sanathanan_koerner",
+    "refine_line_weighted",
+    "refine_output_error",
+    "output_error_cost",
+    "errors_in_variables_cost",
+]
+
+
+def _equation_cost(d: Step1Data, est: Step1Estimate) -> float:
+    """``sum_kj e^H S_kj^-1 e`` with the weights of the estimate itself (ML-type cost)."""
+    X = est.to_x()
+    c = 0.0
+    try:
+        for sl in _line_blocks(d):
+            e = np.swapaxes(d.H[sl], 1, 2) + np.einsum("ab,kjb->kja", X, _regressors(d, d.H[sl], sl))
+            c += float(np.einsum("kja,kjac,kjc->", e.conj(), _equation_weights(d, est, sl), e).real)
+    except np.linalg.LinAlgError:
+        return np.inf
+    return c if np.isfinite(c) else np.inf
+
+
+def _output_cost(d: Step1Data, Hm: np.ndarray) -> float:
+    c = float(np.sum((d.weight * np.abs(d.H - Hm)) ** 2))
+    return c if np.isfinite(c) else np.inf
+
+
+class _NormalEquations:
+    """Normal matrix and right-hand side of ``min sum_kj (v + X z)^H W (v + X z)`` over real X.
+
+    For residuals ``X z_kj`` seen through an (n x n) Hermitian weight ``W_kj``,
+    ``J^T W J = Re sum_kj kron(W_kj, G_kj)`` with ``G_kj = conj(z_kj) z_kj^T`` (p x p). The sum
+    of Kronecker products is one matrix product of the flattened factors per block of lines,
+    so memory stays bounded instead of holding the Jacobian's
+    (lines x outputs x inputs) x (n p) entries. ``vec`` is row-major in X (index ``a p + b``);
+    the minimiser solves ``N vec(X) = -g``.
+    """
+
+    def __init__(self, n: int, p: int) -> None:
+        self.n, self.p = n, p
+        self._T = np.zeros((n * n, p * p))
+        self._g = np.zeros((n, p))
+
+    def add(self, Z: np.ndarray, W: np.ndarray, V: np.ndarray) -> None:
+        """Add columns with regressors ``Z`` (m, n_in, p), weights ``W`` (m, n_in, n, n) and
+        ``V = W v`` (m, n_in, n)."""
+        n, p = self.n, self.p
+        self._g += np.einsum("kja,kjb->ab", V, Z.conj()).real
+        z = Z.reshape(-1, p)
+        G = (z.conj()[:, :, None] * z[:, None, :]).reshape(-1, p * p)
+        Wf = W.reshape(-1, n * n)
+        self._T += Wf.real.T @ G.real - Wf.imag.T @ G.imag
+
+    def matrix(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(N, g)``: (n p, n p) and (n p,)."""
+        n, p = self.n, self.p
+        N = self._T.reshape(n, n, p, p).transpose(0, 2, 1, 3).reshape(n * p, n * p)
+        return N, self._g.reshape(n * p)
+
+
+def _solve_scaled(N: np.ndarray, rhs: np.ndarray, mu: float = 0.0) -> np.ndarray:
+    """Solve ``(N + mu diag(N)) x = rhs`` after symmetric diagonal scaling."""
+    s = np.sqrt(np.abs(np.diag(N)))
+    s[s == 0] = 1.0
+    Ns = N / s[:, None] / s[None, :]
+    return np.linalg.solve(Ns + mu * np.eye(Ns.shape[0]), rhs / s) / s
+
+
+def refine_sanathanan_koerner(
+    d: Step1Data, est0: Step1Estimate, max_iter: int = 8, rtol: float = 1e-6
+) -> tuple[Step1Estimate, dict]:
+    """Iteratively reweighted equation error (Sanathanan-Koerner with a matrix weight).
+
+    Each iteration solves the *linear* problem ``min sum e^H S_prev^-1 e`` with
+    ``e = h + X z`` (``z`` from the measured FRFs) and ``S_prev`` the equation-error
+    covariance at the previous iterate (:func:`_equation_weights`). At a fixed point this is
+    the errors-in-variables ML-type cost; without reactions it is the weighted output error.
+    It is the robust way into the basin of that minimum from a poor start.
+
+    Returns the iterate with the lowest cost, and ``info``.
+    """
+    n, n_in = d.n, d.n_in
+    best = est = est0
+    best_cost = cost0 = _equation_cost(d, est0)
+    it = stalled = 0
+    for it in range(1, max_iter + 1):
+        ne = _NormalEquations(n, d.p)
+        try:
+            for sl in _line_blocks(d):
+                W = _equation_weights(d, est, sl)
+                h = np.swapaxes(d.H[sl], 1, 2)
+                ne.add(_regressors(d, d.H[sl], sl), W, np.einsum("kjac,kjc->kja", W, h))
+            N, g = ne.matrix()
+            X = -_solve_scaled(N, g).reshape(n, d.p)
+        except np.linalg.LinAlgError:
+            break
+        est = Step1Estimate.from_x(X, n, n_in)
+        cost = _equation_cost(d, est)
+        if cost < best_cost:
+            gain = (best_cost - cost) / best_cost
+            best, best_cost, stalled = est, cost, 0
+            if gain < rtol:
+                break
+        else:
+            stalled += 1
+            if stalled >= 2:  # two iterations without progress: a fixed point elsewhere
+                break
+    return best, {"cost_start": cost0, "cost": best_cost, "iterations": it}
+
+
+def refine_line_weighted(
+    d: Step1Data, est0: Step1Estimate, max_iter: int = 6
+) -> tuple[Step1Estimate, dict]:
+    """Iteratively reweighted equation error with one scalar weight per column (k, j).
+
+    The cheap relative of :func:`refine_sanathanan_koerner` for models too large for its
+    (n p)^2 normal matrix: the equation error ``A_k dh`` has covariance ``A_k S_h A_k^H``;
+    a scalar weight can only equalise its size, ``w_kj^2 = n / trace(A_k S_h,kj A_k^H)``,
+    not its shape. Each iteration is one least-squares solve of the step-1 size.
+
+    Returns the iterate with the lowest weighted output error, and ``info``.
+    """
+    best = est = est0
+    best_cost = cost0 = output_error_cost(d, est0)
+    var = np.where(d.weight > 0, 1.0 / np.where(d.weight > 0, d.weight, 1.0) ** 2, 0.0)
+    it = 0
+    w2 = (d.omega**2)[:, None]
+    for it in range(1, max_iter + 1):
+        # trace(A diag(var_j) A^H) = sum_a var_aj sum_i |A_ia|^2, and with C^, K^ real
+        # sum_i |A_ia|^2 = 1 - 2 K_aa/w^2 + sum_i K_ia^2/w^4 + sum_i C_ia^2/w^2: no (L, n, n) array.
+        K, C = est.K_hat, est.C_hat
+        col = 1 - 2 * np.diag(K)[None] / w2 + (K**2).sum(0)[None] / w2**2 + (C**2).sum(0)[None] / w2
+        tr = np.einsum("ka,kaj->kj", col, var)
+        lw = np.sqrt(d.n / np.where(tr > 0, tr, np.inf))
+        try:
+            est = estimate_equation_error(d, "ls", line_weight=lw)
+        except (np.linalg.LinAlgError, IdentificationError):
+            break
+        cost = output_error_cost(d, est)
+        if cost < best_cost:
+            gain = (best_cost - cost) / best_cost
+            best, best_cost = est, cost
+            if gain < 1e-4:
+                break
+    return best, {"cost_start": cost0, "cost": best_cost, "iterations": it}
+
+
+def refine_output_error(
+    d: Step1Data,
+    est0: Step1Estimate,
+    max_iter: int = 30,
+    rtol: float = 1e-9,
+) -> tuple[Step1Estimate, dict]:
+    """Levenberg-Marquardt minimisation of the weighted output error of the step-1 model.
+
+    Minimises ``sum w^2 |h_kj - A_k^-1 (D^_f e_j + D^_r r_kj)|^2``: the maximum-likelihood
+    estimate when the accelerances are noisy and the reactions (if any) exact. With noisy
+    reactions :func:`refine_sanathanan_koerner` and its errors-in-variables weight are used.
+
+    Parameters
+    ----------
+    d : Step1Data
+        Data with weights ``1/sigma`` (0 for blanked values).
+    est0 : Step1Estimate
+        Starting point (e.g. from :func:`refine_sanathanan_koerner`).
+    max_iter : int
+        Maximum number of accepted Gauss-Newton steps.
+    rtol : float
+        Stop when an accepted step lowers the cost by less than this fraction.
+
+    Returns
+    -------
+    (Step1Estimate, info) with ``info`` holding ``cost_start``, ``cost``, ``iterations``.
+    """
+    n, n_in = d.n, d.n_in
+    X = est0.to_x()
+    Hm = predict_accelerance(d, est0)
+    cost = cost0 = _output_cost(d, Hm)
+    # Start as pure Gauss-Newton: the normal matrix is well posed but spans ~1e11 after
+    # diagonal scaling, and any fixed damping would stall the weakly determined directions.
+    mu = 0.0
+    it = 0
+    est = est0
+    for it in range(1, max_iter + 1):
+        ne = _NormalEquations(n, d.p)
+        for sl in _line_blocks(d):
+            Ainv = np.linalg.inv(_dynamic_matrix(d, est, sl))
+            w2 = d.weight[sl] ** 2
+            W = _weighted_gram(Ainv, np.swapaxes(w2, 1, 2))
+            V = np.einsum("kia,kij->kja", Ainv.conj(), w2 * (d.H[sl] - Hm[sl]))
+            ne.add(_regressors(d, Hm[sl], sl), W, V)
+        N, g = ne.matrix()
+        accepted = False
+        for _ in range(12):
+            try:
+                step = -_solve_scaled(N, g, mu)
+            except np.linalg.LinAlgError:
+                mu = max(10 * mu, 1e-10)
+                continue
+            est_try = Step1Estimate.from_x(X + step.reshape(n, d.p), n, n_in)
+            Hm_try = predict_accelerance(d, est_try)
+            cost_try = _output_cost(d, Hm_try)
+            if cost_try < cost:
+                accepted = True
+                break
+            mu = max(10 * mu, 1e-10)
+        if not accepted:
+            break
+        gain = (cost - cost_try) / cost
+        est, X, Hm, cost = est_try, est_try.to_x(), Hm_try, cost_try
+        mu = mu / 100 if mu > 1e-9 else 0.0
+        if gain < rtol:
+            break
+    info = {"cost_start": cost0, "cost": cost, "iterations": it}
+    return Step1Estimate.from_x(X, n, n_in), info
+
+
+def output_error_cost(d: Step1Data, est: Step1Estimate) -> float:
+    """Weighted output error ``sum w^2 |H - H_model|^2`` of a step-1 estimate."""
+    return _output_cost(d, predict_accelerance(d, est))
+
+
+def errors_in_variables_cost(d: Step1Data, est: Step1Estimate) -> float:
+    """``sum_kj e^H S_kj^-1 e`` of a step-1 estimate: the cost whose fixed point
+    :func:`refine_sanathanan_koerner` seeks, with noisy reactions among the regressors.
+
+    When ``d``'s weights are the noise's ``1/sigma`` (circular Gaussian), its expected value at
+    the true model is the number of complex equations (valid lines x outputs x inputs), so
+    an estimate whose cost is many times that of the true model is not the data's minimum.
+    The weights :func:`ssid.identify.identify_step1` estimates (one level per FRF from its
+    roughness) are that only approximately under noise proportional to the FRF, as the
+    report's is. Without reactions, and with no value blanked, it equals the weighted output
+    error :func:`output_error_cost`.
+    """
+    return _equation_cost(d, est)

@@ -182,7 +182,7 @@ def modal_model_from_bands(
     if len(kept.selected) < n:
         raise IdentificationError(
             f"band processing found {len(kept.selected)} modes with independent shapes, "
-            f"{n} are needed for an {n}-DOF modal model")
+            f"{n} are needed for a modal model of {n} DOFs")
     _, mck = scale_selected_roots(frf, kept, scale, assembly="normal")
     M, C, K = mck
     lam = np.array([r.lam for r in kept.selected])

@@ -139,9 +139,11 @@ BAND_NOTES = """Why M was not positive definite at first, and what changed (`ssi
 Still open: the 2 are 12 sensors at 1-1158 Hz, seeds 2 and 3 (section 3's `bands` miss):
 one band's estimate has negative damping (seed 3), or damping 8.2 % against 1.9 % in the
 other band (seed 2), failing criterion 4's factor 2 on damping, which lines this far from
-the mode do not determine either. Relaxing that check for unresolved roots could bring back
-seed 2 at most; not tried. The state-space assembly (Eq. 3.26 through the full inverse)
-stays indefinite on noisy data (see above).
+the mode do not determine either. Dropping that check for pairs of unresolved roots
+(2 zeta f < df) was tried: it brought back seed 2, but on the 18 records it also selected a
+false root (548.3 Hz, 10 sensors at 1-551 Hz, seed 1) and a second estimate of a true mode
+twice; not adopted. The state-space assembly (Eq. 3.26 through the full inverse) stays
+indefinite on noisy data (see above).
 """
 
 

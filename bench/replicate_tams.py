@@ -25,7 +25,7 @@ How the report's unstated choices are made here (each can be overridden by an ar
   (``identify_mck_modal`` with ``prefer_shapes``: an n-DOF least-squares fit to a band that
   holds more than n modes is not physical, and the report picked its roots by hand);
 * C-B fixed-interface modes chosen for the targets by the scale-free selection of
-  ``ssid.craig_bampton.select_fixed_interface_modes``.
+  ``ssid.craig_bampton_tam.select_fixed_interface_modes``.
 
 Each model's frequency in a table row is that of its mode paired one-to-one with the row's
 target (on MAC x frequency ratio, with MAC >= 0.5 at the retained DOFs); '-' where none pairs.
@@ -53,7 +53,8 @@ from ssid.correlate import (
     pair_modes_by_mac_and_frequency,
 )
 from ssid.band_select import identify_mck_modal
-from ssid.craig_bampton import craig_bampton_form, craig_bampton_tam
+from ssid.craig_bampton import craig_bampton_form
+from ssid.craig_bampton_tam import craig_bampton_tam
 from ssid.errors import IdentificationError, InputError
 from ssid.frf import accelerance_from_model
 from ssid.identify import identify_mck

@@ -425,7 +425,7 @@ def reduce_to_tam(
     if method == "hybrid":
         return hybrid_tam(M, K, retained, targets)
     if method == "cb":
-        from .craig_bampton import craig_bampton_tam
+        from .craig_bampton_tam import craig_bampton_tam
 
         if boundary is None or len(boundary) == 0:
             raise InputError("the Craig-Bampton TAM needs the interface (boundary) DOFs")

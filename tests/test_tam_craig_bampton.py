@@ -16,9 +16,11 @@ from ssid.craig_bampton import (
     craig_bampton_form,
     craig_bampton_physical,
     craig_bampton_reduce,
+    fixed_interface_modes,
+)
+from ssid.craig_bampton_tam import (
     craig_bampton_tam,
     fixed_interface_contributions,
-    fixed_interface_modes,
     pivoted_selection_report,
     select_fixed_interface_modes,
 )

@@ -242,15 +242,17 @@ def _screen_unresolved(roots: list[BandRoot], candidates: list[BandRoot], df_hz:
     Such a root is left to criterion 4 (its frequency must repeat in another band), unless
     a resolved root of the same band (half-power band ``2 zeta f`` at least a line spacing)
     that passed criteria 1-3 lies within one line spacing: that mode's own resonance spans
-    the lines there, and a lightly damped root inside it is noise (the report's noise gave
-    one at 318.65 Hz beside the 318.57 Hz mode). Two unresolved roots closer than a line
+    the lines there, and a lightly damped root inside it is noise (with every unresolved root
+    spared, the report's noise gave one at 318.65 Hz beside the 318.57 Hz mode, selected as
+    a second mode). Two unresolved roots closer than a line
     spacing can both be modes: the payload's suspension modes at 1.29 and 2.83 Hz, 1.5 Hz
     apart with lines 2.25 Hz apart.
     """
+    spared = {id(r) for r in candidates}  # by identity: roots hold arrays, == is ambiguous
     for root in candidates:
         crowded = any(
-            other.band == root.band and other is not root and not other.rejected
-            and other not in candidates and 2.0 * max(other.zeta, 0.0) * other.freq_hz >= df_hz
+            other.band == root.band and id(other) not in spared and not other.rejected
+            and 2.0 * max(other.zeta, 0.0) * other.freq_hz >= df_hz
             and abs(other.freq_hz - root.freq_hz) < df_hz
             for other in roots)
         if crowded:

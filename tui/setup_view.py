@@ -51,10 +51,10 @@ def _addresses(setup) -> dict[str, str]:
 
 def configured_instrument_rows(setup) -> list[InstrumentRow]:
     """The setup's instruments before they are checked (F4) or used by a run."""
-    kinds = ([(g.name, "generator") for g in setup.generators]
-             + [(a.name, "amplifier") for a in setup.amplifiers] + [("daq", "daq")])
-    addr = _addresses(setup)
-    return [(name, kind, addr[name], "not checked (F4)", "") for name, kind in kinds]
+    rows = ([(g.name, "generator", g.url) for g in setup.generators]
+            + [(a.name, "amplifier", f"{a.host}:{a.port}") for a in setup.amplifiers]
+            + [("daq", "daq", f"{setup.daq.interface}:{setup.daq.channel}")])
+    return [(name, kind, address, "not checked (F4)", "") for name, kind, address in rows]
 
 
 def instruments_in_use_rows(ev: dict, setup) -> list[InstrumentRow]:

@@ -343,11 +343,16 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
              "low MPC": ("s", "tab:purple", "low MPC"), "negative damping": ("v", "tab:red", "negative damping"),
              "outside band": (".", "0.6", "outside band")}
     seen = set()
+    ring = "MPC not applied (no line sees its phase)"
     for r in result.roots:
         mk, col, lab = marks[r.rejected]
         ax.scatter(r.freq_hz, r.band, marker=mk, color=col, s=28,
                    label=None if lab in seen else lab, zorder=2)
         seen.add(lab)
+        if not r.mpc_applied:
+            ax.scatter(r.freq_hz, r.band, marker="o", facecolors="none", edgecolors="k", s=90,
+                       lw=0.8, label=None if ring in seen else ring, zorder=3)
+            seen.add(ring)
     for r in result.selected:
         ax.axvline(r.freq_hz, color="tab:green", lw=0.6, alpha=0.5, zorder=1)
     if true_freq_hz is not None:

@@ -61,10 +61,11 @@ def test_bands_marks_a_mode_kept_without_the_mpc_criterion(tmp_path, payload_10d
     11 half-widths from the nearest line, has a noise-set MPC far below 0.8 and is kept by
     the repeat criterion alone; the table marks its MPC and says why, the JSON says so."""
     frf, f_true = payload_10dof_300hz
-    src, js = tmp_path / "frf.h5", tmp_path / "bands.json"
+    src, js, png = tmp_path / "frf.h5", tmp_path / "bands.json", tmp_path / "roots.png"
     write_frf(str(src), report_noise_frf(frf, seed=2))
-    p = run(str(src), "--json", str(js))
+    p = run(str(src), "--json", str(js), "--plot", str(png))
     assert p.returncode == 0, p.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and not p.stderr
     modes = json.loads(js.read_text())["modes"]
     first = modes[0]
     assert abs(first["freq_hz"] - f_true[0]) < 0.02 * f_true[0]

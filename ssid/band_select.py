@@ -15,10 +15,10 @@ from .band_scaling import root_shapes, scale_selected_roots, strongest_roots
 from .bands import BandResult, overlapping_bands, process_bands
 from .errors import IdentificationError
 from .frf import FRFData
-from .identify import (SSIDResult, data_noise_weights, identify_mck, model_accelerance,
-                       model_frf_errors, model_output_error)
+from .identify import SSIDResult, identify_mck, model_accelerance, model_frf_errors, model_output_error
 from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from .modal import modal_phase_collinearity, physical_checks, real_modes, unit_max_shapes
+from .noise import data_noise_weights
 
 __all__ = ["band_ladder", "identify_mck_band_select", "identify_mck_modal",
            "model_accelerance", "result_problems"]

@@ -25,7 +25,7 @@ from .modal import (
     root_frequency_damping,
     unit_max_shapes,
 )
-from .noise import fit_additive_proportional, frf_noise_weights
+from .noise import data_noise_weights, fit_additive_proportional, frf_noise_weights, roughness_weights
 from .step1 import (
     Step1Data,
     Step1Estimate,
@@ -44,7 +44,7 @@ from .step1_eiv import refine_with_reactions
 from .step2 import assemble_mck, modal_scale_factors, state_space_modes
 
 __all__ = ["SSIDResult", "identify_mck", "identify_step1", "SOLVERS", "DAMPING_OPTIONS",
-           "data_noise_weights", "model_accelerance", "model_frf_errors", "model_output_error"]
+           "model_accelerance", "model_frf_errors", "model_output_error"]
 
 SOLVERS = ("ml", "ls", "tls", "stls")
 #: ``damping`` of :func:`identify_mck`: the damping matrix the delivered model carries.
@@ -136,8 +136,6 @@ class SSIDResult:
         })
 
 
-
-
 def _residual_weights(d: Step1Data, est: Step1Estimate, valid: np.ndarray) -> np.ndarray:
     """Noise weights ``1/sigma`` (L, n, n_in) re-estimated from the residuals of a converged fit.
 
@@ -153,37 +151,6 @@ def _residual_weights(d: Step1Data, est: Step1Estimate, valid: np.ndarray) -> np
     a2, b2 = fit_additive_proportional(np.abs(d.H - Hm) ** 2, h2, valid)
     var = a2[None] + b2[None, None] * h2
     return np.where(valid, 1.0 / np.sqrt(var), 0.0)
-
-
-def _roughness_weights(H: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Noise weights ``1/sigma`` of each FRF from its roughness along frequency, with no model.
-
-    With no variance or coherence in the file, the model of the noise is one level per FRF
-    (output i, input j) over the band, as the additive magnitude noise of a measured spectrum
-    has. For independent noise of variance s^2 on each line, the second difference
-    ``H[k-1] - 2 H[k] + H[k+1]`` has variance 6 s^2 while a smooth FRF contributes little;
-    the median over lines keeps the few lines at sharp resonances from setting the level.
-    """
-    d2 = H[:-2] - 2 * H[1:-1] + H[2:]
-    ok = valid[:-2] & valid[1:-1] & valid[2:]
-    r2 = np.where(ok, np.abs(d2) ** 2, np.nan)
-    with np.errstate(all="ignore"):
-        s2 = np.nanmedian(r2, axis=0) / (6 * np.log(2.0))
-    return _weights_from_levels(s2, valid)
-
-
-def data_noise_weights(frf: FRFData) -> np.ndarray:
-    """Noise weights ``1/sigma`` (n_freq, n_out, n_in) of each value, from the data alone.
-
-    From the file's variances or coherence (:func:`ssid.noise.frf_noise_weights`), else from
-    each FRF's roughness; 0 where a value is blanked. The scale on which delivered models are
-    compared with the measurements (:func:`model_output_error`).
-    """
-    valid = frf.valid_mask()
-    w = frf_noise_weights(frf)
-    if w is None:
-        w = _roughness_weights(np.where(valid, frf.H, 0.0).astype(complex), valid)
-    return np.where(valid, w, 0.0)
 
 
 def model_accelerance(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -213,15 +180,6 @@ def model_frf_errors(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray,
     return (c if np.isfinite(c) else np.inf), (e if np.isfinite(e) else np.inf)
 
 
-def _weights_from_levels(s2: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Broadcast per-FRF variances (n, n_in) to weights (L, n, n_in); 0 where blanked."""
-    pos = s2[np.isfinite(s2) & (s2 > 0)]
-    fill = np.median(pos) if pos.size else 1.0
-    s2 = np.where(np.isfinite(s2) & (s2 > 0), s2, fill)
-    s2 = np.maximum(s2, 1e-12 * s2.max())
-    return np.broadcast_to(1.0 / np.sqrt(s2), valid.shape) * valid
-
-
 def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
               candidates: dict | None = None) -> Step1Estimate:
     """Our default step 1 (see ``docs/algorithm.md``).
@@ -234,7 +192,7 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
     4. Without reactions: Gauss-Newton on the weighted output error (maximum likelihood), and
        when the file gave no noise levels, once more with levels re-estimated from residuals.
     """
-    rough = _roughness_weights(d.H, valid)
+    rough = roughness_weights(d.H, valid)
     if not know_noise:
         d.weight = rough
     else:
@@ -244,7 +202,7 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
         if np.any(ok):
             d.weight = d.weight * np.median(rough[ok] / d.weight[ok])
     if d.n_r:
-        d.weight_r = _roughness_weights(d.Hr, np.ones(d.Hr.shape, dtype=bool))
+        d.weight_r = roughness_weights(d.Hr, np.ones(d.Hr.shape, dtype=bool))
     starts = {}
     for name in ("ls", "tls", "stls"):
         try:

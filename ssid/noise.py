@@ -13,7 +13,8 @@ import numpy as np
 
 from .frf import FRFData
 
-__all__ = ["add_report_noise", "fit_additive_proportional", "frf_noise_weights", "report_noise_frf"]
+__all__ = ["add_report_noise", "data_noise_weights", "fit_additive_proportional", "frf_noise_weights",
+           "report_noise_frf", "roughness_weights"]
 
 
 def add_report_noise(
@@ -198,3 +199,44 @@ def fit_additive_proportional(
             break
     corr = 1.0 - trim * np.exp(-trim) / (1.0 - np.exp(-trim))
     return a2 / corr, b2 / corr
+
+
+def roughness_weights(H: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Noise weights ``1/sigma`` of each FRF from its roughness along frequency, with no model.
+
+    With no variance or coherence in the file, the model of the noise is one level per FRF
+    (output i, input j) over the band, as the additive magnitude noise of a measured spectrum
+    has. For independent noise of variance s^2 on each line, the second difference
+    ``H[k-1] - 2 H[k] + H[k+1]`` has variance 6 s^2 while a smooth FRF contributes little;
+    the median over lines keeps the few lines at sharp resonances from setting the level.
+    ``H`` and ``valid``: (n_freq, n_out, n_in); returns weights of that shape, 0 where blanked.
+    """
+    d2 = H[:-2] - 2 * H[1:-1] + H[2:]
+    ok = valid[:-2] & valid[1:-1] & valid[2:]
+    r2 = np.where(ok, np.abs(d2) ** 2, np.nan)
+    with np.errstate(all="ignore"):
+        s2 = np.nanmedian(r2, axis=0) / (6 * np.log(2.0))
+    return _weights_from_levels(s2, valid)
+
+
+def _weights_from_levels(s2: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Broadcast per-FRF variances (n, n_in) to weights (L, n, n_in); 0 where blanked."""
+    pos = s2[np.isfinite(s2) & (s2 > 0)]
+    fill = np.median(pos) if pos.size else 1.0
+    s2 = np.where(np.isfinite(s2) & (s2 > 0), s2, fill)
+    s2 = np.maximum(s2, 1e-12 * s2.max())
+    return np.broadcast_to(1.0 / np.sqrt(s2), valid.shape) * valid
+
+
+def data_noise_weights(frf: FRFData) -> np.ndarray:
+    """Noise weights ``1/sigma`` (n_freq, n_out, n_in) of each value, from the data alone.
+
+    From the file's variances or coherence (:func:`ssid.noise.frf_noise_weights`), else from
+    each FRF's roughness; 0 where a value is blanked. The scale on which delivered models are
+    compared with the measurements (:func:`ssid.identify.model_output_error`).
+    """
+    valid = frf.valid_mask()
+    w = frf_noise_weights(frf)
+    if w is None:
+        w = roughness_weights(np.where(valid, frf.H, 0.0).astype(complex), valid)
+    return np.where(valid, w, 0.0)

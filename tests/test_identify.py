@@ -270,7 +270,8 @@ def test_band_select_output_error_can_prefer_a_model_absorbing_unmeasured_modes(
     this model's damping, its output error was above the sub-band's and the sub-band won.)
     If this test fails because the choice got better, update docs/algorithm.md too."""
     from ssid.band_select import identify_mck_band_select
-    from ssid.identify import data_noise_weights, model_output_error
+    from ssid.identify import model_output_error
+    from ssid.noise import data_noise_weights
 
     (M, C, K), frf = _four_dof_with_unmeasured_modes(1)
     f_true, _ = true_frequencies_hz(M, C, K)

@@ -1,4 +1,5 @@
-"""ssid.io: round trips of the FRF and model files, and every refusal of a malformed file."""
+"""ssid.io: round trips of the FRF and model files, the writers' refusals and every refusal of a
+malformed model file (malformed FRF files: test_io_refused_frf.py)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from test_io_helpers import assert_one_line_error, delete, labels_to, nan_at, replace_values, set_attr
 
 from ssid.errors import InputError
 from ssid.frf import FRFData
@@ -20,20 +22,6 @@ from ssid.io import (
     write_frf,
     write_model,
 )
-
-
-def assert_one_line_error(excinfo, path, *fragments: str) -> None:
-    """The message is one line, names the file and contains each fragment."""
-    message = str(excinfo.value)
-    assert "\n" not in message and "\r" not in message
-    assert message.startswith(str(path))
-    for fragment in fragments:
-        assert fragment in message, message
-
-
-def replace_dataset(f: h5py.File, name: str, data, **kwargs) -> None:
-    del f[name]
-    f.create_dataset(name, data=data, **kwargs)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -175,245 +163,6 @@ def test_validate_frf_normalises_types(frf):
 
 
 # ----------------------------------------------------------------------------------------------
-# Refused FRF files: each written good, then corrupted with h5py
-# ----------------------------------------------------------------------------------------------
-
-
-def _shift_freq(f):
-    freq = f["freq_hz"][()]
-    freq[10] = freq[9]
-    f["freq_hz"][...] = freq
-
-
-def _nan_at(name, value=np.nan):
-    def corrupt(f):
-        a = f[name][()]
-        a.flat[7] = value
-        f[name][...] = a
-
-    return corrupt
-
-
-def _set_attr(key, value):
-    def corrupt(f):
-        f.attrs[key] = value
-
-    return corrupt
-
-
-def _del(name):
-    def corrupt(f):
-        if name in f:
-            del f[name]
-        else:
-            del f.attrs[name]
-
-    return corrupt
-
-
-def _add(name, make, **kwargs):
-    """Add dataset ``name`` built by ``make(H)`` from the file's own H."""
-
-    def corrupt(f):
-        f.create_dataset(name, data=make(f["H"][()]), **kwargs)
-
-    return corrupt
-
-
-def _blank_with_inf(f):
-    H = f["H"][()]
-    valid = np.ones(H.shape, dtype=bool)
-    valid[2, 0, 0] = False
-    H[2, 0, 0] = np.inf
-    f["H"][...] = H
-    f.create_dataset("valid", data=valid)
-
-
-def _labels_to(name, labels):
-    """Set string dataset ``name`` to ``labels``, creating it if absent."""
-
-    def corrupt(f):
-        if name in f:
-            del f[name]
-        f.create_dataset(name, data=np.array(labels, dtype=object), dtype=h5py.string_dtype())
-
-    return corrupt
-
-
-def _replace(name, make, **kwargs):
-    """Replace dataset ``name`` by ``make(old_values)``."""
-
-    def corrupt(f):
-        replace_dataset(f, name, make(f[name][()]), **kwargs)
-
-    return corrupt
-
-
-def _reaction_pair(labels, n_react=None):
-    def corrupt(f):
-        n_freq, _, n_in = f["H"].shape
-        n = len(labels) if n_react is None else n_react
-        f.create_dataset("H_reaction", data=np.ones((n_freq, n, n_in), complex))
-        _labels_to("reactions", labels)(f)
-
-    return corrupt
-
-
-def _reaction_var(make):
-    """A valid reaction pair, then ``H_reaction_var = make(H_reaction)``."""
-
-    def corrupt(f):
-        _reaction_pair(["1+Z"])(f)
-        f.create_dataset("H_reaction_var", data=make(f["H_reaction"][()]))
-
-    return corrupt
-
-
-def _one_nan(H):
-    out = np.full(H.shape, 0.9)
-    out[0, 1, 1] = np.nan
-    return out
-
-
-def _make_group_h(f):
-    del f["H"]
-    f.create_group("H")
-
-
-FRF_CORRUPTIONS = [
-    # file kind
-    ("format-missing", _del("format"), "'format' is missing"),
-    ("format-wrong", _set_attr("format", "ssidlab-model"), "format is 'ssidlab-model'"),
-    ("format-not-string", _set_attr("format", 3), "must be a string"),
-    ("version-missing", _del("format_version"), "'format_version' is missing"),
-    ("version-2", _set_attr("format_version", 2), "unsupported format_version 2"),
-    ("quantity-missing", _del("quantity"), "'quantity' is missing"),
-    ("quantity-wrong", _set_attr("quantity", "receptance"), "quantity is 'receptance'"),
-    # required datasets
-    ("H-missing", _del("H"), "missing dataset /H"),
-    ("freq-missing", _del("freq_hz"), "missing dataset /freq_hz"),
-    ("outputs-missing", _del("outputs"), "missing dataset /outputs"),
-    ("inputs-missing", _del("inputs"), "missing dataset /inputs"),
-    ("H-is-group", _make_group_h, "/H is not a dataset"),
-    # dtypes and shapes
-    ("H-real", _replace("H", lambda H: H.real), "H must be complex"),
-    ("H-2d", _replace("H", lambda H: H[:, :, 0]), "H must be 3-D"),
-    (
-        "H-shape-vs-outputs",
-        _labels_to("outputs", ["1+Z", "3+Z"]),
-        "H has shape (64, 3, 2), expected (64, 2, 2)",
-    ),
-    (
-        "H-shape-vs-freq",
-        _replace("freq_hz", lambda fr: fr[:-1]),
-        "H has shape (64, 3, 2), expected (63, 3, 2)",
-    ),
-    ("freq-2d", _replace("freq_hz", lambda fr: fr[:, None]), "freq_hz must be a non-empty 1-D"),
-    ("freq-complex", _replace("freq_hz", lambda fr: fr + 0j), "freq_hz must hold real numbers"),
-    ("outputs-numeric", _replace("outputs", lambda o: np.arange(3)), "/outputs must hold DOF"),
-    (
-        "outputs-2d",
-        _replace("outputs", lambda o: o[None, :], dtype=h5py.string_dtype()),
-        "/outputs must be 1-D",
-    ),
-    # frequency axis
-    ("freq-nan", _nan_at("freq_hz"), "freq_hz holds NaN or Inf"),
-    ("freq-not-increasing", _shift_freq, "strictly increasing"),
-    ("freq-zero", lambda f: f["freq_hz"].__setitem__(0, 0.0), "freq_hz must be > 0"),
-    # non-finite H
-    ("H-nan", _nan_at("H"), "H holds NaN or Inf in 1 value(s)"),
-    ("H-inf", _nan_at("H", np.inf), "H holds NaN or Inf"),
-    ("H-inf-where-blanked", _blank_with_inf, "H holds NaN or Inf"),
-    # labels
-    ("outputs-duplicate", _labels_to("outputs", ["1+Z", "2+Z", "1+Z"]), "duplicate label '1+Z'"),
-    ("inputs-duplicate", _labels_to("inputs", ["3+Z", "3+Z"]), "duplicate label '3+Z' in inputs"),
-    ("input-not-output", _labels_to("inputs", ["1+Z", "9+Z"]), "inputs label '9+Z' is not among"),
-    # optional per-value datasets
-    ("coherence-above-1", _add("coherence", lambda H: np.full(H.shape, 1.2)), "got 1.2"),
-    ("coherence-negative", _add("coherence", lambda H: np.full(H.shape, -0.1)), "in [0, 1]"),
-    ("coherence-nan", _add("coherence", _one_nan), "coherence holds NaN or Inf"),
-    ("coherence-shape", _add("coherence", lambda H: np.ones(H.shape[:2])), "coherence must be 3-D"),
-    ("valid-shape", _add("valid", lambda H: np.ones(H.shape[:2] + (1,), bool)), "valid has shape"),
-    ("valid-float", _add("valid", lambda H: np.full(H.shape, 0.5)), "valid must be boolean"),
-    ("H_var-shape", _add("H_var", lambda H: np.ones(H.shape[1:])), "H_var must be 3-D"),
-    ("H_var-negative", _add("H_var", lambda H: -np.ones(H.shape)), "H_var is a variance"),
-    ("H_var-inf", _add("H_var", lambda H: np.full(H.shape, np.inf)), "H_var holds NaN or Inf"),
-    # reactions
-    ("H_reaction-alone", _add("H_reaction", lambda H: H[:, :1, :]), "reactions labels are missing"),
-    ("reactions-alone", _labels_to("reactions", ["1+Z"]), "H_reaction is missing"),
-    ("reaction-not-output", _reaction_pair(["7+Z"]), "reactions label '7+Z' is not among"),
-    ("H_reaction-shape", _reaction_pair(["1+Z"], n_react=2), "(n_freq, n_react, n_in)"),
-    ("H_reaction_var-alone", _add("H_reaction_var", lambda H: np.ones(H[:, :1, :].shape)),
-     "H_reaction_var is given but H_reaction is missing"),
-    ("H_reaction_var-shape", _reaction_var(lambda R: np.ones(R.shape[:2])), "H_reaction_var must be 3-D"),
-    ("H_reaction_var-negative", _reaction_var(lambda R: -np.ones(R.shape)), "H_reaction_var is a variance"),
-    ("H_reaction_var-nan", _reaction_var(lambda R: np.full(R.shape, np.nan)), "H_reaction_var holds NaN"),
-    # n_avg
-    ("n_avg-zero", _set_attr("n_avg", 0), "n_avg must be a whole number >= 1"),
-    ("n_avg-fraction", _set_attr("n_avg", 2.5), "n_avg must be a whole number >= 1"),
-]
-
-
-@pytest.mark.parametrize(
-    "corrupt, fragment", [c[1:] for c in FRF_CORRUPTIONS], ids=[c[0] for c in FRF_CORRUPTIONS]
-)
-def test_read_frf_refuses_malformed_file(tmp_path, frf, corrupt, fragment):
-    path = tmp_path / "bad.h5"
-    write_frf(path, frf)
-    with h5py.File(path, "r+") as f:
-        corrupt(f)
-    with pytest.raises(InputError) as excinfo:
-        read_frf(path)
-    assert_one_line_error(excinfo, path, fragment)
-
-
-def test_read_frf_refuses_missing_path(tmp_path):
-    with pytest.raises(InputError) as excinfo:
-        read_frf(tmp_path / "nope.h5")
-    assert_one_line_error(excinfo, tmp_path / "nope.h5", "no such file")
-
-
-def test_read_frf_refuses_directory(tmp_path):
-    with pytest.raises(InputError) as excinfo:
-        read_frf(tmp_path)
-    assert_one_line_error(excinfo, tmp_path, "not a file")
-
-
-def test_read_frf_refuses_text_file(tmp_path):
-    path = tmp_path / "notes.h5"
-    path.write_text("freq,H\n1,2\n")
-    with pytest.raises(InputError) as excinfo:
-        read_frf(path)
-    assert_one_line_error(excinfo, path, "not an HDF5 file")
-
-
-def test_read_frf_refuses_truncated_file(tmp_path, frf):
-    path = tmp_path / "cut.h5"
-    write_frf(path, frf)
-    data = path.read_bytes()
-    path.write_bytes(data[: len(data) // 2])
-    with pytest.raises(InputError) as excinfo:
-        read_frf(path)
-    assert_one_line_error(excinfo, path)
-
-
-def test_read_frf_refuses_model_file(tmp_path, model):
-    path = tmp_path / "model.h5"
-    write_model(path, model)
-    with pytest.raises(InputError) as excinfo:
-        read_frf(path)
-    assert_one_line_error(excinfo, path, "format is 'ssidlab-model', expected 'ssidlab-frf'")
-
-
-def test_error_message_stays_one_line_with_line_break_in_label(tmp_path, frf):
-    frf.outputs = ["a\nb", "a\nb", "c"]
-    frf.inputs = ["c", "a\nb"]
-    with pytest.raises(InputError) as excinfo:
-        write_frf(tmp_path / "x.h5", frf)
-    assert_one_line_error(excinfo, tmp_path / "x.h5", "duplicate label 'a\\nb'")
-
-
-# ----------------------------------------------------------------------------------------------
 # The writers refuse what the readers would refuse, and leave no file behind
 # ----------------------------------------------------------------------------------------------
 
@@ -487,22 +236,22 @@ def _asym(name, rel):
 
 
 MODEL_CORRUPTIONS = [
-    ("format-wrong", _set_attr("format", FRF_FORMAT), "format is 'ssidlab-frf'"),
-    ("version-wrong", _set_attr("format_version", 3), "unsupported format_version 3"),
-    ("M-missing", _del("M"), "missing dataset /M"),
-    ("K-missing", _del("K"), "missing dataset /K"),
-    ("dofs-missing", _del("dofs"), "missing dataset /dofs"),
-    ("M-not-square", _replace("M", lambda M: np.ones((3, 2))), "M must be a square matrix"),
-    ("M-1d", _replace("M", lambda M: np.ones(3)), "M must be a square matrix"),
-    ("K-vs-dofs", _replace("K", lambda K: np.eye(4)), "K is 4 x 4 but there are 3 dofs"),
-    ("C-vs-dofs", _replace("C", lambda C: np.eye(2)), "C is 2 x 2 but there are 3 dofs"),
-    ("dofs-vs-M", _labels_to("dofs", ["1+Z", "2+Z"]), "M is 3 x 3 but there are 2 dofs"),
-    ("dofs-duplicate", _labels_to("dofs", ["1+Z", "2+Z", "2+Z"]), "duplicate label '2+Z' in dofs"),
-    ("M-complex", _replace("M", lambda M: M + 0j), "M must hold real numbers"),
+    ("format-wrong", set_attr("format", FRF_FORMAT), "format is 'ssidlab-frf'"),
+    ("version-wrong", set_attr("format_version", 3), "unsupported format_version 3"),
+    ("M-missing", delete("M"), "missing dataset /M"),
+    ("K-missing", delete("K"), "missing dataset /K"),
+    ("dofs-missing", delete("dofs"), "missing dataset /dofs"),
+    ("M-not-square", replace_values("M", lambda M: np.ones((3, 2))), "M must be a square matrix"),
+    ("M-1d", replace_values("M", lambda M: np.ones(3)), "M must be a square matrix"),
+    ("K-vs-dofs", replace_values("K", lambda K: np.eye(4)), "K is 4 x 4 but there are 3 dofs"),
+    ("C-vs-dofs", replace_values("C", lambda C: np.eye(2)), "C is 2 x 2 but there are 3 dofs"),
+    ("dofs-vs-M", labels_to("dofs", ["1+Z", "2+Z"]), "M is 3 x 3 but there are 2 dofs"),
+    ("dofs-duplicate", labels_to("dofs", ["1+Z", "2+Z", "2+Z"]), "duplicate label '2+Z' in dofs"),
+    ("M-complex", replace_values("M", lambda M: M + 0j), "M must hold real numbers"),
     ("M-not-symmetric", _asym("M", 1e-6), "M is not symmetric"),
     ("K-not-symmetric", _asym("K", 1e-6), "K is not symmetric"),
-    ("K-nan", _nan_at("K"), "K holds NaN or Inf in 1 value(s), first at row '3+Z', column '2+Z'"),
-    ("C-inf", _nan_at("C", -np.inf), "C holds NaN or Inf"),
+    ("K-nan", nan_at("K"), "K holds NaN or Inf in 1 value(s), first at row '3+Z', column '2+Z'"),
+    ("C-inf", nan_at("C", -np.inf), "C holds NaN or Inf"),
 ]
 
 

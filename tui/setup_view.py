@@ -42,19 +42,16 @@ def channel_options(setup) -> list[tuple[str, tuple[int, int]]]:
     return [(f"{o} / {i}", (k, j)) for j, i in enumerate(setup.inputs) for k, o in enumerate(setup.outputs)]
 
 
-def _addresses(setup) -> dict[str, str]:
-    addr = {g.name: g.url for g in setup.generators}
-    addr.update({a.name: f"{a.host}:{a.port}" for a in setup.amplifiers})
-    addr["daq"] = f"{setup.daq.interface}:{setup.daq.channel}"
-    return addr
+def _instruments(setup) -> list[tuple[str, str, str]]:
+    """The setup's instruments as (name, kind, address), generators, amplifiers, then the DAQ."""
+    return ([(g.name, "generator", g.url) for g in setup.generators]
+            + [(a.name, "amplifier", f"{a.host}:{a.port}") for a in setup.amplifiers]
+            + [("daq", "daq", f"{setup.daq.interface}:{setup.daq.channel}")])
 
 
 def configured_instrument_rows(setup) -> list[InstrumentRow]:
     """The setup's instruments before they are checked (F4) or used by a run."""
-    rows = ([(g.name, "generator", g.url) for g in setup.generators]
-            + [(a.name, "amplifier", f"{a.host}:{a.port}") for a in setup.amplifiers]
-            + [("daq", "daq", f"{setup.daq.interface}:{setup.daq.channel}")])
-    return [(name, kind, address, "not checked (F4)", "") for name, kind, address in rows]
+    return [(name, kind, address, "not checked (F4)", "") for name, kind, address in _instruments(setup)]
 
 
 def instruments_in_use_rows(ev: dict, setup) -> list[InstrumentRow]:
@@ -62,7 +59,7 @@ def instruments_in_use_rows(ev: dict, setup) -> list[InstrumentRow]:
 
     ``setup`` gives the addresses of real instruments; simulated ones are marked so."""
     sim = bool(ev.get("simulated"))
-    addr = _addresses(setup) if setup is not None and not sim else {}
+    addr = {name: a for name, _, a in _instruments(setup)} if setup is not None and not sim else {}
     rows: list[InstrumentRow] = []
     for group, items in ev.get("identities", {}).items():
         if group == "daq":

@@ -8,7 +8,15 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from test_io_helpers import assert_one_line_error, delete, labels_to, nan_at, replace_values, set_attr
+from test_io_helpers import (
+    assert_corrupted_file_refused,
+    assert_one_line_error,
+    delete,
+    labels_to,
+    nan_at,
+    replace_values,
+    set_attr,
+)
 
 from ssid.errors import InputError
 from ssid.frf import FRFData
@@ -259,13 +267,9 @@ MODEL_CORRUPTIONS = [
     "corrupt, fragment", [c[1:] for c in MODEL_CORRUPTIONS], ids=[c[0] for c in MODEL_CORRUPTIONS]
 )
 def test_read_model_refuses_malformed_file(tmp_path, model, corrupt, fragment):
-    path = tmp_path / "bad_model.h5"
-    write_model(path, model)
-    with h5py.File(path, "r+") as f:
-        corrupt(f)
-    with pytest.raises(InputError) as excinfo:
-        read_model(path)
-    assert_one_line_error(excinfo, path, fragment)
+    assert_corrupted_file_refused(
+        tmp_path / "bad_model.h5", write_model, model, read_model, corrupt, fragment
+    )
 
 
 def test_write_model_refuses_asymmetric_k(tmp_path, model):

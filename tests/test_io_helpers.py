@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import h5py
 import numpy as np
+import pytest
+
+from ssid.errors import InputError
 
 
 def assert_one_line_error(excinfo, path, *fragments: str) -> None:
@@ -13,6 +16,17 @@ def assert_one_line_error(excinfo, path, *fragments: str) -> None:
     assert message.startswith(str(path))
     for fragment in fragments:
         assert fragment in message, message
+
+
+def assert_corrupted_file_refused(path, write, obj, read, corrupt, fragment: str) -> None:
+    """Write ``obj`` to ``path``, damage the file with ``corrupt``, and check that ``read``
+    refuses it with a one-line ``InputError`` naming the file and containing ``fragment``."""
+    write(path, obj)
+    with h5py.File(path, "r+") as f:
+        corrupt(f)
+    with pytest.raises(InputError) as excinfo:
+        read(path)
+    assert_one_line_error(excinfo, path, fragment)
 
 
 def replace_dataset(f: h5py.File, name: str, data, **kwargs) -> None:

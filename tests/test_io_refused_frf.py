@@ -7,6 +7,7 @@ import h5py
 import numpy as np
 import pytest
 from test_io_helpers import (
+    assert_corrupted_file_refused,
     assert_one_line_error,
     delete,
     labels_to,
@@ -156,13 +157,7 @@ FRF_CORRUPTIONS = [
     "corrupt, fragment", [c[1:] for c in FRF_CORRUPTIONS], ids=[c[0] for c in FRF_CORRUPTIONS]
 )
 def test_read_frf_refuses_malformed_file(tmp_path, frf, corrupt, fragment):
-    path = tmp_path / "bad.h5"
-    write_frf(path, frf)
-    with h5py.File(path, "r+") as f:
-        corrupt(f)
-    with pytest.raises(InputError) as excinfo:
-        read_frf(path)
-    assert_one_line_error(excinfo, path, fragment)
+    assert_corrupted_file_refused(tmp_path / "bad.h5", write_frf, frf, read_frf, corrupt, fragment)
 
 
 def test_read_frf_refuses_missing_path(tmp_path):

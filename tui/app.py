@@ -45,10 +45,20 @@ from textual.widgets import (
 
 from .results import RunResults, analyse_run, export_results
 from .results_pane import ResultsPane
-from .session import Acquisition, LiveRun, ProgressParser, RunOutcome, parse_event, run_file_state
+from .session import (
+    Acquisition,
+    LiveRun,
+    ProgressParser,
+    RunOutcome,
+    check_lab_instruments,
+    parse_event,
+    run_file_choice,
+    run_file_state,
+)
 from .setup_view import (
     channel_options,
     channel_rows,
+    checked_instrument_rows,
     configured_instrument_rows,
     describe_setup,
     instruments_in_use_rows,
@@ -281,27 +291,12 @@ class LabApp(App):
 
     @work(thread=True, exclusive=True, group="check")
     def _check(self, setup, sim: bool) -> None:
-        from daq.check import check_instruments
-
         try:
-            if sim:
-                from daq.simlab import start_sim_lab
-
-                handle, inst = start_sim_lab(setup)
-                try:
-                    states = check_instruments(inst)
-                finally:
-                    handle.stop()
-            else:
-                states = check_instruments(setup)
+            states = check_lab_instruments(setup, sim)
         except Exception as exc:  # noqa: BLE001 -- e.g. a setup the simulated lab cannot build
             self.call_from_thread(self._show_line, "#setup-error", f"error: {_one_line(exc)}")
             return
-        rows = [(s.name, s.kind, s.address, ("ok: " if s.ok else "NO ANSWER: ") + s.detail, s.identity)
-                for s in states]
-        n_bad = sum(not s.ok for s in states)
-        msg = (f"instruments: all {len(states)} answered" if not n_bad else
-               f"instruments: {n_bad} of {len(states)} did not answer") + (" (simulated lab)" if sim else "")
+        rows, msg = checked_instrument_rows(states, sim)
         self.call_from_thread(self._fill_instruments, rows)
         self.call_from_thread(self._show_line, "#check-status", msg)
 
@@ -345,19 +340,11 @@ class LabApp(App):
             self.notify("load a valid setup first", severity="error")
             return
         out = self.query_one("#out-path", Input).value.strip() or self.setup.output_file
-        out_path = Path(out)
-        if not out_path.parent.is_dir():
-            self.query_one("#setup-error", Static).update(
-                f"error: {out}: directory {str(out_path.parent)!r} does not exist")
+        refusal, resume = run_file_choice(out)
+        if refusal is not None:
+            self.query_one("#setup-error", Static).update(f"error: {refusal}")
             self.action_show_tab("setup")
             return
-        state = run_file_state(out_path) if out_path.exists() else None
-        if out_path.exists() and state in (None, "complete"):
-            why = "holds a complete run" if state == "complete" else "exists and is not a run file"
-            self.query_one("#setup-error", Static).update(f"error: {out} {why}: choose another run file")
-            self.action_show_tab("setup")
-            return
-        resume = state is not None  # an unfinished run of this setup: continue it
         sim = self.query_one("#sim", Switch).value
         self.outcome = None
         self.results = None
@@ -367,7 +354,7 @@ class LabApp(App):
         self.query_one(ResultsPane).clear("run in progress...")
         self.query_one("#log", RichLog).clear()
         self.query_one("#progress", ProgressBar).update(total=1.0, progress=0.0)
-        self.acquisition = Acquisition(self.setup.source, out_path.resolve(), sim=sim, resume=resume)
+        self.acquisition = Acquisition(self.setup.source, Path(out).resolve(), sim=sim, resume=resume)
         parser = ProgressParser.for_setup(self.setup)
         self._status(f"{'resuming' if resume else 'running'}: {out} ({'simulated lab' if sim else 'lab hardware'})")
         self._log(f"$ ssidlab acquire {self.setup.source} {'--resume' if resume else '--out'} {out}"

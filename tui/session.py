@@ -28,7 +28,8 @@ from pathlib import Path
 
 from daq.control import parse_event_line as parse_event  # the run's event lines (ssidlab acquire --events)
 
-__all__ = ["Acquisition", "LiveRun", "ProgressParser", "RunOutcome", "parse_event", "run_file_state"]
+__all__ = ["Acquisition", "LiveRun", "ProgressParser", "RunOutcome", "check_lab_instruments", "parse_event",
+           "run_file_choice", "run_file_state"]
 
 #: Exit statuses of ``ssidlab acquire`` (docs/acquisition.md).
 EXIT_TEXT = {0: "complete", 2: "bad input", 3: "stopped safely by a fault", 130: "interrupted (safe)"}
@@ -200,6 +201,43 @@ def run_file_state(path: str | Path) -> str | None:
             return str(f["acq"].attrs["state"])
     except Exception:  # noqa: BLE001 -- no file, not HDF5, no /acq: nothing to show
         return None
+
+
+def check_lab_instruments(setup, sim: bool) -> list:
+    """F4: ask each instrument of ``setup`` who it is (``daq.check.check_instruments``).
+
+    With ``sim`` the simulated lab is started on loopback for the check and stopped after it,
+    so a check never leaves devices running. Returns one state per instrument."""
+    from daq.check import check_instruments
+
+    if not sim:
+        return check_instruments(setup)
+    from daq.simlab import start_sim_lab
+
+    handle, inst = start_sim_lab(setup)
+    try:
+        return check_instruments(inst)
+    finally:
+        handle.stop()
+
+
+def run_file_choice(out: str | Path) -> tuple[str | None, bool]:
+    """Whether a run may write ``out``: ``(refusal, resume)``.
+
+    A new file starts a run; an unfinished run file is resumed (its own setup and lines are
+    kept, ``ssidlab acquire --resume``); a complete run or a file that is not a run file is
+    never overwritten, nor is a path whose directory does not exist. ``refusal`` is a
+    one-line reason naming the file, or None."""
+    path = Path(out)
+    if not path.parent.is_dir():
+        return f"{out}: directory {str(path.parent)!r} does not exist", False
+    if not path.exists():
+        return None, False
+    state = run_file_state(path)
+    if state in (None, "complete"):
+        why = "holds a complete run" if state == "complete" else "exists and is not a run file"
+        return f"{out} {why}: choose another run file", False
+    return None, True
 
 
 class LiveRun:

@@ -6,8 +6,8 @@ kept out of the app so that the widgets only place them.
 
 from __future__ import annotations
 
-__all__ = ["channel_options", "channel_rows", "configured_instrument_rows", "describe_setup",
-           "instruments_in_use_rows"]
+__all__ = ["channel_options", "channel_rows", "checked_instrument_rows", "configured_instrument_rows",
+           "describe_setup", "instruments_in_use_rows"]
 
 #: One instrument table row: name, kind, address, state, identity.
 InstrumentRow = tuple[str, str, str, str, str]
@@ -52,6 +52,18 @@ def _instruments(setup) -> list[tuple[str, str, str]]:
 def configured_instrument_rows(setup) -> list[InstrumentRow]:
     """The setup's instruments before they are checked (F4) or used by a run."""
     return [(name, kind, address, "not checked (F4)", "") for name, kind, address in _instruments(setup)]
+
+
+def checked_instrument_rows(states, sim: bool) -> tuple[list[InstrumentRow], str]:
+    """Rows and a one-line verdict from ``daq.check.check_instruments`` (F4).
+
+    ``states`` are its per-instrument results (name, kind, address, ok, detail, identity)."""
+    rows = [(s.name, s.kind, s.address, ("ok: " if s.ok else "NO ANSWER: ") + s.detail, s.identity)
+            for s in states]
+    n_bad = sum(not s.ok for s in states)
+    verdict = (f"instruments: all {len(states)} answered" if not n_bad else
+               f"instruments: {n_bad} of {len(states)} did not answer")
+    return rows, verdict + (" (simulated lab)" if sim else "")
 
 
 def instruments_in_use_rows(ev: dict, setup) -> list[InstrumentRow]:

@@ -8,6 +8,7 @@ import json
 import math
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +18,7 @@ from ssid.errors import InputError
 from ssid.jsonutil import to_jsonable
 
 __all__ = ["check_output_paths", "fe_normal_modes", "frequency_hz", "label_list",
-           "open_fraction", "parse_mode_list", "positive_number", "whole_number", "write_json"]
+           "open_fraction", "parse_mode_list", "positive_number", "whole_number", "write_chart", "write_json"]
 
 
 def frequency_hz(text: str) -> float:
@@ -105,7 +106,9 @@ def check_output_paths(inputs: list[str], outputs: list[str | None]) -> None:
         if path is None:
             continue
         real = os.path.realpath(path)
-        if real in sources:
+        # samefile also catches a hard link to an input, which realpath does not resolve
+        if real in sources or (os.path.exists(path) and any(
+                os.path.exists(s) and os.path.samefile(s, path) for s in inputs)):
             which = "the input file" if len(sources) == 1 else "an input file"
             raise InputError(f"{path}: output would overwrite {which}")
         if real in seen:
@@ -116,6 +119,16 @@ def check_output_paths(inputs: list[str], outputs: list[str | None]) -> None:
         parent = Path(path).parent
         if not parent.is_dir():
             raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")
+
+
+def write_chart(path: str, draw: Callable[[str], Any], what: str = "the chart") -> Any:
+    """Run ``draw(path)`` (a matplotlib writer); a file-system failure becomes one line.
+
+    Returns what ``draw`` returns (e.g. the files written)."""
+    try:
+        return draw(path)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write {what} ({exc.strerror or exc})") from None
 
 
 def write_json(path: str, data: dict) -> None:

@@ -35,6 +35,7 @@ from ssidlab.argtypes import (
     open_fraction,
     parse_mode_list,
     positive_number,
+    write_chart,
     write_json,
 )
 
@@ -136,10 +137,8 @@ def run_bands(args: argparse.Namespace) -> int:
         out["targets"] = {"source": args.targets, "mode_numbers": targets["numbers"],
                           "freq_hz": targets["freq_hz"].tolist()}
     if args.plot is not None:
-        try:
-            plot_band_roots(args.plot, res, None if targets is None else targets["freq_hz"])
-        except OSError as exc:
-            raise InputError(f"{args.plot}: cannot write the chart ({exc.strerror or exc})") from None
+        true_hz = None if targets is None else targets["freq_hz"]
+        write_chart(args.plot, lambda path: plot_band_roots(path, res, true_hz))
     warnings: list[str] = []
     if args.out is not None:
         try:

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from ssid.errors import InputError
+from ssidlab.argtypes import check_output_paths
 
 __all__ = [
     "HDF5_EXTENSIONS",
@@ -68,7 +69,7 @@ def add_convert_subcommand(sub: Any) -> argparse.ArgumentParser:
 def run_convert(args: argparse.Namespace) -> int:
     """Carry out ``ssidlab convert``; returns 0, raises InputError on bad input."""
     out_kind = _output_kind(args.output)
-    _check_output(args.input, args.output)
+    check_output_paths([args.input], [args.output])
     in_kind = _input_kind(args.input)
     binary = bool(args.binary) or Path(args.output).suffix.lower() == ".bunv"
     if out_kind == "frf-h5" and (args.binary or args.geometry):
@@ -174,16 +175,6 @@ def _read_json(path: str) -> Any:
         return json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{path}: not a readable JSON file ({exc})") from None
-
-
-def _check_output(source: str, path: str) -> None:
-    if os.path.exists(source) and os.path.exists(path) and os.path.samefile(source, path):
-        raise InputError(f"{path}: output would overwrite the input file")
-    if os.path.isdir(path):
-        raise InputError(f"{path}: is a directory, expected a file name")
-    parent = Path(path).parent
-    if not parent.is_dir():
-        raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")
 
 
 def read_geometry_csv(path: str) -> dict[int, tuple[float, float, float]]:

@@ -21,7 +21,13 @@ from typing import Any
 from ssid.errors import InputError
 from ssid.jsonutil import to_jsonable
 from ssid.tam import TAM_METHODS
-from ssidlab.argtypes import frequency_hz, label_list, open_fraction, parse_mode_list
+from ssidlab.argtypes import (
+    check_output_paths,
+    frequency_hz,
+    label_list,
+    open_fraction,
+    parse_mode_list,
+)
 
 __all__ = ["add_correlate_subcommand", "jsonable", "parse_mode_list", "run_correlate"]
 
@@ -87,7 +93,7 @@ def run_correlate(args: argparse.Namespace) -> int:
     if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
         raise InputError(f"--fmin ({args.fmin:g} Hz) must be below --fmax ({args.fmax:g} Hz)")
     sources = models + ([args.frf] if args.frf else [])
-    _check_output_file(args.json, sources)
+    check_output_paths(sources, [args.json])
     if args.plots is not None:
         _check_plot_dir(args.plots, sources)
 
@@ -117,17 +123,6 @@ def run_correlate(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(pair_table(summary))
     return 0
-
-
-def _check_output_file(path: str, sources: list[str]) -> None:
-    real = os.path.realpath(path)
-    if any(real == os.path.realpath(s) for s in sources):
-        raise InputError(f"{path}: output would overwrite an input file")
-    if os.path.isdir(path):
-        raise InputError(f"{path}: is a directory, expected a file name")
-    parent = Path(path).parent
-    if not parent.is_dir():
-        raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")
 
 
 def _check_plot_dir(path: str, sources: list[str]) -> None:

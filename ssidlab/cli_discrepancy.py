@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from ssid.errors import InputError
-from ssidlab.argtypes import check_output_paths, frequency_hz
+from ssidlab.argtypes import check_output_paths, frequency_hz, write_chart
 
 __all__ = ["add_discrepancy_subcommand", "run_discrepancy", "summary_text"]
 
@@ -107,10 +107,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
     if args.plots is not None:
         from ssid.discrepancy.plots import write_plots
 
-        try:
-            data["plots"] = write_plots(result, args.plots)
-        except OSError as exc:
-            raise InputError(f"{args.plots}: cannot write the plots ({exc.strerror or exc})") from None
+        data["plots"] = write_chart(args.plots, lambda path: write_plots(result, path), "the plots")
     Path(args.json).write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
     if not args.quiet:
         print(summary_text(data))

@@ -10,11 +10,10 @@ See ``docs/exchange.md``.
 from __future__ import annotations
 
 import argparse
-import os
-from pathlib import Path
 from typing import Any
 
 from ssid.errors import InputError
+from ssidlab.argtypes import check_output_paths
 
 __all__ = ["add_export_model_subcommand", "run_export_model"]
 
@@ -54,14 +53,7 @@ def run_export_model(args: argparse.Namespace) -> int:
         raise InputError("--ascii applies to OP4 output only")
     if args.names and fmt == "mat":
         raise InputError("--names applies to OP4 and DMIG output only (MAT uses M, C, K)")
-    if os.path.isdir(args.output):
-        raise InputError(f"{args.output}: is a directory, expected a file name")
-    parent = Path(args.output).parent
-    if not parent.is_dir():
-        raise InputError(f"{args.output}: cannot write, directory {str(parent)!r} does not exist")
-    if os.path.exists(args.model) and os.path.exists(args.output) \
-            and os.path.samefile(args.model, args.output):
-        raise InputError(f"{args.output}: output would overwrite the input file")
+    check_output_paths([args.model], [args.output])
 
     from ssid.matrix_io import read_analysis_model
 

@@ -31,7 +31,13 @@ from typing import Any
 import numpy as np
 
 from ssid.errors import IdentificationError, InputError
-from ssidlab.argtypes import check_output_paths, open_fraction, whole_number, write_json
+from ssidlab.argtypes import (
+    check_output_paths,
+    open_fraction,
+    whole_number,
+    write_chart,
+    write_json,
+)
 
 __all__ = ["add_pseudo_subcommand", "run_pseudo"]
 
@@ -161,10 +167,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
                         "data (relative RMS); docs/replication.md section 5")
     write_json(args.json, out)
     if args.plot is not None:
-        try:
-            plot_partition_scan(args.plot, res)
-        except OSError as exc:
-            raise InputError(f"{args.plot}: cannot write the chart ({exc.strerror or exc})") from None
+        write_chart(args.plot, lambda path: plot_partition_scan(path, res))
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     if not args.quiet:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +12,7 @@ import pytest
 
 from ssid.errors import InputError
 from ssid.jsonutil import to_jsonable
-from ssidlab.argtypes import check_output_paths
+from ssidlab.argtypes import check_output_paths, write_chart
 
 
 def test_to_jsonable_gives_strict_json():
@@ -35,3 +37,17 @@ def test_check_output_paths(tmp_path):
         check_output_paths([str(src)], [str(tmp_path)])
     with pytest.raises(InputError, match="does not exist"):
         check_output_paths([str(src)], [str(tmp_path / "no" / "a.h5")])
+    os.link(src, tmp_path / "hard.h5")  # another name of the same file
+    with pytest.raises(InputError, match="overwrite the input file"):
+        check_output_paths([str(src)], [str(tmp_path / "hard.h5")])
+
+
+def test_write_chart_passes_the_result_and_makes_a_file_error_one_line(tmp_path):
+    assert write_chart(str(tmp_path / "a.png"), lambda path: [path]) == [str(tmp_path / "a.png")]
+
+    def disk_full(path):
+        raise OSError(errno.ENOSPC, "No space left on device", path)
+
+    with pytest.raises(InputError) as excinfo:
+        write_chart("roots.png", disk_full)
+    assert str(excinfo.value) == "roots.png: cannot write the chart (No space left on device)"

@@ -18,8 +18,18 @@ from ssid.step1_refine import errors_in_variables_cost
 from ssid.tam import guyan_reduce
 
 
-def reactions(truth: Truth, seeds: list[int]) -> None:
-    print("\n## 6. Reaction forces: substructure on three 9-DOF test stands (section 6.6)\n")
+def stand_record(truth: Truth) -> tuple[FRFData, np.ndarray, np.ndarray, np.ndarray]:
+    """Section 6's noise-free record and the true substructure.
+
+    The payload's 16-DOF Guyan substructure (its Z DOFs) on three 9-DOF test stands,
+    coupled 25-DOF Guyan model with Rayleigh damping (2 % at 10 and 1000 Hz); inputs at 11+Z
+    and 16+Z, reactions at the interface DOFs 4+Z, 8+Z, 18+Z; 512 lines 1-1000 Hz.
+
+    Returns
+    -------
+    frf : accelerances (512, 16, 2) with the reactions (512, 3, 2).
+    Ms, Cs, Ks : (16, 16) the substructure's M, C, K (C: the same Rayleigh damping).
+    """
     p = truth.p
     M, K, dofs, T_rel = attach_test_stand(p)
     stand_z = [d for d in dofs[p.n:] if d.endswith("+Z")]
@@ -47,6 +57,13 @@ def reactions(truth: Truth, seeds: list[int]) -> None:
     H = -(w**2)[:, None, None] * X[:, : len(Z_DOFS)]
     frf = FRFData(freq_hz=f, H=H, outputs=list(Z_DOFS), inputs=inputs, H_reaction=Hr,
                   reactions=list(INTERFACE_DOFS))
+    return frf, Ms, Cs, Ks
+
+
+def reactions(truth: Truth, seeds: list[int]) -> None:
+    print("\n## 6. Reaction forces: substructure on three 9-DOF test stands (section 6.6)\n")
+    frf, Ms, Cs, Ks = stand_record(truth)
+    f = frf.freq_hz
     lam, phi_s = sla.eigh(Ks, Ms)
     fs = np.sqrt(lam) / (2 * np.pi)
     # Fair measure: the substructure modes inside the measured band (11 of 16: the 16-DOF model

@@ -162,8 +162,9 @@ def modal_model_from_bands(
     Raises
     ------
     IdentificationError
-        With reactions in the data, when the bands found fewer independent modes than DOFs
-        (no n-DOF modal model exists), or when a kept modal mass is not positive.
+        With reactions in the data (step 1 is not determined in a narrow band with reactions,
+        docs/algorithm.md known limits), when the bands found fewer independent modes than
+        DOFs (no n-DOF modal model exists), or when a kept modal mass is not positive.
     """
     if frf.H_reaction is not None:
         raise IdentificationError("the modal (band-processed) model is not available with "

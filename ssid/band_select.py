@@ -12,7 +12,15 @@ from __future__ import annotations
 import numpy as np
 
 from .band_scaling import root_shapes, scale_selected_roots, strongest_roots
-from .bands import BandResult, overlapping_bands, process_bands
+from .bands import (
+    BandResult,
+    band_min_lines,
+    default_band_width_hz,
+    default_bands,
+    lines_evenly_spaced,
+    overlapping_bands,
+    process_bands,
+)
 from .errors import IdentificationError
 from .frf import FRFData
 from .identify import SSIDResult, identify_mck, model_accelerance, model_frf_errors, model_output_error
@@ -20,7 +28,7 @@ from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from .modal import modal_phase_collinearity, physical_checks, real_modes, unit_max_shapes
 from .noise import data_noise_weights
 
-__all__ = ["band_ladder", "identify_mck_band_select", "identify_mck_modal",
+__all__ = ["band_ladder", "default_band_width_hz", "identify_mck_band_select", "identify_mck_modal",
            "model_accelerance", "result_problems"]
 
 
@@ -63,16 +71,6 @@ def band_ladder(
     return out
 
 
-def default_band_width_hz(freq_hz: np.ndarray) -> float:
-    """Band width for band processing over a record's lines (Hz): 1/12 of its span, at least
-    24 lines (a band then holds one or two modes of a sparse spectrum, and enough lines per
-    unknown for step 1 at a few sensors)."""
-    f = np.asarray(freq_hz, dtype=float)
-    span = float(f[-1] - f[0])
-    df = span / max(f.size - 1, 1)
-    return max(span / 12.0, 24 * df)
-
-
 def identify_mck_modal(
     frf: FRFData,
     *,
@@ -94,7 +92,8 @@ def identify_mck_modal(
     frf : FRFData
         Accelerances (L, n, n_in) without interface reactions.
     band_width_hz : float, optional
-        Width of the overlapping bands. Default: :func:`default_band_width_hz`.
+        Width of the overlapping bands. Default: :func:`ssid.bands.default_bands` (bands of
+        :func:`default_band_width_hz` on evenly spaced lines, of equal line count otherwise).
     scale, prefer_shapes, prefer_freq_hz
         As for :func:`modal_model_from_bands`.
     solver : step-1 solver in each band (as for :func:`identify_mck`).
@@ -112,10 +111,15 @@ def identify_mck_modal(
         raise IdentificationError("the modal (band-processed) model is not available with "
                                   "measured interface reactions")
     f = frf.freq_hz
-    width = band_width_hz if band_width_hz is not None else default_band_width_hz(f)
-    res = process_bands(frf, overlapping_bands(float(f[0]), float(f[-1]), width, 0.5),
-                        solver=solver)
-    return modal_model_from_bands(frf, res, scale=scale, band_width_hz=width,
+    if band_width_hz is not None:
+        bands = overlapping_bands(float(f[0]), float(f[-1]), band_width_hz, 0.5)
+    else:
+        need = band_min_lines(frf.n_out, frf.n_in)
+        bands = default_bands(f, 0.5, need)
+        # recorded when the bands have one width in Hz (evenly spaced lines)
+        band_width_hz = default_band_width_hz(f, 0.5, need) if lines_evenly_spaced(f) else None
+    res = process_bands(frf, bands, solver=solver)
+    return modal_model_from_bands(frf, res, scale=scale, band_width_hz=band_width_hz,
                                   prefer_shapes=prefer_shapes, prefer_freq_hz=prefer_freq_hz)
 
 
@@ -149,7 +153,8 @@ def modal_model_from_bands(
     scale : {"BP1", "BP2", "BP3"}
         Scale-factor estimate (section 5.2.2).
     band_width_hz : float, optional
-        Recorded in ``info["bands"]`` (the width ``res`` was processed with).
+        Recorded in ``info["bands"]`` (the width ``res`` was processed with; None for bands
+        of equal line count).
     prefer_shapes : (n, k) array, optional
         Target mode shapes at ``frf.outputs`` (real or complex), with ``prefer_freq_hz``
         (k,) their frequencies, Hz.

@@ -36,7 +36,12 @@ from .step2 import state_space_modes
 __all__ = [
     "BandResult",
     "BandRoot",
+    "band_min_lines",
+    "default_band_width_hz",
+    "default_bands",
     "fit_scale_factors",
+    "line_spacing_at",
+    "lines_evenly_spaced",
     "normal_mode_mck",
     "overlapping_bands",
     "plot_band_roots",
@@ -113,6 +118,91 @@ def overlapping_bands(f_lo_hz: float, f_hi_hz: float, width_hz: float,
     return bands
 
 
+def band_min_lines(n_out: int, n_in: int, n_react: int = 0) -> int:
+    """Fewest lines a band needs for step 1: enough real equations (``2 n_in`` per line) for
+    the ``p = 2 n + n_in + n_r`` unknowns of each row of Eq. 3.7, plus one."""
+    return int(np.ceil((2 * n_out + n_in + n_react) / (2 * n_in))) + 1
+
+
+def _default_band_spacings(n_lines: int, overlap: float, min_lines: int) -> float:
+    """Default band width in line spacings: 1/12 of the record, at least 24, and wide enough
+    that the part-bands at the record's ends (``overlap`` of a band) hold ``min_lines``."""
+    return max((n_lines - 1) / 12.0, 24.0, min_lines / overlap)
+
+
+def default_band_width_hz(freq_hz: np.ndarray, overlap: float = 0.5, min_lines: int = 0) -> float:
+    """Band width for band processing over a record's evenly spaced lines (Hz): 1/12 of its
+    span, at least 24 lines (a band then holds one or two modes of a sparse spectrum, and
+    enough lines per unknown for step 1 at a few sensors), and at least wide enough that the
+    part-bands at the ends (``overlap`` of a band) hold ``min_lines``
+    (:func:`band_min_lines`; with many sensors and one input, more than 12)."""
+    f = np.asarray(freq_hz, dtype=float)
+    span = float(f[-1] - f[0])
+    df = span / max(f.size - 1, 1)
+    return max(span / 12.0, 24 * df, min_lines / overlap * df)
+
+
+def lines_evenly_spaced(freq_hz: np.ndarray, rtol: float = 1e-3) -> bool:
+    """Whether a record's lines are evenly spaced (within ``rtol`` of their mean spacing;
+    loose enough for frequencies stored in single precision)."""
+    d = np.diff(np.asarray(freq_hz, dtype=float))
+    return d.size == 0 or float(np.ptp(d)) <= rtol * float(np.mean(d))
+
+
+def default_bands(freq_hz: np.ndarray, overlap: float = 0.5,
+                  min_lines: int = 0) -> list[tuple[float, float]]:
+    """Overlapping bands over a record's lines when the analyst gives no band width.
+
+    Evenly spaced lines (the report's records, random excitation): bands of
+    :func:`default_band_width_hz` by :func:`overlapping_bands`. Unevenly spaced lines (a
+    stepped-sine sweep on a logarithmic grid, refined near resonances): bands of equal line
+    count, about the count that rule gives on an even grid (1/12 of the record's spacings, at
+    least 24), adjusted so that the bands step through the record a whole number of times and
+    the last part-band holds half a band of lines like the first (a shorter one could hold too
+    few lines for step 1, and the modes there would be found in one band only). A band of fixed
+    width in Hz holds few lines where a log grid is coarse: on the payload's 16 Z sensors over
+    20-1500 Hz in 152 lines 2.9 % apart, the 1/12 bands above 450 Hz held fewer than the 10
+    lines step 1 needs with two shakers, and the modes at 567, 828 and 1320 Hz were lost.
+
+    ``min_lines`` (:func:`band_min_lines`): the fewest lines step 1 needs; the bands are made
+    wide enough that the part-bands at the ends hold that many.
+
+    Returns
+    -------
+    list of (lo, hi) in Hz.
+    """
+    f = np.asarray(freq_hz, dtype=float)
+    if lines_evenly_spaced(f):
+        width = default_band_width_hz(f, overlap, min_lines)
+        return overlapping_bands(float(f[0]), float(f[-1]), width, overlap)
+    # The same layout in line-index space, mapped back to Hz.
+    span = float(f.size - 1)
+    step = _default_band_spacings(f.size, overlap, min_lines) * (1 - overlap)
+    step = span / max(1, int(span / step))  # whole steps, each no shorter than asked
+    index = np.arange(f.size, dtype=float)
+
+    def at(x: float) -> float:  # an edge on a line (up to rounding) is that line's frequency
+        k = round(x)
+        return float(f[k]) if abs(x - k) < 1e-9 else float(np.interp(x, index, f))
+
+    return [(at(a), at(b)) for a, b in overlapping_bands(0.0, span, step / (1 - overlap), overlap)]
+
+
+def line_spacing_at(line_freq_hz: np.ndarray, freq_hz) -> np.ndarray:
+    """The record's line spacing (Hz) where each ``freq_hz`` lies: the distance between the
+    two lines that bracket it (beyond the first or last line, the spacing there).
+
+    This is the ``df`` of criteria 3 and 4: how far apart the lines are that see a root. On an
+    evenly spaced record it is the spacing; on a logarithmic sweep it grows with frequency.
+    """
+    lines = np.asarray(line_freq_hz, dtype=float)
+    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    if lines.size < 2:
+        return np.zeros(f.shape)
+    d = np.diff(lines)
+    return d[np.clip(np.searchsorted(lines, f) - 1, 0, d.size - 1)]
+
+
 def process_bands(
     frf: FRFData,
     bands_hz: list[tuple[float, float]],
@@ -142,13 +232,9 @@ def process_bands(
     -------
     BandResult; ``selected`` holds one root per physical mode, ascending in frequency.
     """
-    n = frf.n_out
-    p = 2 * n + frf.n_in + frf.n_react
-    need = min_lines if min_lines is not None else int(np.ceil(p / (2 * frf.n_in))) + 1
+    need = min_lines if min_lines is not None else band_min_lines(frf.n_out, frf.n_in, frf.n_react)
     roots: list[BandRoot] = []
     data: list[Step1Data] = []
-    # Line spacing of the record (Hz); the median ignores gaps left by invalid lines.
-    df_hz = float(np.median(np.diff(frf.freq_hz))) if frf.n_freq > 1 else 0.0
     unresolved_low_mpc: list[BandRoot] = []
     for b, (lo, hi) in enumerate(bands_hz):
         sub = frf.band(lo, hi)
@@ -176,13 +262,13 @@ def process_bands(
                     root.mpc_applied = False
                     unresolved_low_mpc.append(root)
             roots.append(root)
-    _screen_unresolved(roots, unresolved_low_mpc, df_hz)
-    _cluster_repeated(roots, repeat_tol, df_hz)
+    _screen_unresolved(roots, unresolved_low_mpc, frf.freq_hz)
+    _cluster_repeated(roots, repeat_tol, frf.freq_hz)
     selected = _pick_representatives(roots, bands_hz)
     return BandResult(bands_hz=list(bands_hz), roots=roots, selected=selected, data=data)
 
 
-def repeat_tolerance_hz(freq_hz: np.ndarray, zeta: np.ndarray, df_hz: float,
+def repeat_tolerance_hz(freq_hz: np.ndarray, zeta: np.ndarray, df_hz: float | np.ndarray,
                         tol: float = 0.125) -> np.ndarray:
     """Criterion 4's tolerance (Hz) for roots of frequency ``freq_hz`` and damping ``zeta``.
 
@@ -200,7 +286,8 @@ def repeat_tolerance_hz(freq_hz: np.ndarray, zeta: np.ndarray, df_hz: float,
     Parameters
     ----------
     freq_hz, zeta : (m,) frequencies (Hz) and damping ratios of the roots.
-    df_hz : line spacing of the record (Hz).
+    df_hz : line spacing of the record where each root lies (Hz), scalar or (m,)
+        (:func:`line_spacing_at`).
     tol : fraction of the width (1/8: 0.5 % of f for a resolved 2 %-damped mode).
 
     Returns
@@ -236,7 +323,8 @@ def _phase_seen_by_lines(freq_hz: float, zeta: float, line_freq_hz: np.ndarray) 
     return d_min <= PHASE_SEEN_HALF_WIDTHS * max(zeta, 0.0) * freq_hz
 
 
-def _screen_unresolved(roots: list[BandRoot], candidates: list[BandRoot], df_hz: float) -> None:
+def _screen_unresolved(roots: list[BandRoot], candidates: list[BandRoot],
+                       line_freq_hz: np.ndarray) -> None:
     """Criterion 3 for roots whose shape phase the lines do not see (low MPC kept so far).
 
     Such a root is left to criterion 4 (its frequency must repeat in another band), unless
@@ -249,18 +337,22 @@ def _screen_unresolved(roots: list[BandRoot], candidates: list[BandRoot], df_hz:
     apart with lines 2.25 Hz apart.
     """
     spared = {id(r) for r in candidates}  # by identity: roots hold arrays, == is ambiguous
+
+    def df(f: float) -> float:
+        return float(line_spacing_at(line_freq_hz, f)[0])
+
     for root in candidates:
         crowded = any(
             other.band == root.band and id(other) not in spared and not other.rejected
-            and 2.0 * max(other.zeta, 0.0) * other.freq_hz >= df_hz
-            and abs(other.freq_hz - root.freq_hz) < df_hz
+            and 2.0 * max(other.zeta, 0.0) * other.freq_hz >= df(other.freq_hz)
+            and abs(other.freq_hz - root.freq_hz) < df(root.freq_hz)
             for other in roots)
         if crowded:
             root.rejected = "low MPC"
             root.mpc_applied = True
 
 
-def _cluster_repeated(roots: list[BandRoot], tol: float, df_hz: float) -> None:
+def _cluster_repeated(roots: list[BandRoot], tol: float, line_freq_hz: np.ndarray) -> None:
     """Criterion 4: group surviving roots of different bands that are the same mode.
 
     Two roots of different bands may be the same mode when their frequencies differ by at
@@ -274,7 +366,7 @@ def _cluster_repeated(roots: list[BandRoot], tol: float, df_hz: float) -> None:
     f = np.array([r.freq_hz for r in alive])
     z = np.array([max(r.zeta, 1e-12) for r in alive])
     band = np.array([r.band for r in alive])
-    t = repeat_tolerance_hz(f, z, df_hz, tol)
+    t = repeat_tolerance_hz(f, z, line_spacing_at(line_freq_hz, f), tol)
 
     def close(i: int, j: int) -> bool:
         return (band[i] != band[j] and abs(f[i] - f[j]) <= max(t[i], t[j])
@@ -360,6 +452,9 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
             ax.axvline(f, color="k", lw=0.5, ls=":", zorder=1)
     lo = min(b[0] for b in result.bands_hz)
     hi = max(b[1] for b in result.bands_hz)
+    widths = [b[1] - b[0] for b in result.bands_hz[1:-1]] or [hi - lo]
+    if lo > 0 and max(widths) > 3 * min(widths):
+        ax.set_xscale("log")  # bands of equal line count on a log sweep: equal widths on a log axis
     ax.set_xlim(lo, hi)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("band")

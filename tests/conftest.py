@@ -92,3 +92,23 @@ def payload_10dof_300hz():
     frf = accelerance_from_model(p.M, modal_damping(p.M, p.K, 0.02), p.K, p.dofs,
                                  np.linspace(1.0, 300.0, 512), sensors, list(INTERFACE_DOFS))
     return frf, f_true[f_true <= 300.0]
+
+
+@pytest.fixture(scope="session")
+def log_sweep_record():
+    """The payload's 16 Z DOFs (Guyan), 2 % modal damping, shakers at 11+Z and 16+Z, as
+    the simulated lab's stepped-sine example measures them: 152 lines 20-1500 Hz on a log
+    grid (2.9 % apart, 0.6 Hz at the bottom, 42 Hz at the top). Returns (frf, f_hz), f_hz the
+    undamped natural frequencies inside the record."""
+    import scipy.linalg as sla
+
+    from ssid.models.payload import Z_DOFS, modal_damping, payload_simulator
+    from ssid.tam import guyan_reduce
+
+    p = payload_simulator()
+    red = guyan_reduce(p.M, p.K, p.index(Z_DOFS))
+    f = 20.0 * np.geomspace(1.0, 75.0, 152)
+    frf = accelerance_from_model(red.M, modal_damping(red.M, red.K, 0.02), red.K, list(Z_DOFS), f,
+                                 list(Z_DOFS), ["11+Z", "16+Z"])
+    fn = np.sqrt(sla.eigvalsh(red.K, red.M)) / (2 * np.pi)
+    return frf, fn[(fn >= f[0]) & (fn <= f[-1])]

@@ -12,7 +12,10 @@ from ssid.bands import (
     BandRoot,
     _cluster_repeated,
     _pick_representatives,
+    band_min_lines,
+    default_bands,
     fit_scale_factors,
+    line_spacing_at,
     normal_mode_mck,
     overlapping_bands,
     plot_band_roots,
@@ -247,7 +250,7 @@ def test_repeat_criterion_keeps_unresolved_mode_and_rejects_noise_roots():
              _root(22, 2196.324, 0.0118), _root(22, 2200.294, 0.0200),
              _root(21, 2200.853, 0.0196), _root(23, 2201.743, 0.0199),
              _root(9, 1000.0, 3e-4), _root(10, 1000.5, 3e-4)]
-    _cluster_repeated(roots, 0.125, 2.25)
+    _cluster_repeated(roots, 0.125, np.linspace(1.0, 2300.0, 1024))  # df = 2.25 Hz
     kept = [r.freq_hz for r in roots if not r.rejected]
     assert kept == [1.272, 1.290, 2200.294, 2200.853, 2201.743]
     assert roots[1].cluster == roots[2].cluster
@@ -331,3 +334,46 @@ def test_mpc_criterion_spares_a_mode_whose_phase_no_line_sees(payload_10dof_300h
     assert spared, "no root was kept past the MPC threshold: the case no longer tests the rule"
     for r in spared:
         assert np.min(np.abs(f_true - r.freq_hz)) < 0.02 * r.freq_hz, (r.freq_hz, r.mpc)
+
+
+# Unevenly spaced lines: a stepped-sine sweep on a logarithmic grid
+
+
+def test_default_bands_hold_equal_line_counts_on_an_uneven_grid():
+    """Evenly spaced lines keep the bands of one width in Hz; a log grid gets bands of equal
+    line count, every line in two bands and each end's part-band holding half a band."""
+    even = np.linspace(1.0, 300.0, 512)
+    assert default_bands(even) == overlapping_bands(1.0, 300.0, default_band_width_hz(even), 0.5)
+    f = 20.0 * np.geomspace(1.0, 75.0, 152)  # 20-1500 Hz, 2.9 % apart
+    bands = default_bands(f)
+    assert bands[0][0] == f[0] and bands[-1][1] == f[-1]
+    held = np.array([np.count_nonzero((f >= lo) & (f <= hi)) for lo, hi in bands])
+    cover = sum(((f >= lo) & (f <= hi)).astype(int) for lo, hi in bands)
+    assert cover.min() == 2
+    assert held[1:-1].min() >= 24 and held[1:-1].max() - held[1:-1].min() <= 2
+    assert min(held[0], held[-1]) >= 12
+    # One input and 16 sensors need 18 lines a band: the part-bands are widened to hold them.
+    need = band_min_lines(16, 1)
+    assert need == 18
+    assert min(np.count_nonzero((f >= lo) & (f <= hi)) for lo, hi in default_bands(f, 0.5, need)) >= need
+
+
+def test_line_spacing_at_is_the_spacing_of_the_bracketing_lines():
+    f = np.array([10.0, 11.0, 13.0, 17.0])
+    assert line_spacing_at(f, [9.0, 10.5, 12.0, 13.0, 16.0, 20.0]).tolist() == [1, 1, 2, 2, 4, 4]
+
+
+def test_default_bands_find_every_mode_of_a_log_sweep(log_sweep_record):
+    """Bands of one width in Hz (the even-grid rule, 1/12 of the span) hold fewer lines above
+    450 Hz than step 1 needs with 16 sensors and 2 inputs (10), so no band there is processed
+    and the modes at 567, 828 and 1320 Hz are lost. Bands of equal line count find every
+    mode."""
+    frf, fn = log_sweep_record
+    f = frf.freq_hz
+    assert fn.size == 9 and fn[-1] > 1300
+    by_hz = process_bands(frf, overlapping_bands(f[0], f[-1], (f[-1] - f[0]) / 12, 0.5), solver="ls")
+    lost = [x for x in fn if not np.any(np.abs(by_hz.freq_hz - x) < 0.01 * x)]
+    assert len(lost) == 3 and min(lost) > 450
+    res = process_bands(frf, default_bands(f, 0.5, band_min_lines(16, 2)), solver="ls")
+    assert res.freq_hz.size == fn.size
+    assert np.allclose(res.freq_hz, fn, rtol=1e-3)  # damped vs undamped: 2 % damping, 2e-4

@@ -60,7 +60,9 @@ def add_bands_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--fmin", type=frequency_hz, metavar="HZ", help="lowest frequency line used")
     p.add_argument("--fmax", type=frequency_hz, metavar="HZ", help="highest frequency line used")
     p.add_argument("--width", type=positive_number, metavar="HZ",
-                   help="band width (default: 1/12 of the record, at least 24 lines)")
+                   help="band width (default: 1/12 of the record, at least 24 lines; on "
+                        "unevenly spaced lines, e.g. a stepped-sine sweep, bands of that many "
+                        "lines instead of one width)")
     p.add_argument("--overlap", type=open_fraction, default=0.5, metavar="FRACTION",
                    help="overlap of neighbouring bands (default 0.5: every line in two bands)")
     p.add_argument("--mpc-min", type=open_fraction, default=0.8, metavar="MPC",
@@ -94,8 +96,16 @@ def run_bands(args: argparse.Namespace) -> int:
     check_output_paths(inputs, [args.json, args.out, args.plot])
 
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
-    from ssid.band_select import default_band_width_hz, modal_model_from_bands
-    from ssid.bands import overlapping_bands, plot_band_roots, process_bands
+    from ssid.band_select import modal_model_from_bands
+    from ssid.bands import (
+        band_min_lines,
+        default_band_width_hz,
+        default_bands,
+        lines_evenly_spaced,
+        overlapping_bands,
+        plot_band_roots,
+        process_bands,
+    )
     from ssid.io import read_frf, write_model
 
     frf = read_frf(args.frf)
@@ -111,19 +121,29 @@ def run_bands(args: argparse.Namespace) -> int:
     targets = _target_modes(args, data) if args.targets else None
 
     f0, f1 = float(data.freq_hz[0]), float(data.freq_hz[-1])
-    width = args.width if args.width is not None else default_band_width_hz(data.freq_hz)
-    if width > f1 - f0:
-        raise InputError(f"--width {width:g} Hz is wider than the band used ({f0:g}-{f1:g} Hz)")
-    bands = overlapping_bands(f0, f1, width, args.overlap)
+    if args.width is not None:
+        width: float | None = args.width
+        if width > f1 - f0:
+            raise InputError(f"--width {width:g} Hz is wider than the band used ({f0:g}-{f1:g} Hz)")
+        bands = overlapping_bands(f0, f1, width, args.overlap)
+    else:
+        # Uneven lines (a stepped-sine sweep): bands of equal line count, no single width.
+        need = band_min_lines(data.n_out, data.n_in)
+        bands = default_bands(data.freq_hz, args.overlap, need)
+        width = (default_band_width_hz(data.freq_hz, args.overlap, need)
+                 if lines_evenly_spaced(data.freq_hz) else None)
     res = process_bands(data, bands, solver=args.solver, mpc_min=args.mpc_min,
                         repeat_tol=args.repeat_tol)
     if not any(d is not None for d in res.data):
-        raise InputError(f"--width {width:g} Hz: no band holds enough lines for step 1 "
+        which = f"--width {width:g} Hz" if width is not None else f"{len(bands)} bands"
+        raise InputError(f"{which}: no band holds enough lines for step 1 "
                          f"({data.n_freq} lines over {f0:g}-{f1:g} Hz); widen the bands")
+    band_lines = [int(np.count_nonzero((data.freq_hz >= a) & (data.freq_hz <= b))) for a, b in bands]
 
     out: dict[str, Any] = {
         "source": args.frf,
-        "settings": {"band_hz": [f0, f1], "width_hz": width, "overlap": args.overlap,
+        "settings": {"band_hz": [f0, f1], "width_hz": width, "band_lines": max(band_lines),
+                     "overlap": args.overlap,
                      "mpc_min": args.mpc_min, "repeat_tol": args.repeat_tol,
                      "solver": args.solver},
         "bands_hz": [list(b) for b in bands],
@@ -219,7 +239,10 @@ def _table(out: dict) -> str:
     verdicts: dict[str, int] = {}
     for r in out["roots"]:
         verdicts[r["verdict"]] = verdicts.get(r["verdict"], 0) + 1
-    lines = [f"{len(out['bands_hz'])} bands of {out['settings']['width_hz']:.4g} Hz; "
+    s = out["settings"]
+    size = (f"{s['width_hz']:.4g} Hz" if s["width_hz"] is not None
+            else f"{s['band_lines']} lines (uneven line spacing)")
+    lines = [f"{len(out['bands_hz'])} bands of {size}; "
              f"{len(out['roots'])} roots (" + ", ".join(f"{v} {k}" for k, v in verdicts.items())
              + f"); {len(out['modes'])} modes found",
              head + ("  target (MAC)" if with_t else "")]

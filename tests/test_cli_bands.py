@@ -188,3 +188,25 @@ def test_bands_refuses_reactions_and_outputs_missing_from_the_fe_model(tmp_path,
     p = run(str(d / "frf.h5"), "--json", str(tmp_path / "s.json"), "--targets",
             str(tmp_path / "small.h5"))
     assert p.returncode == 2 and "is not a DOF of the model" in p.stderr
+
+
+def test_bands_on_a_log_sweep_use_bands_of_equal_line_count(tmp_path, log_sweep_record):
+    """A stepped-sine record on a log grid (152 lines, 20-1500 Hz): without --width the bands
+    hold equal numbers of lines, the table and the JSON say so, and all 9 modes in the record
+    are found; --width still sets one width in Hz."""
+    frf, fn = log_sweep_record
+    src, js = tmp_path / "sweep.h5", tmp_path / "sweep.json"
+    write_frf(str(src), frf)
+    p = run(str(src), "--json", str(js), "--solver", "ls")
+    assert p.returncode == 0, p.stderr
+    res = json.loads(js.read_text())
+    assert res["settings"]["width_hz"] is None and res["settings"]["band_lines"] >= 24
+    assert p.stdout.splitlines()[0].startswith(
+        f"{len(res['bands_hz'])} bands of {res['settings']['band_lines']} lines (uneven line spacing)")
+    found = np.array([m["freq_hz"] for m in res["modes"]])
+    assert found.size == fn.size and np.allclose(found, fn, rtol=1e-3)
+    p = run(str(src), "--json", str(js), "--solver", "ls", "--width", "300", "--quiet")
+    assert p.returncode == 0, p.stderr
+    res = json.loads(js.read_text())
+    assert res["settings"]["width_hz"] == 300.0
+    assert max(hi - lo for lo, hi in res["bands_hz"]) == pytest.approx(300.0)

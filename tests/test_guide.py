@@ -22,7 +22,7 @@ def guide_commands() -> list[str]:
 def test_guide_has_the_whole_walk_through():
     cmds = " ".join(guide_commands())
     for sub in ("place", "acquire", "identify", "correlate", "discrepancy", "convert",
-                "export-model"):
+                "export-model", "bands"):
         assert f"ssidlab {sub} " in cmds
 
 
@@ -42,5 +42,14 @@ def test_guide_commands_run_as_written(tmp_path):
     placement = json.loads((tmp_path / "placement.json").read_text())
     assert {"4+Z", "8+Z", "18+Z"} <= set(placement["chosen"]) and len(placement["chosen"]) == 10
     for name in ("run.h5", "run.uff", "identified.h5", "correlation.json", "updated.h5",
-                 "run_copy.uff", "identified.mat"):
+                 "run_copy.uff", "identified.mat", "free.h5", "bands.png"):
         assert (tmp_path / name).stat().st_size > 0, name
+    # The free test: as many modes found as the FE substructure has inside the sweep, each
+    # paired with its FE mode except the close pair the hidden mass mixes (modes 7 and 8).
+    bands = json.loads((tmp_path / "bands.json").read_text())
+    assert bands["settings"]["width_hz"] is None
+    assert len(bands["modes"]) == len(bands["targets"]["mode_numbers"]) == 9
+    paired = [m["target_mode"] for m in bands["modes"] if m.get("target_mode") is not None]
+    assert paired == [4, 5, 6, 9, 10, 11, 12]
+    unpaired = [m["freq_hz"] for m in bands["modes"] if m.get("target_mode") is None]
+    assert len(unpaired) == 2 and all(300 < f < 330 for f in unpaired)

@@ -37,6 +37,7 @@ __all__ = [
     "BandResult",
     "BandRoot",
     "band_min_lines",
+    "default_band_layout",
     "default_band_width_hz",
     "default_bands",
     "fit_scale_factors",
@@ -139,6 +140,9 @@ def default_band_width_hz(freq_hz: np.ndarray, overlap: float = 0.5, min_lines: 
     f = np.asarray(freq_hz, dtype=float)
     span = float(f[-1] - f[0])
     df = span / max(f.size - 1, 1)
+    # The rule of _default_band_spacings, in Hz: span / 12 is kept as written so that the
+    # band edges of an even record stay exactly what they were (a line on an edge belongs to
+    # both bands only if the arithmetic puts it there).
     return max(span / 12.0, 24 * df, min_lines / overlap * df)
 
 
@@ -186,6 +190,16 @@ def default_bands(freq_hz: np.ndarray, overlap: float = 0.5,
         return float(f[k]) if abs(x - k) < 1e-9 else float(np.interp(x, index, f))
 
     return [(at(a), at(b)) for a, b in overlapping_bands(0.0, span, step / (1 - overlap), overlap)]
+
+
+def default_band_layout(frf: FRFData, overlap: float = 0.5) -> tuple[list[tuple[float, float]], float | None]:
+    """:func:`default_bands` over ``frf``'s lines, wide enough for step 1 at its outputs and
+    inputs (:func:`band_min_lines`), and the bands' width in Hz: None when they hold equal
+    numbers of lines instead (unevenly spaced lines)."""
+    need = band_min_lines(frf.n_out, frf.n_in, frf.n_react)
+    f = frf.freq_hz
+    width = default_band_width_hz(f, overlap, need) if lines_evenly_spaced(f) else None
+    return default_bands(f, overlap, need), width
 
 
 def line_spacing_at(line_freq_hz: np.ndarray, freq_hz) -> np.ndarray:

@@ -97,15 +97,7 @@ def run_bands(args: argparse.Namespace) -> int:
 
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
     from ssid.band_select import modal_model_from_bands
-    from ssid.bands import (
-        band_min_lines,
-        default_band_width_hz,
-        default_bands,
-        lines_evenly_spaced,
-        overlapping_bands,
-        plot_band_roots,
-        process_bands,
-    )
+    from ssid.bands import default_band_layout, overlapping_bands, plot_band_roots, process_bands
     from ssid.io import read_frf, write_model
 
     frf = read_frf(args.frf)
@@ -127,11 +119,8 @@ def run_bands(args: argparse.Namespace) -> int:
             raise InputError(f"--width {width:g} Hz is wider than the band used ({f0:g}-{f1:g} Hz)")
         bands = overlapping_bands(f0, f1, width, args.overlap)
     else:
-        # Uneven lines (a stepped-sine sweep): bands of equal line count, no single width.
-        need = band_min_lines(data.n_out, data.n_in)
-        bands = default_bands(data.freq_hz, args.overlap, need)
-        width = (default_band_width_hz(data.freq_hz, args.overlap, need)
-                 if lines_evenly_spaced(data.freq_hz) else None)
+        # One width on evenly spaced lines; equal line counts otherwise (width None).
+        bands, width = default_band_layout(data, args.overlap)
     res = process_bands(data, bands, solver=args.solver, mpc_min=args.mpc_min,
                         repeat_tol=args.repeat_tol)
     if not any(d is not None for d in res.data):

@@ -103,7 +103,9 @@ def run_bands(args: argparse.Namespace) -> int:
     frf = read_frf(args.frf)
     if frf.H_reaction is not None:
         raise InputError(f"{args.frf}: holds interface reactions; band processing with "
-                         "reactions is not supported (use ssidlab identify)")
+                         "reactions is not supported: over a narrow band, step 1 with reactions "
+                         "is not determined (docs/algorithm.md, known limits); use ssidlab "
+                         "identify, or measure the structure free (no reaction channels)")
     lo = float(frf.freq_hz[0]) if args.fmin is None else args.fmin
     hi = float(frf.freq_hz[-1]) if args.fmax is None else args.fmax
     data = frf.band(lo, hi)

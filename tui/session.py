@@ -1,5 +1,7 @@
-"""What the TUI does with a run besides drawing: start ``ssidlab acquire`` as a subprocess,
-steer it (pause, resume, abort), and turn its output into progress and live curves.
+"""What the TUI does with a run besides drawing: check the instruments before it (F4), decide
+which run file it writes (new, resumed or refused), start ``ssidlab acquire`` as a
+subprocess, steer it (pause, resume, abort), and turn its output into progress and live
+curves.
 
 No device logic here: the acquisition is ``python -m ssidlab acquire --events
 --control-stdin`` (``daq``). It runs in its own process, owned by one TUI worker thread,

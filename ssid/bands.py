@@ -65,9 +65,14 @@ class BandRoot:
     zeta: float
     mpc: float
     rejected: str = ""  # "" if kept, else the first criterion that rejected it
+    #: Whether the nearest line of its band lies within 4 half-widths ``|zeta| f``
+    #: (:func:`_phase_seen_by_lines`): only then do the lines see its phase and its damping.
+    phase_seen: bool = True
     #: False when criterion 3 was not applied: no line sees the phase of its shape
     #: (:func:`_phase_seen_by_lines`) and no resolved root crowds it.
     mpc_applied: bool = True
+    #: False when criterion 2 was not applied to a negative damping, for the same reason.
+    damping_applied: bool = True
     cluster: int = -1  # index of the physical mode it was matched to
 
 
@@ -249,7 +254,7 @@ def process_bands(
     need = min_lines if min_lines is not None else band_min_lines(frf.n_out, frf.n_in, frf.n_react)
     roots: list[BandRoot] = []
     data: list[Step1Data] = []
-    unresolved_low_mpc: list[BandRoot] = []
+    unseen: list[BandRoot] = []  # spared by criterion 2 or 3: the lines do not see them
     for b, (lo, hi) in enumerate(bands_hz):
         sub = frf.band(lo, hi)
         if sub.n_freq < need:
@@ -265,18 +270,18 @@ def process_bands(
             f = wn[r] / (2 * np.pi)
             root = BandRoot(b, complex(modes.lam[r]), modes.theta[:, r].copy(), float(f),
                             float(zeta[r]), float(mpc[r]))
+            root.phase_seen = _phase_seen_by_lines(f, zeta[r], sub.freq_hz)
             if not lo <= f <= hi:
                 root.rejected = "outside band"
-            elif zeta[r] < 0:
-                root.rejected = "negative damping"
-            elif mpc[r] < mpc_min:
-                if _phase_seen_by_lines(f, zeta[r], sub.freq_hz):
-                    root.rejected = "low MPC"
+            elif zeta[r] < 0 or mpc[r] < mpc_min:
+                if root.phase_seen:
+                    root.rejected = "negative damping" if zeta[r] < 0 else "low MPC"
                 else:
-                    root.mpc_applied = False
-                    unresolved_low_mpc.append(root)
+                    root.damping_applied = zeta[r] >= 0
+                    root.mpc_applied = mpc[r] >= mpc_min
+                    unseen.append(root)
             roots.append(root)
-    _screen_unresolved(roots, unresolved_low_mpc, frf.freq_hz)
+    _screen_unresolved(roots, unseen, frf.freq_hz)
     _cluster_repeated(roots, repeat_tol, frf.freq_hz)
     selected = _pick_representatives(roots, bands_hz)
     return BandResult(bands_hz=list(bands_hz), roots=roots, selected=selected, data=data)
@@ -319,27 +324,32 @@ PHASE_SEEN_HALF_WIDTHS = 4.0
 
 
 def _phase_seen_by_lines(freq_hz: float, zeta: float, line_freq_hz: np.ndarray) -> bool:
-    """Whether the lines see the phase of a root's shape, so that criterion 3 (MPC) applies.
+    """Whether the lines see the phase of a root's resonance, so that criteria 2 (damping
+    sign), 3 (MPC) and criterion 4's damping check apply.
 
     A mode's contribution turns through its phase over its half-power band
     ``[f - zeta f, f + zeta f]``; a line ``d`` away sees it within ``atan(zeta f / d)`` of
     its far-field phase. When every line is more than 4 half-widths away (within 14 deg),
-    the lines see only the skirts, whose phase does not depend on the shape's complexity:
-    the noise sets the estimated shape's phase, and its MPC says nothing about the mode.
-    The payload's 1.29 Hz suspension mode (``zeta f`` = 0.026 Hz, nearest line 0.29 Hz
-    away: 11 half-widths) has MPC 0.07-0.80 under the report's noise in the bands that hold
-    it, 1.0 without; the lightly damped noise roots that pass criteria 1, 2 and 4 in
-    the same records have their nearest line within 2.1 half-widths. The 4 lies between.
+    the lines see only the skirts, whose phase depends neither on the shape's complexity nor
+    much on the damping: the noise sets the estimated shape's phase, so its MPC says nothing
+    about the mode, and it sets the damping too, sign included. The payload's 1.29 Hz
+    suspension mode (``zeta f`` = 0.026 Hz, nearest line 0.29 Hz away: 11 half-widths) has
+    MPC 0.07-0.80 under the report's noise in the bands that hold it, 1.0 without, and
+    damping from -0.3 % to 8.2 % (2 % true); the lightly damped noise roots that pass
+    criteria 1, 2 and 4 in the same records have their nearest line within 2.1 half-widths.
+    The 4 lies between. ``zeta`` is taken by magnitude: a root with negative damping is as
+    far from being seen as its positive twin.
     """
     if line_freq_hz.size == 0:
         return True
     d_min = float(np.min(np.abs(np.asarray(line_freq_hz) - freq_hz)))
-    return d_min <= PHASE_SEEN_HALF_WIDTHS * max(zeta, 0.0) * freq_hz
+    return d_min <= PHASE_SEEN_HALF_WIDTHS * abs(zeta) * freq_hz
 
 
 def _screen_unresolved(roots: list[BandRoot], candidates: list[BandRoot],
                        line_freq_hz: np.ndarray) -> None:
-    """Criterion 3 for roots whose shape phase the lines do not see (low MPC kept so far).
+    """Criteria 2 and 3 for roots whose phase the lines do not see (negative damping or low
+    MPC, kept so far).
 
     Such a root is left to criterion 4 (its frequency must repeat in another band), unless
     a resolved root of the same band (half-power band ``2 zeta f`` at least a line spacing)
@@ -362,8 +372,8 @@ def _screen_unresolved(roots: list[BandRoot], candidates: list[BandRoot],
             and abs(other.freq_hz - root.freq_hz) < df(root.freq_hz)
             for other in roots)
         if crowded:
-            root.rejected = "low MPC"
-            root.mpc_applied = True
+            root.rejected = "negative damping" if root.zeta < 0 else "low MPC"
+            root.mpc_applied = root.damping_applied = True
 
 
 def _cluster_repeated(roots: list[BandRoot], tol: float, line_freq_hz: np.ndarray) -> None:
@@ -371,20 +381,28 @@ def _cluster_repeated(roots: list[BandRoot], tol: float, line_freq_hz: np.ndarra
 
     Two roots of different bands may be the same mode when their frequencies differ by at
     most :func:`repeat_tolerance_hz` of the wider of the two and their damping ratios by at
-    most a factor 2. The candidate pairs are merged closest first (distance over tolerance),
-    a group holding at most one root per band and every pair in it within tolerance, so that
-    a noise root near a true mode cannot take the place of that mode's own repeat (the band
-    with both keeps the nearer one). Groups of one root are rejected ("not repeated").
+    most a factor 2, positive both. The damping check is skipped when neither root's phase is
+    seen by the lines (:func:`_phase_seen_by_lines`): their damping is the noise's, as is its
+    sign (such roots may have come through criterion 2 with a negative one). On the payload
+    at 12 sensors, 1-1158 Hz, seed 2, the 1.29 Hz mode's estimates in bands 0 and 1 are 0.0002
+    Hz apart with damping -0.3 % and 1.9 %. The candidate pairs are merged closest first
+    (distance over tolerance), a group holding at most one root per band and every pair in
+    it within tolerance, so that a noise root near a true mode cannot take the place of that
+    mode's own repeat (the band with both keeps the nearer one). Groups of one root are
+    rejected ("not repeated"), groups with no positive damping too ("negative damping").
     """
     alive = sorted((r for r in roots if not r.rejected), key=lambda r: r.freq_hz)
     f = np.array([r.freq_hz for r in alive])
-    z = np.array([max(r.zeta, 1e-12) for r in alive])
+    z = np.array([max(abs(r.zeta), 1e-12) for r in alive])
     band = np.array([r.band for r in alive])
     t = repeat_tolerance_hz(f, z, line_spacing_at(line_freq_hz, f), tol)
 
     def close(i: int, j: int) -> bool:
-        return (band[i] != band[j] and abs(f[i] - f[j]) <= max(t[i], t[j])
-                and 0.5 <= z[i] / z[j] <= 2.0)
+        if band[i] == band[j] or abs(f[i] - f[j]) > max(t[i], t[j]):
+            return False
+        if not (alive[i].phase_seen or alive[j].phase_seen):
+            return True
+        return alive[i].zeta > 0 and alive[j].zeta > 0 and 0.5 <= z[i] / z[j] <= 2.0
 
     pairs = sorted((abs(f[i] - f[j]) / max(t[i], t[j]), i, j)
                    for i in range(len(alive)) for j in range(i + 1, len(alive)) if close(i, j))
@@ -402,13 +420,20 @@ def _cluster_repeated(roots: list[BandRoot], tol: float, line_freq_hz: np.ndarra
         if len(members) < 2:
             alive[members[0]].rejected = "not repeated"
             continue
+        if all(alive[i].zeta <= 0 for i in members):
+            for i in members:
+                alive[i].rejected = "negative damping"
+                alive[i].damping_applied = True
+            continue
         for i in members:
             alive[i].cluster = k
         k += 1
 
 
 def _pick_representatives(roots: list[BandRoot], bands_hz) -> list[BandRoot]:
-    """One root per cluster: the one farthest from an edge of its band (least edge effect).
+    """One root per cluster: the one farthest from an edge of its band (least edge effect),
+    among those with positive damping (a cluster's others came through criteria 2 and 4 only
+    because the lines do not see their damping).
 
     Only band edges inside the record count: at the record's own first or last line every
     band holding the root is cut alike (the two part-bands at each end share that edge with
@@ -425,7 +450,7 @@ def _pick_representatives(roots: list[BandRoot], bands_hz) -> list[BandRoot]:
 
     best: dict[int, BandRoot] = {}
     for r in roots:
-        if r.rejected or r.cluster < 0:
+        if r.rejected or r.cluster < 0 or r.zeta <= 0:
             continue
         cur = best.get(r.cluster)
         if cur is None or margin(r) > margin(cur):
@@ -449,13 +474,13 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
              "low MPC": ("s", "tab:purple", "low MPC"), "negative damping": ("v", "tab:red", "negative damping"),
              "outside band": (".", "0.6", "outside band")}
     seen = set()
-    ring = "MPC not applied (no line sees its phase)"
+    ring = "criterion 2 or 3 not applied (no line sees its phase)"
     for r in result.roots:
         mk, col, lab = marks[r.rejected]
         ax.scatter(r.freq_hz, r.band, marker=mk, color=col, s=28,
                    label=None if lab in seen else lab, zorder=2)
         seen.add(lab)
-        if not r.mpc_applied:
+        if not (r.mpc_applied and r.damping_applied):
             ax.scatter(r.freq_hz, r.band, marker="o", facecolors="none", edgecolors="k", s=90,
                        lw=0.8, label=None if ring in seen else ring, zorder=3)
             seen.add(ring)

@@ -139,7 +139,8 @@ def run_bands(args: argparse.Namespace) -> int:
                      "solver": args.solver},
         "bands_hz": [list(b) for b in bands],
         "roots": [{"band": r.band, "freq_hz": r.freq_hz, "damping_ratio": r.zeta,
-                   "mpc": r.mpc, "mpc_applied": r.mpc_applied, "verdict": r.rejected or "kept",
+                   "mpc": r.mpc, "mpc_applied": r.mpc_applied,
+                   "damping_applied": r.damping_applied, "verdict": r.rejected or "kept",
                    "mode": r.cluster}
                   for r in res.roots],
         "modes": _modes(res, targets),

@@ -64,13 +64,11 @@ def frf_full() -> FRFData:
     return full_frf()
 
 
-@pytest.fixture(scope="module")
-def payload_10dof_300hz():
-    """The payload's 10 EfI sensors (Eq. 6.1) for its first 10 target modes, inputs at the
-    interface, 1-300 Hz in 512 lines (the report's first spectrum; df = 0.585 Hz). Seven
-    modes lie in the record; the 1.29 Hz suspension mode's half-power band (2 zeta f =
-    0.05 Hz) falls between two lines. Returns ``(frf, f_hz)``, ``f_hz`` the undamped natural
-    frequencies inside the record."""
+def _payload_record(n_sensors: int, f_max_hz: float) -> tuple[FRFData, np.ndarray]:
+    """The payload's ``n_sensors`` EfI Z sensors (Eq. 6.1) for its first ``n_sensors`` target
+    modes, inputs at the interface (always measured), 2 % modal damping, 1 Hz to
+    ``f_max_hz`` in 512 lines, as the replication bench builds its records. Returns
+    ``(frf, f_hz)``, ``f_hz`` the undamped natural frequencies inside the record."""
     import scipy.linalg as sla
 
     from ssid.models.payload import (
@@ -85,13 +83,30 @@ def payload_10dof_300hz():
     p = payload_simulator()
     lam, phi = sla.eigh(p.K, p.M)
     f_true = np.sqrt(lam) / (2 * np.pi)
-    tm = target_modes(p, 10)
+    tm = target_modes(p, n_sensors)
     iz = p.index(Z_DOFS)
-    chosen = effective_independence(phi[iz][:, tm], 10, Z_DOFS, required=INTERFACE_DOFS)
+    chosen = effective_independence(phi[iz][:, tm], n_sensors, Z_DOFS, required=INTERFACE_DOFS)
     sensors = [d for d in Z_DOFS if d in chosen]
     frf = accelerance_from_model(p.M, modal_damping(p.M, p.K, 0.02), p.K, p.dofs,
-                                 np.linspace(1.0, 300.0, 512), sensors, list(INTERFACE_DOFS))
-    return frf, f_true[f_true <= 300.0]
+                                 np.linspace(1.0, f_max_hz, 512), sensors, list(INTERFACE_DOFS))
+    return frf, f_true[f_true <= f_max_hz]
+
+
+@pytest.fixture(scope="module")
+def payload_10dof_300hz():
+    """The payload's 10 EfI sensors, 1-300 Hz in 512 lines (the report's first spectrum;
+    df = 0.585 Hz; :func:`_payload_record`). Seven modes lie in the record; the 1.29 Hz
+    suspension mode's half-power band (2 zeta f = 0.05 Hz) falls between two lines."""
+    return _payload_record(10, 300.0)
+
+
+@pytest.fixture(scope="module")
+def payload_12dof_1158hz():
+    """The payload's 12 EfI sensors, 1-1158 Hz in 512 lines (the replication's spectrum
+    equivalent to the report's 1-650 Hz at 12 DOFs; df = 2.26 Hz; :func:`_payload_record`).
+    Fifteen modes lie in the record; the 1.29 Hz suspension mode lies 0.29 Hz above the
+    first line, 11 half-widths away."""
+    return _payload_record(12, 1158.0)
 
 
 @pytest.fixture(scope="session")

@@ -53,7 +53,8 @@ def test_bands_finds_every_mode_writes_chart_json_and_modal_model(tmp_path):
     assert np.allclose(res["model"]["natural_freq_hz"], f_true, rtol=1e-6)
     assert np.all(np.linalg.eigvalsh(model.M) > 0)
     assert str(found.size) in p.stdout and f"{f_true[0]:.4f}" in p.stdout
-    assert all(r["mpc_applied"] for r in res["roots"]) and "MPC not applied" not in p.stdout
+    assert all(r["mpc_applied"] and r["damping_applied"] for r in res["roots"])
+    assert "MPC not applied" not in p.stdout
 
 
 def test_bands_marks_a_mode_kept_without_the_mpc_criterion(tmp_path, payload_10dof_300hz):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .band_scaling import root_shapes, scale_selected_roots, strongest_roots
-from .bands import BandResult, default_band_layout, default_band_width_hz, overlapping_bands, process_bands
+from .bands import BandResult, band_layout, default_band_width_hz, process_bands
 from .errors import IdentificationError
 from .frf import FRFData
 from .identify import SSIDResult, identify_mck, model_accelerance, model_frf_errors, model_output_error
@@ -84,7 +84,7 @@ def identify_mck_modal(
     frf : FRFData
         Accelerances (L, n, n_in) without interface reactions.
     band_width_hz : float, optional
-        Width of the overlapping bands. Default: :func:`ssid.bands.default_band_layout` (bands
+        Width of the overlapping bands. Default: :func:`ssid.bands.band_layout` (bands
         of :func:`default_band_width_hz` on evenly spaced lines, of equal line count otherwise).
     scale, prefer_shapes, prefer_freq_hz
         As for :func:`modal_model_from_bands`.
@@ -102,11 +102,7 @@ def identify_mck_modal(
     if frf.H_reaction is not None:
         raise IdentificationError("the modal (band-processed) model is not available with "
                                   "measured interface reactions")
-    f = frf.freq_hz
-    if band_width_hz is not None:
-        bands = overlapping_bands(float(f[0]), float(f[-1]), band_width_hz, 0.5)
-    else:
-        bands, band_width_hz = default_band_layout(frf)
+    bands, band_width_hz = band_layout(frf, band_width_hz)
     res = process_bands(frf, bands, solver=solver)
     return modal_model_from_bands(frf, res, scale=scale, band_width_hz=band_width_hz,
                                   prefer_shapes=prefer_shapes, prefer_freq_hz=prefer_freq_hz)

@@ -37,7 +37,7 @@ __all__ = [
     "BandResult",
     "BandRoot",
     "band_min_lines",
-    "default_band_layout",
+    "band_layout",
     "default_band_width_hz",
     "default_bands",
     "fit_scale_factors",
@@ -197,12 +197,18 @@ def default_bands(freq_hz: np.ndarray, overlap: float = 0.5,
     return [(at(a), at(b)) for a, b in overlapping_bands(0.0, span, step / (1 - overlap), overlap)]
 
 
-def default_band_layout(frf: FRFData, overlap: float = 0.5) -> tuple[list[tuple[float, float]], float | None]:
-    """:func:`default_bands` over ``frf``'s lines, wide enough for step 1 at its outputs and
-    inputs (:func:`band_min_lines`), and the bands' width in Hz: None when they hold equal
-    numbers of lines instead (unevenly spaced lines)."""
-    need = band_min_lines(frf.n_out, frf.n_in, frf.n_react)
+def band_layout(frf: FRFData, width_hz: float | None = None,
+                overlap: float = 0.5) -> tuple[list[tuple[float, float]], float | None]:
+    """The overlapping bands over ``frf``'s lines and their width in Hz.
+
+    With ``width_hz``, bands of that width (:func:`overlapping_bands`). Without,
+    :func:`default_bands`, wide enough for step 1 at the record's outputs and inputs
+    (:func:`band_min_lines`); the width returned is then None when they hold equal numbers
+    of lines instead (unevenly spaced lines)."""
     f = frf.freq_hz
+    if width_hz is not None:
+        return overlapping_bands(float(f[0]), float(f[-1]), width_hz, overlap), width_hz
+    need = band_min_lines(frf.n_out, frf.n_in, frf.n_react)
     width = default_band_width_hz(f, overlap, need) if lines_evenly_spaced(f) else None
     return default_bands(f, overlap, need), width
 

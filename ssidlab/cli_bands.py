@@ -97,7 +97,7 @@ def run_bands(args: argparse.Namespace) -> int:
 
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
     from ssid.band_select import modal_model_from_bands
-    from ssid.bands import default_band_layout, overlapping_bands, plot_band_roots, process_bands
+    from ssid.bands import band_layout, plot_band_roots, process_bands
     from ssid.io import read_frf, write_model
 
     frf = read_frf(args.frf)
@@ -115,14 +115,10 @@ def run_bands(args: argparse.Namespace) -> int:
     targets = _target_modes(args, data) if args.targets else None
 
     f0, f1 = float(data.freq_hz[0]), float(data.freq_hz[-1])
-    if args.width is not None:
-        width: float | None = args.width
-        if width > f1 - f0:
-            raise InputError(f"--width {width:g} Hz is wider than the band used ({f0:g}-{f1:g} Hz)")
-        bands = overlapping_bands(f0, f1, width, args.overlap)
-    else:
-        # One width on evenly spaced lines; equal line counts otherwise (width None).
-        bands, width = default_band_layout(data, args.overlap)
+    if args.width is not None and args.width > f1 - f0:
+        raise InputError(f"--width {args.width:g} Hz is wider than the band used ({f0:g}-{f1:g} Hz)")
+    # Default: one width on evenly spaced lines; equal line counts otherwise (width None).
+    bands, width = band_layout(data, args.width, args.overlap)
     res = process_bands(data, bands, solver=args.solver, mpc_min=args.mpc_min,
                         repeat_tol=args.repeat_tol)
     if not any(d is not None for d in res.data):

@@ -98,3 +98,10 @@ def test_lab_demo_end_to_end(tmp_path):
     assert disc["effect"] == "added_mass" and disc["dofs"] == ["6+Z"]
     assert abs(disc["parameters"]["mass_kg"] - 0.25) < 0.05
     assert disc["gap_after"] < 0.5 * disc["gap_before"]
+    # The printed table pairs each identified mode with its FE mode by MAC, as correlation.json
+    # does (the hidden mass swaps the close pair's order), not by mode number.
+    pairs = {m["test_mode"]: m["analysis_mode"]
+             for m in json.loads((out / "correlation.json").read_text())["paired_modes"]}
+    rows = {int(c[0]): int(c[5]) for c in (line.split() for line in p.stdout.splitlines())
+            if len(c) == 9 and c[0].isdigit() and c[5].isdigit()}
+    assert rows and rows == pairs

@@ -143,13 +143,13 @@ def worker(n: int, n_in: int, lines: int, solvers: list[str]) -> None:
     import numpy as np
 
     from ssid.identify import ML_MAX_UNKNOWNS, identify_mck
-    from ssid.step1 import _regressors, step1_data
+    from ssid.step1 import step1_regressors, step1_data
 
     frf, f_true = bench_case(n, n_in, lines)
 
     # The step-1 data matrix exactly as estimate_equation_error builds it (line weights 1).
     d = step1_data(frf)
-    Z = _regressors(d, d.H)
+    Z = step1_regressors(d, d.H)
     ok = d.col_ok
     Zc = Z[ok] * np.ones(ok.shape)[ok][:, None]
     A = np.vstack([Zc.real, Zc.imag])

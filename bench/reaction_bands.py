@@ -33,7 +33,7 @@ from ssid.frf import FRFData  # noqa: E402
 from ssid.identify import identify_step1  # noqa: E402
 from ssid.modal import root_frequency_damping  # noqa: E402
 from ssid.noise import report_noise_frf  # noqa: E402
-from ssid.step1 import _regressors, step1_data  # noqa: E402
+from ssid.step1 import step1_regressors, step1_data  # noqa: E402
 from ssid.step2 import state_space_modes  # noqa: E402
 
 BANDS_HZ = [(1.0, 1000.0), (500.0, 1000.0), (700.0, 1000.0), (750.0, 900.0), (790.0, 870.0)]
@@ -43,7 +43,7 @@ def regressor_conditioning(frf: FRFData) -> np.ndarray:
     """The three smallest singular values of the step-1 regressor over its largest, its
     columns (the unknowns of one DOF's row, Eq. 3.7) first scaled to unit norm."""
     d = step1_data(frf)
-    Z = _regressors(d, d.H).reshape(-1, d.p)
+    Z = step1_regressors(d, d.H).reshape(-1, d.p)
     A = np.vstack([Z.real, Z.imag])
     A = A / np.linalg.norm(A, axis=0)
     s = np.linalg.svd(A, compute_uv=False)

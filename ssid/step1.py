@@ -33,6 +33,7 @@ __all__ = [
     "Step1Data",
     "Step1Estimate",
     "step1_data",
+    "step1_regressors",
     "estimate_equation_error",
     "predict_accelerance",
     "reaction_transfer",
@@ -124,10 +125,23 @@ def step1_data(
     )
 
 
-def _regressors(d: Step1Data, Hx: np.ndarray, sl: slice = slice(None)) -> np.ndarray:
-    """Regressor ``z_kj`` of the columns (k, j) of lines ``sl``, (l, n_in, p) complex.
+def step1_regressors(d: Step1Data, Hx: np.ndarray, sl: slice = slice(None)) -> np.ndarray:
+    """The regressor ``z_kj`` of Eq. 3.7 for the columns (k, j) of lines ``sl``.
 
-    ``Hx`` holds the accelerances of those lines (measured, or the model's).
+    Each output's row of Eq. 3.7 reads ``h_kj^T + z_kj x = 0`` over the columns (line k,
+    input j), with ``x`` the row of ``[C^ K^ D^_f D^_r]`` and ``z_kj`` the blocks
+    ``[h/(j w), -h/w^2, -e_j, -r]`` (``r`` the reaction transfers of that column).
+
+    Parameters
+    ----------
+    d : Step1Data
+    Hx : (l, n_out, n_in) complex
+        Accelerances of those lines (measured, or the model's).
+    sl : slice of the record's lines (``l`` of them).
+
+    Returns
+    -------
+    (l, n_in, p) complex, ``p = 2 n + n_in + n_r``.
     """
     L, n, n_in = Hx.shape
     w = d.omega[sl][:, None, None]
@@ -159,7 +173,7 @@ def estimate_equation_error(
     -------
     Step1Estimate
     """
-    Z = _regressors(d, d.H)  # (L, n_in, p)
+    Z = step1_regressors(d, d.H)  # (L, n_in, p)
     Y = -np.swapaxes(d.H, 1, 2)  # (L, n_in, n)
     ok = d.col_ok
     if line_weight is None:

@@ -19,7 +19,7 @@ from .step1 import (
     _dynamic_matrix,
     _equation_weights,
     _line_blocks,
-    _regressors,
+    step1_regressors,
     estimate_equation_error,
 )
 from .step1_refine import refine_sanathanan_koerner
@@ -141,7 +141,8 @@ def reaction_noise_weights(d: Step1Data, est: Step1Estimate) -> tuple[np.ndarray
         W = _equation_weights(d, est, sl)  # S^-1, 0 for columns with a blanked value
         h = np.swapaxes(d.H[sl], 1, 2)  # (l, n_in, n)
         r = np.swapaxes(d.Hr[sl], 1, 2)  # (l, n_in, n_r)
-        v = np.einsum("kjac,kjc->kja", W, h + np.einsum("ab,kjb->kja", X, _regressors(d, d.H[sl], sl)))
+        Z = step1_regressors(d, d.H[sl], sl)
+        v = np.einsum("kjac,kjc->kja", W, h + np.einsum("ab,kjb->kja", X, Z))
         vh = np.swapaxes(var_h_all[sl], 1, 2)
         vr = np.swapaxes(1.0 / d.weight_r[sl] ** 2, 1, 2)
         dh = vh * np.einsum("kba,kjb->kja", A.conj(), v)

@@ -25,7 +25,7 @@ from .step1 import (
     _dynamic_matrix,
     _equation_weights,
     _line_blocks,
-    _regressors,
+    step1_regressors,
     _weighted_gram,
     estimate_equation_error,
     predict_accelerance,
@@ -46,7 +46,8 @@ def _equation_cost(d: Step1Data, est: Step1Estimate) -> float:
     c = 0.0
     try:
         for sl in _line_blocks(d):
-            e = np.swapaxes(d.H[sl], 1, 2) + np.einsum("ab,kjb->kja", X, _regressors(d, d.H[sl], sl))
+            Z = step1_regressors(d, d.H[sl], sl)
+            e = np.swapaxes(d.H[sl], 1, 2) + np.einsum("ab,kjb->kja", X, Z)
             c += float(np.einsum("kja,kjac,kjc->", e.conj(), _equation_weights(d, est, sl), e).real)
     except np.linalg.LinAlgError:
         return np.inf
@@ -122,7 +123,7 @@ def refine_sanathanan_koerner(
             for sl in _line_blocks(d):
                 W = _equation_weights(d, est, sl)
                 h = np.swapaxes(d.H[sl], 1, 2)
-                ne.add(_regressors(d, d.H[sl], sl), W, np.einsum("kjac,kjc->kja", W, h))
+                ne.add(step1_regressors(d, d.H[sl], sl), W, np.einsum("kjac,kjc->kja", W, h))
             N, g = ne.matrix()
             X = -_solve_scaled(N, g).reshape(n, d.p)
         except np.linalg.LinAlgError:
@@ -221,7 +222,7 @@ def refine_output_error(
             w2 = d.weight[sl] ** 2
             W = _weighted_gram(Ainv, np.swapaxes(w2, 1, 2))
             V = np.einsum("kia,kij->kja", Ainv.conj(), w2 * (d.H[sl] - Hm[sl]))
-            ne.add(_regressors(d, Hm[sl], sl), W, V)
+            ne.add(step1_regressors(d, Hm[sl], sl), W, V)
         N, g = ne.matrix()
         accepted = False
         for _ in range(12):

@@ -57,7 +57,7 @@ def test_step1_normal_equations_equal_explicit_jacobian(small):
                                   d.n, d.n_in)
     Hm = s1.predict_accelerance(d, est)
     Ainv = np.linalg.inv(s1._dynamic_matrix(d, est))
-    Z = s1._regressors(d, Hm)
+    Z = s1.step1_regressors(d, Hm)
     w2 = d.weight**2
     W = np.einsum("kia,kij,kic->kjac", Ainv.conj(), w2, Ainv)
     V = np.einsum("kia,kij->kja", Ainv.conj(), w2 * (d.H - Hm))

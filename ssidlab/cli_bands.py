@@ -228,8 +228,14 @@ def _table(out: dict) -> str:
     for r in out["roots"]:
         verdicts[r["verdict"]] = verdicts.get(r["verdict"], 0) + 1
     s = out["settings"]
-    size = (f"{s['width_hz']:.4g} Hz" if s["width_hz"] is not None
-            else f"{s['band_lines']} lines (uneven line spacing)")
+    span = s["band_hz"][1] - s["band_hz"][0]
+    if s["width_hz"] is None:
+        size = f"{s['band_lines']} lines (uneven line spacing)"
+    elif s["width_hz"] > span:
+        # A record shorter than one band: the bands are the record and its parts.
+        size = f"at most {span:.4g} Hz (the record is narrower than a {s['width_hz']:.4g} Hz band)"
+    else:
+        size = f"{s['width_hz']:.4g} Hz"
     lines = [f"{len(out['bands_hz'])} bands of {size}; "
              f"{len(out['roots'])} roots (" + ", ".join(f"{v} {k}" for k, v in verdicts.items())
              + f"); {len(out['modes'])} modes found",

@@ -211,3 +211,20 @@ def test_bands_on_a_log_sweep_use_bands_of_equal_line_count(tmp_path, log_sweep_
     res = json.loads(js.read_text())
     assert res["settings"]["width_hz"] == 300.0
     assert max(hi - lo for lo, hi in res["bands_hz"]) == pytest.approx(300.0)
+
+
+def test_bands_on_a_record_shorter_than_one_default_band(tmp_path):
+    """20 lines, fewer than the 24 of a default band: the bands are the record and its parts,
+    every mode is still found in two of them, and the table says how wide they really are."""
+    M, C, K, dofs = example_system(6, seed=3)
+    frf = accelerance_from_model(M, C, K, dofs, np.linspace(3, 600, 20), dofs, [dofs[0], dofs[4]])
+    src, js = tmp_path / "short.h5", tmp_path / "short.json"
+    write_frf(str(src), frf)
+    p = run(str(src), "--json", str(js))
+    assert p.returncode == 0, p.stderr
+    res = json.loads(js.read_text())
+    assert max(b - a for a, b in res["bands_hz"]) <= 597.0 < res["settings"]["width_hz"]
+    assert f"{len(res['bands_hz'])} bands of at most 597 Hz" in p.stdout
+    found = np.array([m["freq_hz"] for m in res["modes"]])
+    f_true = _root_freq_hz(M, C, K)
+    assert found.size == f_true.size and np.allclose(found, f_true, rtol=1e-6)

@@ -250,11 +250,17 @@ def _check_band(source: str, frf, f_min: float | None, f_max: float | None) -> N
 
 
 def _mode_table(summary: dict) -> str:
+    """The roots (step 1) and, beside them, the undamped frequencies of the written M, K: the
+    two agree for a full-order fit and may not for a reduced-order one (a free test), whose
+    M, K are step 2's fit to those roots."""
     freqs = summary.get("natural_freq_hz", [])
     zetas = summary.get("damping_ratio", [])
-    lines = [f"{'mode':>4}  {'f_n [Hz]':>12}  {'damping [%]':>11}"]
+    undamped = summary.get("undamped_freq_hz", [])
+    lines = [f"{'mode':>4}  {'f_n [Hz]':>12}  {'damping [%]':>11}  {'M,K f [Hz]':>12}"]
     for k, (f_n, zeta) in enumerate(zip(freqs, zetas), start=1):
-        lines.append(f"{k:>4}  {_fmt(f_n, 1.0, '.4f'):>12}  {_fmt(zeta, 100.0, '.3f'):>11}")
+        f_mk = undamped[k - 1] if k <= len(undamped) else None
+        lines.append(f"{k:>4}  {_fmt(f_n, 1.0, '.4f'):>12}  {_fmt(zeta, 100.0, '.3f'):>11}  "
+                     f"{_fmt(f_mk, 1.0, '.4f'):>12}")
     return "\n".join(lines)
 
 

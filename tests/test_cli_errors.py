@@ -179,6 +179,7 @@ class FakeResult:
         return {
             "natural_freq_hz": np.array([5.1, 14.2, 21.9]),
             "damping_ratio": [np.float64(0.012), 0.02, None],
+            "undamped_freq_hz": [5.0, float("nan"), 22.0],  # NaN: M not definite
             "dofs": self.dofs,
         }
 
@@ -222,8 +223,9 @@ def test_identify_writes_model_json_and_table(tmp_path, good_file, fake_identify
     assert captured.err == "warning: few lines near 60 Hz\n"
     table = captured.out.splitlines()
     assert len(table) == 4 and "f_n [Hz]" in table[0]
-    assert table[1].split() == ["1", "5.1000", "1.200"]
-    assert table[3].split() == ["3", "21.9000", "-"]
+    assert table[1].split() == ["1", "5.1000", "1.200", "5.0000"]
+    assert table[2].split() == ["2", "14.2000", "2.000", "-"]
+    assert table[3].split() == ["3", "21.9000", "-", "22.0000"]
 
 
 def test_identify_defaults_and_quiet(tmp_path, good_file, fake_identify, capsys):

@@ -143,7 +143,7 @@ def worker(n: int, n_in: int, lines: int, solvers: list[str]) -> None:
     import numpy as np
 
     from ssid.identify import ML_MAX_UNKNOWNS, identify_mck
-    from ssid.step1 import step1_regressors, step1_data
+    from ssid.step1 import step1_data, step1_regressors
 
     frf, f_true = bench_case(n, n_in, lines)
 

@@ -33,7 +33,7 @@ from ssid.frf import FRFData  # noqa: E402
 from ssid.identify import identify_step1  # noqa: E402
 from ssid.modal import root_frequency_damping  # noqa: E402
 from ssid.noise import report_noise_frf  # noqa: E402
-from ssid.step1 import step1_regressors, step1_data  # noqa: E402
+from ssid.step1 import step1_data, step1_regressors  # noqa: E402
 from ssid.step2 import state_space_modes  # noqa: E402
 
 BANDS_HZ = [(1.0, 1000.0), (500.0, 1000.0), (700.0, 1000.0), (750.0, 900.0), (790.0, 870.0)]

@@ -19,8 +19,8 @@ from .step1 import (
     _dynamic_matrix,
     _equation_weights,
     _line_blocks,
-    step1_regressors,
     estimate_equation_error,
+    step1_regressors,
 )
 from .step1_refine import refine_sanathanan_koerner
 

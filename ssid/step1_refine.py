@@ -25,10 +25,10 @@ from .step1 import (
     _dynamic_matrix,
     _equation_weights,
     _line_blocks,
-    step1_regressors,
     _weighted_gram,
     estimate_equation_error,
     predict_accelerance,
+    step1_regressors,
 )
 
 __all__ = [

@@ -254,7 +254,8 @@ def identify_mck_band_select(
     -------
     SSIDResult
         The chosen candidate; ``info["band_select"]`` lists every candidate's band, solver,
-        physicality and output error, and the choice.
+        physicality and output error, and the choice (``choice``, one line; also a warning
+        when no candidate was physical).
     """
     w = data_noise_weights(frf)
     n_r = 0 if frf.H_reaction is None else frf.H_reaction.shape[1]
@@ -302,15 +303,17 @@ def identify_mck_band_select(
         # No physical candidate: a non-physical model that fits the lines better is no
         # evidence of better modes (it may buy the fit with spurious ones), so the default stays.
         score, hi, solver, r = default[0]
+    choice = (f"band and solver chosen from the data: {solver} on "
+              f"{r.band_hz[0]:g}-{r.band_hz[1]:g} Hz "
+              + ("(physical, lowest output error over all lines)" if not score[0] else
+                 "(no candidate was physical: the default is kept)"))
     r.info["band_select"] = {
         "band_max_hz": float(hi),
         "solver": solver,
+        "choice": choice,
         "candidates": [{"band_max_hz": float(h), "solver": s, "physical": not sc[0],
                         "output_error": sc[1]} for sc, h, s, _ in cands],
     }
-    r.warnings.append(
-        f"band and solver chosen from the data: {solver} on {r.band_hz[0]:g}-{r.band_hz[1]:g} Hz "
-        + ("(physical, lowest output error over all lines)" if not score[0] else
-           "(no candidate was physical: the default is kept)")
-    )
+    if score[0]:  # a physical choice is the normal outcome, not a warning
+        r.warnings.append(choice)
     return r

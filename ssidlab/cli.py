@@ -230,6 +230,9 @@ def _run_identify(args: argparse.Namespace) -> int:
     for message in result.warnings:
         _say(f"warning: {message}")
     if not args.quiet:
+        choice = ((summary.get("info") or {}).get("band_select") or {}).get("choice")
+        if choice and choice not in result.warnings:
+            print(choice)
         print(_mode_table(summary))
         err = (summary.get("checks") or {}).get("frf_relative_rms_error")
         if err is not None:

@@ -24,6 +24,25 @@ def test_example_setup_is_the_demo_setup():
     assert len(s.outputs) == 16 and s.roles()["force"] == [0, 1]
 
 
+def test_free_example_is_the_stand_example_off_its_stand():
+    """TOML has no include, so examples/setup_sim_free.toml repeats setup_sim.toml; this keeps
+    the two the same test but for what makes one free: no load cells, no stand, its own name
+    and output files."""
+    import tomllib
+
+    stand = tomllib.loads((ROOT / "examples" / "setup_sim.toml").read_text())
+    free = tomllib.loads((ROOT / "examples" / "setup_sim_free.toml").read_text())
+    assert free["test"]["name"] != stand["test"]["name"]
+    assert free["output"]["file"] == "free.h5" and stand["output"]["file"] == "run.h5"
+    for t in (stand, free):
+        del t["test"]["name"], t["output"]["file"], t["output"]["uff"]
+    stand["channels"] = [c for c in stand["channels"] if c["quantity"] != "reaction"]
+    del stand["sim"]["stand"]
+    assert free == stand
+    s = load_setup(ROOT / "examples" / "setup_sim_free.toml")
+    assert s.reactions == [] and len(s.outputs) == 16 and s.inputs == ["11+Z", "16+Z"]
+
+
 @pytest.mark.parametrize("edit, key", [
     (("f_max_hz = 200.0", "f_max_hz = 50.0"), "[stepped_sine] f_max_hz"),
     (("force_n = 1.0", "force_n = -1"), "[stepped_sine] force_n"),

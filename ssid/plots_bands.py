@@ -27,7 +27,8 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
         ax.plot([lo, hi], [b, b], color="0.85", lw=6, solid_capstyle="butt", zorder=0)
     marks = {"": ("o", "tab:green", "kept"), "not repeated": ("x", "tab:orange", "not repeated"),
              "low MPC": ("s", "tab:purple", "low MPC"), "negative damping": ("v", "tab:red", "negative damping"),
-             "outside band": (".", "0.6", "outside band")}
+             "outside band": (".", "0.6", "outside band"),
+             "same shape as a stronger mode": ("d", "tab:brown", "same shape as a stronger mode")}
     seen = set()
     ring = "criterion 2 or 3 not applied (no line sees its phase)"
     for r in result.roots:

@@ -344,9 +344,10 @@ def test_damping_criteria_spare_a_mode_whose_damping_no_line_sees(payload_12dof_
     with damping -0.3 % and 1.9 %: criterion 2 and criterion 4's factor-2 damping check
     rejected the mode (the lines do not see its damping, sign included). It must be kept,
     with positive damping, and every root kept past criterion 2, and every mode selected
-    through one, must be a true mode. (With two BLAS threads this record also selects a
-    noise root at 982 Hz, with or without the rule: both its estimates are seen by the
-    lines, docs/replication.md section 3 "Rounding".)"""
+    through one, must be a true mode. (With two BLAS threads this record also had a noise
+    root at 982 Hz pass criteria 1-4, with or without the rule: both its estimates are seen
+    by the lines; it has the 992 Hz mode's shape and is rejected as such, see
+    test_a_root_with_a_stronger_modes_shape_beside_it_is_rejected.)"""
     frf, f_true = payload_12dof_1158hz
     bands = overlapping_bands(1.0, 1158.0, default_band_width_hz(frf.freq_hz), 0.5)
     res = process_bands(report_noise_frf(frf, seed=2), bands)

@@ -32,6 +32,7 @@ if TYPE_CHECKING:  # only for annotations: ssid.bands imports this module
 
 __all__ = [
     "fit_scale_factors",
+    "frf_share",
     "normal_mode_mck",
     "residual_runs",
     "root_shapes",
@@ -164,6 +165,52 @@ def residual_runs(omega: np.ndarray, segment: np.ndarray, lam: np.ndarray) -> di
     return keep
 
 
+def _mode_terms(d: Step1Data, k: np.ndarray, lam: np.ndarray,
+                th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each pair's term of the modal sum (Eqs. 3.17, 3.19, 3.24) at lines ``k`` for a unit
+    scale factor, ``R_kr theta_ir q_kjr``, and its conjugate mode's, ``R'_kr conj(theta_ir)
+    q'_kjr``: both (len(k), n, n_in, m). A factor ``u_r`` makes the pair's accelerance
+    ``u_r a + conj(u_r) c``."""
+    w = d.omega[k][:, None]
+    R = -(w**2) / (1j * w - lam[None, :])  # Eq. 3.19, (Ls, m)
+    Rc = -(w**2) / (1j * w - lam.conj()[None, :])
+    m = th.shape[1]
+    q = np.broadcast_to(th[d.in_idx][None], (k.size, d.n_in, m))  # Eq. 3.24, (Ls, n_in, m)
+    qc = q.conj()
+    if d.n_r:
+        q = q + np.einsum("mr,kmj->kjr", th[d.r_idx], d.Hr[k])
+        qc = qc + np.einsum("mr,kmj->kjr", th[d.r_idx].conj(), d.Hr[k])
+    a = R[:, None, None, :] * th[None, :, None, :] * q[:, None, :, :]
+    c = Rc[:, None, None, :] * th.conj()[None, :, None, :] * qc[:, None, :, :]
+    return a, c
+
+
+def frf_share(d: Step1Data, roots: list[BandRoot]) -> np.ndarray:
+    """Each root's largest share of its band's FRFs: ``max_k ||H_r(w_k)|| / ||H(w_k)||``
+    (Frobenius norm over outputs and inputs), ``H_r`` its term of the modal sum with the
+    scale factors of Eq. 3.23 fitted on the band with all ``roots`` (:func:`fit_scale_factors`,
+    residual terms included). A mode near its resonance holds most of the response (0.96-1.0
+    for the payload's modes at 10 sensors); a root fitted to noise beside it, a few thousandths
+    to a few hundredths.
+
+    Parameters
+    ----------
+    d : Step1Data of the band (its lines and weights).
+    roots : the band's roots.
+
+    Returns
+    -------
+    (len(roots),) shares.
+    """
+    lam = np.array([r.lam for r in roots])
+    th = root_shapes(roots, d.n)  # (n, m)
+    u = fit_scale_factors(d, lam, th, residuals=True)
+    a, c = _mode_terms(d, np.arange(d.omega.size), lam, th)
+    h_r = np.linalg.norm(a * u + c * u.conj(), axis=(1, 2))  # (L, m)
+    h = np.maximum(np.linalg.norm(d.H, axis=(1, 2)), 1e-300)[:, None]
+    return np.max(h_r / h, axis=0)
+
+
 def fit_scale_factors(d: Step1Data, lam: np.ndarray, theta_x: np.ndarray,
                       segment: np.ndarray | None = None,
                       residuals: bool | str = True, local: bool = False) -> np.ndarray:
@@ -247,16 +294,7 @@ def fit_scale_factors(d: Step1Data, lam: np.ndarray, theta_x: np.ndarray,
     b = np.zeros(2 * m)
     for s in np.unique(segment):
         k = np.flatnonzero(segment == s)
-        w = d.omega[k][:, None]
-        R = -(w**2) / (1j * w - lam[None, :])  # Eq. 3.19, (Ls, m)
-        Rc = -(w**2) / (1j * w - lam.conj()[None, :])
-        q = np.broadcast_to(th[d.in_idx][None], (k.size, d.n_in, m))  # Eq. 3.24, (Ls, n_in, m)
-        qc = q.conj()
-        if d.n_r:
-            q = q + np.einsum("mr,kmj->kjr", th[d.r_idx], d.Hr[k])
-            qc = qc + np.einsum("mr,kmj->kjr", th[d.r_idx].conj(), d.Hr[k])
-        a = R[:, None, None, :] * th[None, :, None, :] * q[:, None, :, :]  # (Ls, n, n_in, m)
-        c = Rc[:, None, None, :] * th.conj()[None, :, None, :] * qc[:, None, :, :]
+        a, c = _mode_terms(d, k, lam, th)
         A = np.concatenate([a + c, 1j * (a - c)], axis=-1)  # real unknowns [Re u, Im u]
         sw = d.weight[k]  # (Ls, n, n_in)
         A = A * sw[..., None]

@@ -22,8 +22,10 @@ import numpy as np
 
 from .band_scaling import (
     fit_scale_factors,
+    frf_share,
     normal_mode_mck,
     residual_runs,
+    root_shapes,
     scale_selected_roots,
     strongest_roots,
 )
@@ -447,38 +449,6 @@ ECHO_MAC_MIN = 0.9
 ECHO_HALF_POWER_BANDS = 2.0
 
 
-def frf_share(d: Step1Data, roots: list[BandRoot]) -> np.ndarray:
-    """Each root's largest share of its band's FRFs: ``max_k ||H_r(w_k)|| / ||H(w_k)||``
-    (Frobenius norm over outputs and inputs), ``H_r`` its term of the modal sum with the
-    scale factors of Eq. 3.23 fitted on the band with all ``roots`` (:func:`fit_scale_factors`,
-    residual terms included). A mode near its resonance holds most of the response (0.96-1.0
-    for the payload's modes at 10 sensors); a root fitted to noise beside it, a few thousandths
-    to a few hundredths.
-
-    Parameters
-    ----------
-    d : Step1Data of the band (its lines and weights).
-    roots : the band's roots.
-
-    Returns
-    -------
-    (len(roots),) shares.
-    """
-    lam = np.array([r.lam for r in roots])
-    th = np.array([r.theta[: d.n] for r in roots]).T  # (n, m)
-    u = fit_scale_factors(d, lam, th, residuals=True)
-    w = d.omega[:, None]
-    q = th[d.in_idx]  # (n_in, m): Eq. 3.24 without reactions (band processing has none)
-    # Eqs. 3.17-3.19: u R theta q plus the conjugate mode, conj(u) R' conj(theta) conj(q).
-    R = u * -(w**2) / (1j * w - lam)  # (L, m)
-    Rc = np.conj(u) * -(w**2) / (1j * w - lam.conj())
-    term = (R[:, None, None, :] * th[None, :, None, :] * q[None, None]
-            + Rc[:, None, None, :] * th.conj()[None, :, None, :] * q.conj()[None, None])
-    h_r = np.linalg.norm(term, axis=(1, 2))  # (L, m)
-    h = np.maximum(np.linalg.norm(d.H, axis=(1, 2)), 1e-300)[:, None]
-    return np.max(h_r / h, axis=0)
-
-
 def _reject_echoes(roots: list[BandRoot], bands_hz, data: list[Step1Data | None]) -> None:
     """Of two modes found (criterion 4's clusters) whose representatives lie within
     :data:`ECHO_HALF_POWER_BANDS` half-power bandwidths ``2 zeta f`` (the wider of the two) of
@@ -501,22 +471,20 @@ def _reject_echoes(roots: list[BandRoot], bands_hz, data: list[Step1Data | None]
     reps = _pick_representatives(roots, bands_hz)
     if len(reps) < 2:
         return
-    n = next(d.n for d in data if d is not None)
-    shapes = np.array([r.theta[:n] for r in reps]).T
+    shapes = root_shapes(reps, reps[0].theta.size // 2)  # theta is (2n,): [phi; lambda phi]
     mac = modal_assurance(shapes, shapes)
-    share: dict[int, float] = {}
+    shares: dict[int, dict[int, float]] = {}  # band -> id(root) -> share, one fit per band
 
-    def share_of(i: int) -> float:
-        if i not in share:
-            r = reps[i]
+    def share_of(r: BandRoot) -> float:
+        if r.band not in shares:
             lo, hi = bands_hz[r.band]
             band = [q for q in roots if q.band == r.band and lo <= q.freq_hz <= hi and q.zeta > 0]
             try:
-                k = next(k for k, q in enumerate(band) if q is r)  # identity: roots hold arrays
-                share[i] = float(frf_share(data[r.band], band)[k])
+                values = frf_share(data[r.band], band)
             except (IdentificationError, np.linalg.LinAlgError):
-                share[i] = np.nan
-        return share[i]
+                values = np.full(len(band), np.nan)
+            shares[r.band] = {id(q): float(v) for q, v in zip(band, values)}  # roots hold arrays
+        return shares[r.band].get(id(r), np.nan)
 
     weaker: set[int] = set()
     for a in range(len(reps)):
@@ -526,7 +494,7 @@ def _reject_echoes(roots: list[BandRoot], bands_hz, data: list[Step1Data | None]
             if (a in weaker or b in weaker or mac[a, b] < ECHO_MAC_MIN
                     or abs(ra.freq_hz - rb.freq_hz) > ECHO_HALF_POWER_BANDS * width):
                 continue
-            sa, sb = share_of(a), share_of(b)
+            sa, sb = share_of(ra), share_of(rb)
             if not (np.isfinite(sa) and np.isfinite(sb)):
                 continue
             weaker.add(b if sb < sa else a)

@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass
 
 from pymodbus.client import AsyncModbusTcpClient
-from pymodbus.exceptions import ModbusException
+from pymodbus.exceptions import ModbusException, ModbusIOException
 
 from .errors import (
     AmplifierFault,
@@ -83,7 +83,13 @@ class ShakerAmplifier:
     device_id : int
         Modbus unit id.
     timeout_s : float
-        Per-request timeout (each request also has an outer guard of twice that).
+        Time to wait for one reply.
+    retries : int
+        Resends of a request that got no reply in ``timeout_s`` (same transaction id, so a
+        late reply to the first send still counts). A busy network or controller that misses
+        one reply is not a lost instrument; one silent for ``(retries + 1) * timeout_s`` is.
+        Every Modbus write we make is idempotent (a register set to a value), so resending
+        is safe.
     poll_interval_s : float
         Status polling period of the monitor (also keeps the amplifier's comms watchdog fed).
     heartbeat_timeout_s : float
@@ -104,6 +110,7 @@ class ShakerAmplifier:
         device_id: int = 1,
         name: str = "amp",
         timeout_s: float = 0.5,
+        retries: int = 1,
         poll_interval_s: float = 0.2,
         heartbeat_timeout_s: float = 1.0,
         max_gain_v_per_v: float = 50.0,
@@ -114,6 +121,9 @@ class ShakerAmplifier:
             raise RangeError(f"{name}: max_gain_v_per_v must be in (0, 50]")
         self.host, self.port, self.device_id, self.name = host, port, device_id, name
         self.timeout_s = float(timeout_s)
+        if retries < 0:
+            raise RangeError(f"{name}: retries must be >= 0")
+        self.retries = int(retries)
         self.poll_interval_s = float(poll_interval_s)
         self.heartbeat_timeout_s = float(heartbeat_timeout_s)
         self.max_gain_v_per_v = float(max_gain_v_per_v)
@@ -130,7 +140,7 @@ class ShakerAmplifier:
     async def connect(self) -> None:
         """Open the connection, check the model id, set the watchdog, start the monitor."""
         self.client = AsyncModbusTcpClient(
-            self.host, port=self.port, timeout=self.timeout_s, retries=0,
+            self.host, port=self.port, timeout=self.timeout_s, retries=self.retries,
             reconnect_delay=0.1, reconnect_delay_max=1.0,
         )
         try:
@@ -156,11 +166,17 @@ class ShakerAmplifier:
         """
         if self.client is None:
             raise ConnectionLost(f"{self.name}: not connected")
+        tries = self.retries + 1
+        # pymodbus times each try itself; the outer guard (one try more) is for a hang.
+        guard_s = (tries + 1) * self.timeout_s
         try:
             async with self._lock:
-                rr = await asyncio.wait_for(make(), 2 * self.timeout_s)
+                rr = await asyncio.wait_for(make(), guard_s)
         except TimeoutError:
-            raise InstrumentTimeout(f"{self.name}: no Modbus reply within {2 * self.timeout_s:g} s") from None
+            raise InstrumentTimeout(f"{self.name}: no Modbus reply within {guard_s:g} s") from None
+        except ModbusIOException as exc:  # pymodbus: no (valid) reply to any try
+            raise InstrumentTimeout(
+                f"{self.name}: no Modbus reply in {tries} tries of {self.timeout_s:g} s ({exc})") from exc
         except ModbusException as exc:
             raise ConnectionLost(f"{self.name}: Modbus link failed: {exc}") from exc
         except OSError as exc:
@@ -341,7 +357,7 @@ class SyncShakerAmplifier:
 
     def _call(self, coro, timeout_s: float | None = None):
         fut = asyncio.run_coroutine_threadsafe(coro, self._loop)
-        deadline = timeout_s if timeout_s is not None else 10 * self.amp.timeout_s + 5.0
+        deadline = timeout_s if timeout_s is not None else 10 * (self.amp.retries + 1) * self.amp.timeout_s + 5.0
         try:
             return fut.result(deadline)
         except TimeoutError:

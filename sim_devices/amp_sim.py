@@ -23,7 +23,8 @@ same table is in ``docs/drivers.md`` and in ``drivers.amplifier``)::
 
 The server runs on an asyncio loop in a thread owned by :class:`AmpServerThread` (one loop
 can host several amplifiers). Faults for tests: :meth:`SimAmplifier.inject` with
-``"exception"`` (the next requests answered with a Modbus exception), ``"drop"`` (close every
+``"exception"`` (the next requests answered with a Modbus exception), ``"delay"`` (the next
+requests answered late, as by a busy controller or network), ``"drop"`` (close every
 open connection now), ``"heartbeat_stall"``; :meth:`set_interlock`,
 :meth:`inject_over_temperature`.
 """
@@ -114,6 +115,7 @@ class SimAmplifier:
         self.watchdog_ms = 1000
         self._last_request = time.monotonic()
         self._exceptions_left = 0
+        self._delays_left, self._delay_s = 0, 0.0
         self._exception_code = ExcCodes.DEVICE_BUSY
         self.requests = 0
 
@@ -145,11 +147,14 @@ class SimAmplifier:
         await self._server.shutdown()
 
     # ------------------------------------------------------------------ faults
-    def inject(self, kind: str, count: int = 1, code: int = ExcCodes.DEVICE_BUSY) -> None:
-        """``exception`` (next ``count`` requests), ``drop`` (connections) or ``heartbeat_stall``."""
+    def inject(self, kind: str, count: int = 1, code: int = ExcCodes.DEVICE_BUSY, delay_s: float = 0.0) -> None:
+        """``exception`` (next ``count`` requests), ``delay`` (next ``count`` replies sent
+        ``delay_s`` late), ``drop`` (connections) or ``heartbeat_stall``."""
         if kind == "exception":
             self._exception_code = ExcCodes(code)
             self._exceptions_left = count
+        elif kind == "delay":
+            self._delay_s, self._delays_left = float(delay_s), count
         elif kind == "drop":
             self._loop_thread.run(self._drop())
         elif kind == "heartbeat_stall":
@@ -209,6 +214,11 @@ class SimAmplifier:
         """Called by pymodbus on every request, before registers are read or written."""
         self.requests += 1
         self._last_request = time.monotonic()
+        if self._delays_left:
+            self._delays_left -= 1
+            # A busy controller: everything stops, heartbeat included. Blocking, because the
+            # pymodbus server mixes up replies on one connection when an action awaits.
+            time.sleep(self._delay_s)
         if self._exceptions_left:
             self._exceptions_left -= 1
             return self._exception_code

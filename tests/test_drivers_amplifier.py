@@ -14,6 +14,7 @@ from drivers.errors import (
     DeviceError,
     HeartbeatLost,
     InstrumentError,
+    InstrumentTimeout,
     InterlockOpen,
     RangeError,
 )
@@ -146,6 +147,31 @@ def test_dropped_connection_is_detected_and_recovered(sim):
                     await asyncio.sleep(0.05)
             assert st.enabled
             sim.inject("drop")  # and drops again just before exit: safe_state reconnects
+        assert not sim.model.enabled
+
+    run(go())
+
+
+def test_a_late_reply_is_resent_for_and_a_silent_amplifier_is_no_reply(sim):
+    """One reply later than the timeout (a busy controller or network, as a loaded CI machine
+    once produced) is not a lost instrument: the driver resends with the same transaction id
+    and takes the late reply. Replies later than every try are "no reply", not "link down"."""
+    t = FAST["timeout_s"]
+    # The stalled controller's heartbeat is not the point, and a monitor poll would take a delay.
+    patient = dict(FAST, heartbeat_timeout_s=10 * t, poll_interval_s=30.0)
+
+    async def go():
+        async with ShakerAmplifier("127.0.0.1", sim.port, **patient) as amp:
+            await amp.set_gain(2.5)
+            sim.inject("delay", count=1, delay_s=1.5 * t)
+            assert (await amp._read(REG["GAIN"], 1)) == [250]
+            assert amp.retries == 1
+            assert (await amp.read_status()).interlock_closed  # the stray second reply is skipped
+            sim.inject("delay", count=2, delay_s=3 * t)  # each try answered after both timed out
+            with pytest.raises(InstrumentTimeout, match="no Modbus reply in 2 tries"):
+                await amp.read_status()
+            await asyncio.sleep(2 * 3 * t)  # the controller catches up: the link was never dropped
+            assert (await amp.read_status()).interlock_closed
         assert not sim.model.enabled
 
     run(go())

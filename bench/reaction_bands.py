@@ -27,8 +27,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from replicate_reactions import stand_record  # noqa: E402
 from report_truth import Truth  # noqa: E402
-from ssid.bands import overlapping_bands, process_bands  # noqa: E402
+
 from ssid.band_select import default_band_width_hz  # noqa: E402
+from ssid.bands import overlapping_bands, process_bands  # noqa: E402
 from ssid.frf import FRFData  # noqa: E402
 from ssid.identify import identify_step1  # noqa: E402
 from ssid.modal import root_frequency_damping  # noqa: E402

@@ -1,0 +1,149 @@
+"""Band layout for band processing (report section 5.2): where the overlapping bands lie.
+
+Overlapping bands over a record's lines (even or logarithmic), their default width, the
+fewest lines step 1 needs per band, and the line spacing that sets the selection criteria's
+tolerances. :mod:`ssid.bands` processes the bands and re-exports these names.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .frf import FRFData
+
+__all__ = [
+    "band_layout",
+    "band_min_lines",
+    "default_band_width_hz",
+    "default_bands",
+    "line_spacing_at",
+    "lines_evenly_spaced",
+    "overlapping_bands",
+]
+
+
+def overlapping_bands(f_lo_hz: float, f_hi_hz: float, width_hz: float,
+                      overlap: float = 0.5) -> list[tuple[float, float]]:
+    """Bands of ``width_hz`` over [f_lo, f_hi], each overlapping the next by ``overlap``.
+
+    Every line must lie in at least two bands for criterion 4 (a true root is found again in
+    another band), so the list starts and ends with a part-band clipped at the record's
+    edges: with 50 % overlap, ``(f_lo, f_lo + w/2), (f_lo, f_lo + w), (f_lo + w/2, ...)``.
+    """
+    if width_hz <= 0 or not 0 < overlap < 1:
+        raise ValueError("band width must be > 0 and overlap in (0, 1)")
+    step = width_hz * (1 - overlap)
+    bands = []
+    lo = f_lo_hz - step
+    while lo < f_hi_hz:
+        a, b = max(lo, f_lo_hz), min(lo + width_hz, f_hi_hz)
+        if b > a and (not bands or (a, b) != bands[-1]):
+            bands.append((a, b))
+        if lo + width_hz >= f_hi_hz + step - 1e-12 * width_hz:
+            break
+        lo += step
+    return bands
+
+
+def band_min_lines(n_out: int, n_in: int, n_react: int = 0) -> int:
+    """Fewest lines a band needs for step 1: enough real equations (``2 n_in`` per line) for
+    the ``p = 2 n + n_in + n_r`` unknowns of each row of Eq. 3.7, plus one."""
+    return int(np.ceil((2 * n_out + n_in + n_react) / (2 * n_in))) + 1
+
+
+def _default_band_spacings(n_lines: int, overlap: float, min_lines: int) -> float:
+    """Default band width in line spacings: 1/12 of the record, at least 24, and wide enough
+    that the part-bands at the record's ends (``overlap`` of a band) hold ``min_lines``."""
+    return max((n_lines - 1) / 12.0, 24.0, min_lines / overlap)
+
+
+def default_band_width_hz(freq_hz: np.ndarray, overlap: float = 0.5, min_lines: int = 0) -> float:
+    """Band width for band processing over a record's evenly spaced lines (Hz): 1/12 of its
+    span, at least 24 lines (a band then holds one or two modes of a sparse spectrum, and
+    enough lines per unknown for step 1 at a few sensors), and at least wide enough that the
+    part-bands at the ends (``overlap`` of a band) hold ``min_lines``
+    (:func:`band_min_lines`; with many sensors and one input, more than 12)."""
+    f = np.asarray(freq_hz, dtype=float)
+    span = float(f[-1] - f[0])
+    df = span / max(f.size - 1, 1)
+    # The rule of _default_band_spacings, in Hz: span / 12 is kept as written so that the
+    # band edges of an even record stay exactly what they were (a line on an edge belongs to
+    # both bands only if the arithmetic puts it there).
+    return max(span / 12.0, 24 * df, min_lines / overlap * df)
+
+
+def lines_evenly_spaced(freq_hz: np.ndarray, rtol: float = 1e-3) -> bool:
+    """Whether a record's lines are evenly spaced (within ``rtol`` of their mean spacing;
+    loose enough for frequencies stored in single precision)."""
+    d = np.diff(np.asarray(freq_hz, dtype=float))
+    return d.size == 0 or float(np.ptp(d)) <= rtol * float(np.mean(d))
+
+
+def default_bands(freq_hz: np.ndarray, overlap: float = 0.5,
+                  min_lines: int = 0) -> list[tuple[float, float]]:
+    """Overlapping bands over a record's lines when the analyst gives no band width.
+
+    Evenly spaced lines (the report's records, random excitation): bands of
+    :func:`default_band_width_hz` by :func:`overlapping_bands`. Unevenly spaced lines (a
+    stepped-sine sweep on a logarithmic grid, refined near resonances): bands of equal line
+    count, about the count that rule gives on an even grid (1/12 of the record's spacings, at
+    least 24), adjusted so that the bands step through the record a whole number of times and
+    the last part-band holds half a band of lines like the first (a shorter one could hold too
+    few lines for step 1, and the modes there would be found in one band only). A band of fixed
+    width in Hz holds few lines where a log grid is coarse: on the payload's 16 Z sensors over
+    20-1500 Hz in 152 lines 2.9 % apart, the 1/12 bands above 450 Hz held fewer than the 10
+    lines step 1 needs with two shakers, and the modes at 567, 828 and 1320 Hz were lost.
+
+    ``min_lines`` (:func:`band_min_lines`): the fewest lines step 1 needs; the bands are made
+    wide enough that the part-bands at the ends hold that many.
+
+    Returns
+    -------
+    list of (lo, hi) in Hz.
+    """
+    f = np.asarray(freq_hz, dtype=float)
+    if lines_evenly_spaced(f):
+        width = default_band_width_hz(f, overlap, min_lines)
+        return overlapping_bands(float(f[0]), float(f[-1]), width, overlap)
+    # The same layout in line-index space, mapped back to Hz.
+    span = float(f.size - 1)
+    step = _default_band_spacings(f.size, overlap, min_lines) * (1 - overlap)
+    step = span / max(1, int(span / step))  # whole steps, each no shorter than asked
+    index = np.arange(f.size, dtype=float)
+
+    def at(x: float) -> float:  # an edge on a line (up to rounding) is that line's frequency
+        k = round(x)
+        return float(f[k]) if abs(x - k) < 1e-9 else float(np.interp(x, index, f))
+
+    return [(at(a), at(b)) for a, b in overlapping_bands(0.0, span, step / (1 - overlap), overlap)]
+
+
+def band_layout(frf: FRFData, width_hz: float | None = None,
+                overlap: float = 0.5) -> tuple[list[tuple[float, float]], float | None]:
+    """The overlapping bands over ``frf``'s lines and their width in Hz.
+
+    With ``width_hz``, bands of that width (:func:`overlapping_bands`). Without,
+    :func:`default_bands`, wide enough for step 1 at the record's outputs and inputs
+    (:func:`band_min_lines`); the width returned is then None when they hold equal numbers
+    of lines instead (unevenly spaced lines)."""
+    f = frf.freq_hz
+    if width_hz is not None:
+        return overlapping_bands(float(f[0]), float(f[-1]), width_hz, overlap), width_hz
+    need = band_min_lines(frf.n_out, frf.n_in, frf.n_react)
+    width = default_band_width_hz(f, overlap, need) if lines_evenly_spaced(f) else None
+    return default_bands(f, overlap, need), width
+
+
+def line_spacing_at(line_freq_hz: np.ndarray, freq_hz) -> np.ndarray:
+    """The record's line spacing (Hz) where each ``freq_hz`` lies: the distance between the
+    two lines that bracket it (beyond the first or last line, the spacing there).
+
+    This is the ``df`` of criteria 3 and 4: how far apart the lines are that see a root. On an
+    evenly spaced record it is the spacing; on a logarithmic sweep it grows with frequency.
+    """
+    lines = np.asarray(line_freq_hz, dtype=float)
+    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    if lines.size < 2:
+        return np.zeros(f.shape)
+    d = np.diff(lines)
+    return d[np.clip(np.searchsorted(lines, f) - 1, 0, d.size - 1)]

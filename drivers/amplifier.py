@@ -174,9 +174,9 @@ class ShakerAmplifier:
                 rr = await asyncio.wait_for(make(), guard_s)
         except TimeoutError:
             raise InstrumentTimeout(f"{self.name}: no Modbus reply within {guard_s:g} s") from None
-        except ModbusIOException as exc:  # pymodbus: no (valid) reply to any try
+        except ModbusIOException as exc:  # pymodbus: no reply (or an undecodable one) to any try
             raise InstrumentTimeout(
-                f"{self.name}: no Modbus reply in {tries} tries of {self.timeout_s:g} s ({exc})") from exc
+                f"{self.name}: no valid Modbus reply in {tries} tries of {self.timeout_s:g} s") from exc
         except ModbusException as exc:
             raise ConnectionLost(f"{self.name}: Modbus link failed: {exc}") from exc
         except OSError as exc:

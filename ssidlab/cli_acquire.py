@@ -17,10 +17,11 @@ disabled), ``resume``, ``abort`` (as Ctrl-C). End of input also aborts: if the c
 program dies, however it dies, the run stops safely instead of driving on unattended.
 
 Exit status: 0 the run is complete; 2 bad input (setup file, run file, options; one line
-``ssidlab acquire: error: ...``); 3 the run was stopped safely by a fault (one line
-``ssidlab acquire: stopped: <why>``; the file is resumable); 130 interrupted (Ctrl-C or
-SIGTERM; the file is resumable). In every case all generator outputs are off and all
-amplifiers disabled when the command ends.
+``ssidlab acquire: error: ...``); 3 the run was stopped safely by a fault (a line
+``ssidlab acquire: stopped: <why>``); 130 interrupted (Ctrl-C or SIGTERM). After 3 or 130
+the run file is resumable, and a second line names it with the command that continues it.
+In every case all generator outputs are off and all amplifiers disabled when the command
+ends.
 """
 
 from __future__ import annotations
@@ -28,17 +29,20 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import signal
 import sys
 import threading
+from pathlib import Path
 from typing import Any
 
 from ssid.errors import InputError
 
-__all__ = ["EXIT_STOPPED", "add_acquire_subcommand", "run_acquire"]
+__all__ = ["EXIT_INTERRUPTED", "EXIT_STOPPED", "add_acquire_subcommand", "run_acquire"]
 
 HELP = "Run a stepped-sine or random vibration test from a setup file (real or simulated lab)."
 EXIT_STOPPED = 3
+EXIT_INTERRUPTED = 130
 
 
 def add_acquire_subcommand(sub: Any) -> argparse.ArgumentParser:
@@ -83,6 +87,15 @@ def _read_control(control, stream) -> None:
     os.kill(os.getpid(), signal.SIGINT)
 
 
+def _say_how_to_continue(run_path: Path, sim: bool) -> None:
+    """The line an engineer needs after a stop: where the measured lines are, and the
+    command that continues the run from its first incomplete line."""
+    if run_path.is_file():
+        cmd = f"ssidlab acquire --resume {shlex.quote(str(run_path))}" + (" --sim" if sim else "")
+        print(f"ssidlab acquire: the measured lines are kept in {run_path}; continue with: {cmd}",
+              file=sys.stderr, flush=True)
+
+
 class _Terminated(KeyboardInterrupt):
     """SIGTERM, handled like Ctrl-C: safe state, file kept resumable."""
 
@@ -113,12 +126,18 @@ def run_acquire(args: argparse.Namespace) -> int:
     control = RunControl() if args.control_stdin else None
     if control is not None:
         threading.Thread(target=_read_control, args=(control, sys.stdin), name="acquire-control", daemon=True).start()
+    run_path = Path(out or setup.output_file)
     try:
         summary = run_test(setup, out=out, resume=bool(args.resume), sim=args.sim, echo=echo, control=control,
                            events=_print_event if args.events else None)
     except RunStopped as exc:
         print(f"ssidlab acquire: stopped: {' '.join(str(exc).splitlines())}", file=sys.stderr)
+        _say_how_to_continue(run_path, args.sim)
         return EXIT_STOPPED
+    except KeyboardInterrupt:
+        print("ssidlab acquire: interrupted (outputs off, amplifiers disabled)", file=sys.stderr)
+        _say_how_to_continue(run_path, args.sim)
+        return EXIT_INTERRUPTED
     finally:
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGINT, previous_int)

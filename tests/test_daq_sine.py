@@ -201,3 +201,23 @@ def test_sigint_stops_a_run_started_with_sigint_ignored(tmp_path):
     assert proc.returncode == 130, err
     with h5py.File(tmp_path / "run.h5") as f:
         assert f["acq"].attrs["state"] == "interrupted"
+    assert f"continue with: ssidlab acquire --resume {tmp_path / 'run.h5'} --sim" in err, err
+
+
+def test_a_run_stopped_by_a_fault_says_how_to_continue(tmp_path):
+    """Without --sim the setup's generator is at a loopback port where nothing listens: the
+    run stops before its first line (exit 3), and stderr names the file and the command that
+    continues the run."""
+    text = sine_setup()
+    assert 'url = "socket://127.0.0.1:1"' in text
+    (tmp_path / "s.toml").write_text(text)
+    out = tmp_path / "run one.h5"
+    p = subprocess.run([sys.executable, "-m", "ssidlab", "acquire", str(tmp_path / "s.toml"), "--out", str(out)],
+                       capture_output=True, text=True, cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                       timeout=120)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 3 and len(lines) == 2, p.stderr
+    assert lines[0].startswith("ssidlab acquire: stopped: run stopped safely: instrument lost"), lines[0]
+    assert lines[1].endswith(f"continue with: ssidlab acquire --resume '{out}'")  # quoted for the shell
+    with h5py.File(out) as f:
+        assert f["acq"].attrs["state"].startswith("stopped: instrument lost")

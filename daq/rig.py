@@ -90,7 +90,12 @@ class Rig:
         return {}
 
     def safe_state(self) -> list[str]:
-        """Every output off, every amplifier disabled, acquisition stopped; the problems met."""
+        """Every output off, every amplifier disabled, acquisition stopped.
+
+        Returns the safe state's problems, ``"<instrument>: <why>"``: a generator or an
+        amplifier that did not confirm it is off. A DAQ that does not confirm its stop is
+        logged, not returned: no drive reaches a shaker through it.
+        """
         raise NotImplementedError
 
     def close(self) -> None:
@@ -250,7 +255,7 @@ class InstrumentRig(Rig):
             try:
                 self.daq.safe_state()
             except Exception as exc:
-                problems.append(f"daq: {exc}")
+                log.error("acquisition stop not confirmed: %s", exc)
         self._function.clear()
         for p in problems:
             log.error("safe state: %s", p)

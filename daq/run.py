@@ -236,6 +236,7 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
                     problems.append(str(exc))
             if handle is not None:
                 handle.stop()
+            ended = state
             if state == "complete" and not problems:
                 rf.finalize(frf)
             else:
@@ -243,8 +244,11 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
                     state = f"{state}; safe state not confirmed: {'; '.join(problems)}"
                 rf.set_state(state[:500])
                 rf.close()
-            if problems and state.startswith("complete"):
-                raise RunStopped(f"run finished but the safe state was not confirmed: {'; '.join(problems)}")
+            if problems:
+                # Whatever ended the run (a fault, Ctrl-C, an error), an unconfirmed safe state
+                # is what the engineer must hear first: never "stopped safely" or "interrupted".
+                raise RunStopped(f"safe state NOT confirmed (check the instruments): {'; '.join(problems)}; "
+                                 f"the run ended as: {ended}")
     summary.update({"state": state, "file": str(path), "resumed": bool(resume)})
     if setup.uff_file:
         from ssid.exchange import write_uff_frf

@@ -52,3 +52,30 @@ def test_fault_mid_run_ends_in_the_safe_state(tmp_path, fault):
         assert state.startswith("stopped:") and words in state
         assert f["acq/n_done"][0] >= 2
     assert read_frf(tmp_path / "run.h5").n_freq > 0  # every completed line is on file
+
+
+def test_an_amplifier_gone_silent_is_not_called_safe(tmp_path):
+    """The amplifier's Modbus server stops mid-run. The run stops, but the driver cannot
+    confirm that amplifier disabled (a real one's comms watchdog would do it within 1 s), so
+    the message leads with the unconfirmed safe state instead of "stopped safely"."""
+    setup = parse_setup(sine_setup(n_lines=6, refine=2), str(tmp_path / "s.toml"))
+    handle, inst = start_sim_lab(setup)
+    seen = []
+
+    def echo(msg):
+        seen.append(msg)
+        if len(seen) == 3:
+            handle.lab.amplifiers[0].stop()
+
+    try:
+        with pytest.raises(RunStopped) as e:
+            run_test(inst, out=str(tmp_path / "run.h5"), echo=echo)
+    finally:
+        handle.stop()
+    msg = str(e.value)
+    assert msg.startswith("safe state NOT confirmed (check the instruments): amp0:"), msg
+    assert "the run ended as: stopped: instrument lost" in msg and "\n" not in msg
+    with h5py.File(tmp_path / "run.h5") as f:
+        state = f["acq"].attrs["state"]
+        assert state.startswith("stopped: instrument lost") and "safe state not confirmed: amp0:" in state
+    assert read_frf(tmp_path / "run.h5").n_freq > 0  # the lines measured before are kept

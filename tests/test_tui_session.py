@@ -11,7 +11,7 @@ from pathlib import Path
 import h5py
 
 from daq.setup import load_setup
-from tui.session import check_lab_instruments, run_file_choice
+from tui.session import RunOutcome, check_lab_instruments, run_file_choice
 from tui.setup_view import checked_instrument_rows
 
 SETUP = Path(__file__).resolve().parents[1] / "examples" / "setup_sim.toml"
@@ -57,3 +57,11 @@ def test_instrument_check_says_which_did_not_answer(tmp_path):
                                      ("amp0", "amplifier", f"127.0.0.1:{closed_port}"),
                                      ("daq", "daq", "virtual:ssidlab-test-nobody")]
     assert all(r[3].startswith("NO ANSWER: ") and len(r[3]) > len("NO ANSWER: ") and not r[4] for r in rows)
+
+
+def test_run_summary_never_calls_an_unconfirmed_safe_state_safe():
+    fault = RunOutcome(3, False, "run.h5", "stopped: instrument lost (link down): amp0: gone")
+    assert fault.summary().startswith("run stopped safely by a fault")
+    unsafe = RunOutcome(3, True, "run.h5", "interrupted; safe state not confirmed: amp0: no reply")
+    text = unsafe.summary()
+    assert "SAFE STATE NOT CONFIRMED" in text and "safely" not in text and "amp0: no reply" in text

@@ -188,6 +188,8 @@ class RunOutcome:
 
     def summary(self) -> str:
         what = EXIT_TEXT.get(self.returncode, f"failed (exit status {self.returncode})")
+        if self.state and "safe state not confirmed" in self.state:
+            what = "stopped, SAFE STATE NOT CONFIRMED: check the generators and amplifiers"
         if self.aborted and self.returncode != 0:
             what = f"aborted: {what}"
         tail = f"; run file state {self.state!r}" if self.state else ""

@@ -241,16 +241,12 @@ class InstrumentRig(Rig):
 
     def safe_state(self) -> list[str]:
         problems = []
-        for name, gen in self.gens.items():
+        for name, inst in [*self.gens.items(), *self.amps.items()]:
             try:
-                gen.safe_state()
+                inst.safe_state()
             except Exception as exc:  # every instrument is tried whatever the others do
-                problems.append(f"{name}: {exc}")
-        for name, amp in self.amps.items():
-            try:
-                amp.safe_state()
-            except Exception as exc:
-                problems.append(f"{name}: {exc}")
+                msg = str(exc)  # the drivers' messages mostly name the instrument already
+                problems.append(msg if msg.startswith(f"{name}:") else f"{name}: {msg}")
         if self.daq is not None:
             try:
                 self.daq.safe_state()

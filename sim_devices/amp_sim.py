@@ -149,7 +149,8 @@ class SimAmplifier:
     # ------------------------------------------------------------------ faults
     def inject(self, kind: str, count: int = 1, code: int = ExcCodes.DEVICE_BUSY, delay_s: float = 0.0) -> None:
         """``exception`` (next ``count`` requests), ``delay`` (next ``count`` replies sent
-        ``delay_s`` late), ``drop`` (connections) or ``heartbeat_stall``."""
+        ``delay_s`` late; it stalls the server's loop, so every amplifier that loop hosts),
+        ``drop`` (connections) or ``heartbeat_stall``."""
         if kind == "exception":
             self._exception_code = ExcCodes(code)
             self._exceptions_left = count

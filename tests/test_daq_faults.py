@@ -25,11 +25,10 @@ FAULTS = {
 }
 
 
-@pytest.mark.parametrize("fault", list(FAULTS))
-def test_fault_mid_run_ends_in_the_safe_state(tmp_path, fault):
-    inject, words = FAULTS[fault]
-    n = 16 if fault == "heartbeat" else 6  # a stalled heartbeat shows only after 1 s
-    setup = parse_setup(sine_setup(n_lines=n, refine=2), str(tmp_path / "s.toml"))
+def stopped_run(tmp_path, inject, n_lines: int = 6) -> tuple[str, bool]:
+    """A run on the simulated lab with ``inject(lab)`` called at its third progress line:
+    the RunStopped message, and whether every simulated drive was off before the lab stopped."""
+    setup = parse_setup(sine_setup(n_lines=n_lines, refine=2), str(tmp_path / "s.toml"))
     handle, inst = start_sim_lab(setup)
     seen = []
 
@@ -41,11 +40,18 @@ def test_fault_mid_run_ends_in_the_safe_state(tmp_path, fault):
     try:
         with pytest.raises(RunStopped) as e:
             run_test(inst, out=str(tmp_path / "run.h5"), echo=echo)
-        world = handle.world
-        assert all_safe(world), f"not safe after {fault}"
+        safe = all_safe(handle.world)
     finally:
         handle.stop()
-    msg = str(e.value)
+    return str(e.value), safe
+
+
+@pytest.mark.parametrize("fault", list(FAULTS))
+def test_fault_mid_run_ends_in_the_safe_state(tmp_path, fault):
+    inject, words = FAULTS[fault]
+    # a stalled heartbeat shows only after 1 s
+    msg, safe = stopped_run(tmp_path, inject, n_lines=16 if fault == "heartbeat" else 6)
+    assert safe, f"not safe after {fault}"
     assert words in msg and msg.startswith("run stopped safely") and "\n" not in msg
     with h5py.File(tmp_path / "run.h5") as f:
         state = f["acq"].attrs["state"]
@@ -58,21 +64,7 @@ def test_an_amplifier_gone_silent_is_not_called_safe(tmp_path):
     """The amplifier's Modbus server stops mid-run. The run stops, but the driver cannot
     confirm that amplifier disabled (a real one's comms watchdog would do it within 1 s), so
     the message leads with the unconfirmed safe state instead of "stopped safely"."""
-    setup = parse_setup(sine_setup(n_lines=6, refine=2), str(tmp_path / "s.toml"))
-    handle, inst = start_sim_lab(setup)
-    seen = []
-
-    def echo(msg):
-        seen.append(msg)
-        if len(seen) == 3:
-            handle.lab.amplifiers[0].stop()
-
-    try:
-        with pytest.raises(RunStopped) as e:
-            run_test(inst, out=str(tmp_path / "run.h5"), echo=echo)
-    finally:
-        handle.stop()
-    msg = str(e.value)
+    msg, _ = stopped_run(tmp_path, lambda lab: lab.amplifiers[0].stop())
     assert msg.startswith("safe state NOT confirmed (check the instruments): amp0:"), msg
     assert "the run ended as: stopped: instrument lost" in msg and "\n" not in msg
     with h5py.File(tmp_path / "run.h5") as f:

@@ -12,7 +12,9 @@ The report's figure and section properties are not in its text: node positions a
 from its mode-shape tables (Table 6.19: nodes 1-4 and 5-8 are the two rails, 17 and 18 lie on
 the centre line at the rail ends), and the sections are chosen so that the
 three lowest modes are suspension modes below 20 Hz and the flexible modes start near
-100 Hz with close pairs, as in Table 6.1. Results resemble the report's; they do not equal it.
+100 Hz with close pairs, as in Table 6.1. Results resemble the report's; they do not equal it:
+the frame's twist, the report's 4th mode at 18.1 Hz (its Table 6.19), is at 78.9 Hz here, since
+closed box rails resist it in torsion (docs/replication.md, "Why our modes sit elsewhere").
 """
 
 from __future__ import annotations

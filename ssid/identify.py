@@ -204,13 +204,16 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
     if d.n_r:
         d.weight_r = roughness_weights(d.Hr, np.ones(d.Hr.shape, dtype=bool))
     starts = {}
+    failures = {}
     for name in ("ls", "tls", "stls"):
         try:
             starts[name] = estimate_equation_error(d, name)
-        except (np.linalg.LinAlgError, IdentificationError):
-            continue
+        except (np.linalg.LinAlgError, IdentificationError) as exc:
+            failures[name] = str(exc)
     if not starts:
-        raise IdentificationError("no equation-error start could be computed for step 1")
+        # Usually one cause for all three (too few lines for the unknowns): say it once.
+        reasons = "; ".join(dict.fromkeys(failures.values()))
+        raise IdentificationError(f"no equation-error start could be computed for step 1: {reasons}")
     costs = {k: output_error_cost(d, e) for k, e in starts.items()}
     best = min(costs, key=costs.get)
     info["start"] = best

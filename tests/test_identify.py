@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from ssid.frf import FRFData, accelerance, accelerance_from_model
+from ssid.errors import IdentificationError
 from ssid.identify import identify_mck
 from ssid.modal import complex_modes, modal_phase_collinearity, real_modes, root_frequency_damping
 from ssid.models import example_system, frf_on_test_stand
@@ -120,6 +121,14 @@ def test_broad_band_noise_default_within_one_percent(frf14, system14, seed):
 def test_band_selection_uses_only_the_band(frf14):
     r = identify_mck(frf14, solver="ls", f_min_hz=5.0, f_max_hz=450.0)
     assert r.band_hz[0] >= 5.0 and r.band_hz[1] <= 450.0
+
+
+def test_too_few_lines_for_the_default_solver_says_why(frf14):
+    """Two lines hold 12 real equations per DOF, far fewer than step 1's unknowns: the
+    default solver's error must carry the reason its LS, TLS and STLS starts gave."""
+    with pytest.raises(IdentificationError, match="no equation-error start.*unknowns per DOF but "
+                                                  "only 12 real equations"):
+        identify_mck(frf14, f_min_hz=2.0, f_max_hz=2.5)
 
 
 def test_modal_damping_matrix_option(frf14):

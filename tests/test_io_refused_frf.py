@@ -180,6 +180,18 @@ def test_read_frf_refuses_text_file(tmp_path):
     assert_one_line_error(excinfo, path, "not an HDF5 file")
 
 
+def test_read_frf_refuses_uff_file_and_says_how_to_convert_it(tmp_path, frf):
+    """An analyser's UFF export handed where HDF5 is read: the error names the converter."""
+    from ssid.exchange.uff import write_uff_frf
+
+    path = tmp_path / "frf.uff"
+    write_uff_frf(path, frf)
+    with pytest.raises(InputError) as excinfo:
+        read_frf(path)
+    assert_one_line_error(excinfo, path, "not an HDF5 file (it looks like a UFF universal file: "
+                                         "convert it with `ssidlab convert`)")
+
+
 def test_read_frf_refuses_truncated_file(tmp_path, frf):
     path = tmp_path / "cut.h5"
     write_frf(path, frf)

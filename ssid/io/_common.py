@@ -158,6 +158,19 @@ def _is_whole(value: Any) -> bool:
 # ----------------------------------------------------------------------------------------------
 
 
+def _uff_hint(path: PathLike) -> str:
+    """A hint when a file that should be HDF5 opens like a universal file: engineers hand us
+    the UFF their analyser wrote, and the readers here take HDF5 only."""
+    try:
+        with open(path, "rb") as fh:
+            first = fh.read(256).split(None, 1)[:1]
+    except OSError:
+        return ""
+    if first == [b"-1"]:  # a UFF dataset opens with a line holding "-1" alone
+        return " (it looks like a UFF universal file: convert it with `ssidlab convert`)"
+    return ""
+
+
 @contextmanager
 def _open_h5(path: PathLike, src: str) -> Iterator[h5py.File]:
     """Open ``path`` for reading; every low-level failure becomes a one-line InputError."""
@@ -168,7 +181,7 @@ def _open_h5(path: PathLike, src: str) -> Iterator[h5py.File]:
     if not os.access(path, os.R_OK):
         raise _error(src, "cannot read the file (permission denied)")
     if not h5py.is_hdf5(path):
-        raise _error(src, "not an HDF5 file")
+        raise _error(src, "not an HDF5 file" + _uff_hint(path))
     try:
         f = h5py.File(path, "r")
     except OSError as exc:  # an HDF5 signature but a truncated or corrupt body

@@ -264,7 +264,8 @@ def correlate_with_frf(
     hi = frf.freq_hz[-1] if f_max_hz is None else f_max_hz
     test = frf.band(lo, hi)
     if test.n_freq < 3:
-        raise InputError(f"fewer than 3 frequency lines between {lo:g} and {hi:g} Hz")
+        raise InputError(f"fewer than 3 frequency lines between {lo:g} and {hi:g} Hz (the FRFs "
+                         f"cover {frf.freq_hz[0]:g} to {frf.freq_hz[-1]:g} Hz)")
     valid = test.valid_mask()
     if analysis.C is None:
         from .modal import modal_damping_matrix

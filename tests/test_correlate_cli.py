@@ -147,6 +147,8 @@ def test_mode_list():
          "invalid choice"),
         (["--model", "{d}/fem.h5", "--frf", "{d}/frf.h5", "--zeta", "2", "--json", "{d}/o.json"],
          "damping ratio"),
+        (["--model", "{d}/fem.h5", "--frf", "{d}/frf.h5", "--fmin", "2000", "--json", "{d}/o.json"],
+         "fewer than 3 frequency lines between 2000 and 900 Hz \\(the FRFs cover 5 to 900 Hz\\)"),
         (["--model", "{d}/test.h5", "--model", "{d}/missing.h5", "--json", "{d}/o.json"],
          "no such file"),
         (["--model", "{d}/test.h5", "--model", "{d}/nan.mat", "--json", "{d}/o.json"], "NaN"),

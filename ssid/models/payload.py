@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .beams import assemble_grillage, box_section
+from .beams import BeamSection, assemble_grillage, box_section
 
 __all__ = [
     "PayloadModel",
@@ -34,6 +34,7 @@ __all__ = [
     "rayleigh_damping",
     "attach_test_stand",
     "target_modes",
+    "z_energy_fraction",
 ]
 
 IN = 0.0254  # metres per inch
@@ -78,6 +79,10 @@ class PayloadModel:
 def payload_simulator(
     bungee_z_n_per_m: float = 95.0,
     bungee_rot_n_m_per_rad: tuple[float, float] = (130.0, 60.0),
+    *,
+    rail: BeamSection | None = None,
+    inner_cross: BeamSection | None = None,
+    outer_cross: BeamSection | None = None,
 ) -> PayloadModel:
     """The 52-DOF payload simulator (see the module docstring).
 
@@ -86,15 +91,23 @@ def payload_simulator(
     bungee_z_n_per_m : vertical stiffness of each of the four bungee springs.
     bungee_rot_n_m_per_rad : (about X, about Y) rotational stiffness of each bungee attachment;
         with the vertical springs they set the three suspension modes (heave, pitch, roll).
+    rail, inner_cross, outer_cross : sections of the two rails, of the cross-beams through the
+        bungee nodes and of those through nodes 17 and 18; default a 2 x 2 x 0.125 in box for
+        the rails and a 1 x 1 x 0.0625 in box for the cross-beams (aluminium).
 
     Returns
     -------
     PayloadModel with 52 DOFs, ordered node by node (Z, RX, RY), slaves' Z removed.
     """
-    rail = box_section(2.0 * IN, 2.0 * IN, 0.125 * IN)
-    cross = box_section(1.0 * IN, 1.0 * IN, 0.0625 * IN)
+    if rail is None:
+        rail = box_section(2.0 * IN, 2.0 * IN, 0.125 * IN)
+    if inner_cross is None:
+        inner_cross = box_section(1.0 * IN, 1.0 * IN, 0.0625 * IN)
+    if outer_cross is None:
+        outer_cross = inner_cross
     xy = {nd: (x * IN, y * IN) for nd, (x, y) in _NODES_IN.items()}
-    elements = [(a, b, rail) for a, b in _RAILS] + [(a, b, cross) for a, b in _INNER + _OUTER]
+    elements = ([(a, b, rail) for a, b in _RAILS] + [(a, b, inner_cross) for a, b in _INNER]
+                + [(a, b, outer_cross) for a, b in _OUTER])
     K, M, labels = assemble_grillage(xy, elements)
     pos = {lbl: i for i, lbl in enumerate(labels)}
     for nd in _BUNGEE_NODES:
@@ -203,19 +216,24 @@ def attach_test_stand(
     return (M + M.T) / 2, (K + K.T) / 2, dofs, T_rel
 
 
+def z_energy_fraction(model: PayloadModel) -> tuple[np.ndarray, np.ndarray]:
+    """Natural frequencies (Hz, ascending) and the share of each mode's kinetic energy in Z
+    translations (``phi_i (M phi)_i`` summed over the Z DOFs, mass-normalised modes): (n,), (n,)."""
+    import scipy.linalg as sla
+
+    lam, phi = sla.eigh(model.K, model.M)
+    iz = model.index(Z_DOFS)
+    return np.sqrt(np.abs(lam)) / (2 * np.pi), (phi * (model.M @ phi))[iz].sum(axis=0)
+
+
 def target_modes(model: PayloadModel, n_modes: int, z_fraction_min: float = 0.3) -> np.ndarray:
     """Indices (ascending frequency) of the first ``n_modes`` modes dominated by Z motion.
 
     The report's "target modes" are global modes dominated by Z translations (Table 6.1,
-    asterisks). A mode qualifies when at least ``z_fraction_min`` of its kinetic energy
-    (``phi_i (M phi)_i`` summed over the Z DOFs, mass-normalised) is in Z translations.
+    asterisks). A mode qualifies when at least ``z_fraction_min`` of its kinetic energy is in
+    Z translations (:func:`z_energy_fraction`).
     """
-    import scipy.linalg as sla
-
-    _, phi = sla.eigh(model.K, model.M)
-    iz = model.index(Z_DOFS)
-    zfrac = (phi * (model.M @ phi))[iz].sum(axis=0)
-    idx = np.flatnonzero(zfrac >= z_fraction_min)
+    idx = np.flatnonzero(z_energy_fraction(model)[1] >= z_fraction_min)
     if idx.size < n_modes:
         raise ValueError(f"only {idx.size} Z-dominated modes, {n_modes} asked")
     return idx[:n_modes]

@@ -223,15 +223,15 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   10 sensors: the frame's twist (rail ends 1 and 4 at 1, -0.97, 5 and 8 at -1, 0.97, the
   centre nodes 17 and 18 at rest). Ours has that shape at 78.9 Hz: with closed box rails
   (torsion constant by Bredt's formula), twisting the frame twists the rails, and that twist
-  carries most of its stiffness. A trial fit of effective sections (area, bending and torsion
-  constants and rotary inertia of the rails, the inner and the outer cross-beams, and the
-  bungee stiffnesses) to Table 6.1's first 30-34 frequencies and its target pattern (three
-  runs) kept targets and non-targets in the report's order up to mode 26 or 30, but only with
-  the rails' torsion constant at 1/11 of a closed box's (1/10.6-1/11.9), and still put the
-  twist at 23-24 Hz, put the 137.8 and 156.9 Hz modes together at 180-192 Hz and spread the 606/631 Hz
-  pair to 630-800 Hz. The report's close pairs come from a structure its text does not give
-  (which member joins which, and how), so the model keeps box sections and the `as ... Hz`
-  rows compare like with like.
+  carries most of its stiffness. Fitting effective sections (area, bending and torsion
+  constants and polar moment of the rails, the inner and the outer cross-beams, and the bungee
+  stiffnesses) to Table 6.1 (`bench/payload_table61_fit.py`, seeds 1-3) puts targets and
+  non-targets in the report's order up to mode 30, but only with the rails' torsion constant
+  at 1/9-1/11 of a closed box's (joints compliant in torsion at the rail ends would act so),
+  and still leaves the twist at 23-24 Hz, the 137.8 and 156.9 Hz modes at 181-197 Hz and the
+  606/631 Hz pair spread to 646-807 Hz. The report's close pairs come from a structure its
+  text does not give (which member joins which, and how), so the model keeps box sections and
+  the `as ... Hz` rows compare like with like.
 - **12-DOF at 1-551 Hz (as 300 Hz)**: 12 % with the 1124 Hz target missed, against the
   report's 2.6 %. The two targets the model must reach above the band (992 and 1124 Hz, 1.8
   and 2 times the edge) are not the next modes the sensors see: 585.5, 754.2 and 832.2 Hz

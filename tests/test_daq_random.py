@@ -26,6 +26,19 @@ def test_periodic_random_mimo_noise_free_matches_the_world(tmp_path):
     assert np.max(err) < 5e-3, np.max(err)
 
 
+def test_periodic_random_stays_exact_near_nyquist_with_fine_world_steps(tmp_path):
+    """40-1200 Hz at 4096 S/s with four world steps per sample: the generator plays the
+    multisine band-limited (as the 33500B's arb filter does), so no image of a line reaches
+    the structure and the noise-free FRFs are exact up to the world's linear drive between
+    its steps (3e-4 measured). Played as a staircase at the arb clock, each line had an
+    image at 4096 Hz - f that the sampling folded back onto f: 8e-3."""
+    text = random_setup(averages=4).replace("f_max_hz = 200", "f_max_hz = 1200") + "oversample = 4\n"
+    setup = parse_setup(text, str(tmp_path / "s.toml"))
+    run_on_sim(setup, tmp_path / "run.h5")
+    err = frf_error(read_frf(tmp_path / "run.h5"), build_world(setup))
+    assert np.max(err) < 1e-3, np.max(err)
+
+
 def test_periodic_random_noise_on_errors_as_the_averages_predict(tmp_path):
     setup = parse_setup(random_setup(noise=True, averages=12, noise_v=2e-3), str(tmp_path / "s.toml"))
     run_on_sim(setup, tmp_path / "run.h5")

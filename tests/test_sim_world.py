@@ -171,3 +171,27 @@ def test_payload_simulator_plugs_in():
                   sensors=[SensorSpec("F", "force", 0, 0.0225), SensorSpec("a6", "acceleration", "6+Z", 0.01)])
     ref = world.frf([150.0], outputs=["6+Z"], inputs=["1+Z"])
     assert abs(_sine_ratio(world, 150.0, (0, 1), seconds=4.0) / ref.H[0, 0, 0] - 1) < 1e-3
+
+
+@pytest.mark.parametrize("arb_rate_hz", [4096.0, 5120.0])
+def test_generator_plays_an_arb_band_limited_between_its_points(arb_rate_hz):
+    """An arb holding a multisine below half its sample rate comes out as that multisine at
+    any instant, as through the 33500B's reconstruction filter: at 4 world steps per arb
+    point (4096 S/s arb, resampled by FFT) and at 3.2 (5120 S/s, summed directly). A
+    zero-order hold would be off by up to the full step between points."""
+    from sim_devices.components import GeneratorModel
+
+    n_pts, fs_world = 256, 4 * 4096.0
+    lines = np.array([3, 17, 40, 90])  # periods per waveform, all below n_pts / 2
+    phases = np.array([0.1, 1.3, 2.0, 4.4])
+
+    def multisine(pos):
+        return np.sin(2 * np.pi * np.outer(pos, lines) / n_pts + phases).sum(axis=1)
+
+    x = multisine(np.arange(n_pts))
+    gen = GeneratorModel()
+    ch = gen.channels[0]
+    ch.function, ch.arb, ch.arb_srate_hz, ch.vpp, ch.output_on = "ARB", x, arb_rate_hz, 2.0, True
+    v = np.concatenate([gen.next_samples(1, 500, fs_world), gen.next_samples(1, 700, fs_world)])
+    pos = arb_rate_hz / fs_world * np.arange(1, 1201)
+    np.testing.assert_allclose(v, multisine(pos), atol=1e-9 * np.abs(x).max())

@@ -35,7 +35,7 @@ from .safety import RunStopped, check_limits, limit_usage
 from .setup import TestSetup
 from .storage import RunFile
 
-__all__ = ["RandomRun", "random_bins"]
+__all__ = ["RandomRun", "noise_bandwidth_hz", "random_bins"]
 
 
 def random_bins(setup: TestSetup) -> np.ndarray:
@@ -48,6 +48,14 @@ def _bin_mask(setup: TestSetup) -> np.ndarray:
     r = setup.random
     f = np.fft.rfftfreq(r.block_size, 1.0 / setup.daq.sample_rate_hz)
     return (f >= r.f_min_hz) & (f <= r.f_max_hz)
+
+
+def noise_bandwidth_hz(setup: TestSetup) -> float:
+    """The generators' noise bandwidth for continuous random: a quarter above the band, so
+    the band is flat, and below the DAQ's Nyquist frequency. Drive power above the band
+    would only excite what the analysis discards (and, past Nyquist, what the front end's
+    anti-alias filter has to remove)."""
+    return min(1.25 * setup.random.f_max_hz, 0.5 * setup.daq.sample_rate_hz)
 
 
 def multisine(n: int, band: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -141,7 +149,7 @@ class RandomRun:
                 # Drive on, settle, first block: at the start and after a pause (the
                 # overlapped blocks must come from one unbroken record).
                 for j in range(n_sh):
-                    self.rig.noise(j, r.drive_vpp)
+                    self.rig.noise(j, r.drive_vpp, noise_bandwidth_hz(self.setup))
                 self._acquire(r.settle_blocks * n) if r.settle_blocks else None
                 first = self._acquire(n)
                 return first, [first]

@@ -58,8 +58,9 @@ class Rig:
         """Shaker ``shaker`` driven by a sine (output switched on and ramped, or re-levelled)."""
         raise NotImplementedError
 
-    def noise(self, shaker: int, vpp: float) -> None:
-        """Continuous Gaussian noise on the shaker's generator output (NOIS, sigma = Vpp/6)."""
+    def noise(self, shaker: int, vpp: float, bandwidth_hz: float) -> None:
+        """Continuous Gaussian noise on the shaker's generator output (NOIS, sigma = Vpp/6),
+        flat up to ``bandwidth_hz``."""
         raise NotImplementedError
 
     def arb(self, shaker: int, samples: np.ndarray, vpp: float) -> float:
@@ -178,9 +179,10 @@ class InstrumentRig(Rig):
         else:
             gen.output_on(ch, vpp)
 
-    def noise(self, shaker: int, vpp: float) -> None:
+    def noise(self, shaker: int, vpp: float, bandwidth_hz: float) -> None:
         self._ensure(shaker, "NOIS")
         gen, ch, _ = self._shaker(shaker)
+        gen.set_noise_bandwidth(ch, bandwidth_hz)
         gen.output_on(ch, vpp)
 
     def arb(self, shaker: int, samples: np.ndarray, vpp: float) -> float:

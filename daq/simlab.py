@@ -199,10 +199,10 @@ class WorldRig:
             c = self._ch(shaker)
             c.function, c.freq_hz, c.vpp, c.output_on = "SIN", float(freq_hz), float(vpp), True
 
-    def noise(self, shaker: int, vpp: float) -> None:
+    def noise(self, shaker: int, vpp: float, bandwidth_hz: float) -> None:
         with self.world.lock:
             c = self._ch(shaker)
-            c.function, c.vpp, c.output_on = "NOIS", float(vpp), True
+            c.function, c.vpp, c.noise_bw_hz, c.output_on = "NOIS", float(vpp), float(bandwidth_hz), True
 
     def arb(self, shaker: int, samples: np.ndarray, vpp: float) -> float:
         x = np.asarray(samples, float)

@@ -36,6 +36,8 @@ class GeneratorLimits:
     srate_max_hz = 250e6
     arb_min_points = 8
     arb_max_points = 1_000_000
+    noise_bw_min_hz = 1e-3
+    noise_bw_max_hz = 20e6
 
 
 FUNCTIONS = ("SIN", "NOIS", "ARB")
@@ -123,6 +125,15 @@ class SignalGenerator:
         if not (math.isfinite(freq_hz) and lim.freq_min_hz <= freq_hz <= lim.freq_max_hz):
             raise RangeError(f"{self.name}: frequency {freq_hz!r} Hz outside [{lim.freq_min_hz:g}, {lim.freq_max_hz:g}]")
         self.scpi.write(f"SOUR{self._ch(ch)}:FREQ {freq_hz:.12g}")
+
+    def set_noise_bandwidth(self, ch: int, bandwidth_hz: float) -> None:
+        """Bandwidth of the ``NOIS`` function (flat up to it): keep the drive's power in the
+        analysis band rather than spend it, and the amplifier's headroom, above."""
+        lim = GeneratorLimits
+        if not (math.isfinite(bandwidth_hz) and lim.noise_bw_min_hz <= bandwidth_hz <= lim.noise_bw_max_hz):
+            raise RangeError(f"{self.name}: noise bandwidth {bandwidth_hz!r} Hz outside "
+                             f"[{lim.noise_bw_min_hz:g}, {lim.noise_bw_max_hz:g}]")
+        self.scpi.write(f"SOUR{self._ch(ch)}:FUNC:NOIS:BAND {bandwidth_hz:.12g}")
 
     def set_offset(self, ch: int, volt: float) -> None:
         self._check_peak(self._vpp[self._ch(ch)], volt)

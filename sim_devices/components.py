@@ -138,6 +138,10 @@ class GeneratorChannel:
     arb_pos: float = 0.0
     # The waveform's band-limited resampling for one playback ratio (see _arb_at), cached.
     arb_table: tuple = ()
+    # Noise bandwidth (FUNC:NOIS:BAND); the 33500B's widest is its default.
+    noise_bw_hz: float = 20e6
+    # The noise filter for one (bandwidth, rate): (key, sos, state, gain), see _band_limited_noise.
+    noise_filter: tuple = ()
 
 
 class GeneratorModel:
@@ -166,6 +170,8 @@ class GeneratorModel:
             c.phase_rad = float((c.phase_rad + dphi * n) % (2.0 * np.pi))
         elif c.function == "NOIS":
             wave = self._rng.standard_normal(n) / 3.0  # Vpp/2 * N(0,1)/3: sigma = Vpp/6
+            if c.noise_bw_hz < 0.45 * fs_hz:  # wider: white at the world's rate is as good
+                wave = _band_limited_noise(c, wave, fs_hz)
         elif c.function == "ARB":
             step = c.arb_srate_hz / fs_hz
             wave = _arb_at(c, c.arb_pos + step * j, step)
@@ -175,6 +181,28 @@ class GeneratorModel:
         if not c.output_on:
             return np.zeros(n)
         return c.offset_volt + 0.5 * c.vpp * wave
+
+
+def _band_limited_noise(c: GeneratorChannel, white: np.ndarray, fs_hz: float) -> np.ndarray:
+    """``white`` (at ``fs_hz``) limited to the channel's noise bandwidth, same rms.
+
+    The 33500B's noise is flat up to its set bandwidth; an 8th-order Butterworth low-pass at
+    that bandwidth stands in for it (scipy), its state carried across calls so that the
+    noise is one continuous record. Scaled by its noise gain so sigma stays Vpp / 6.
+    """
+    from scipy.signal import butter, sosfilt
+
+    key = (c.noise_bw_hz, fs_hz)
+    if not (c.noise_filter and c.noise_filter[0] == key):
+        sos = butter(8, c.noise_bw_hz, fs=fs_hz, output="sos")
+        impulse = np.zeros(int(40 * fs_hz / c.noise_bw_hz) + 64)
+        impulse[0] = 1.0
+        gain = float(np.sqrt(np.sum(sosfilt(sos, impulse) ** 2)))
+        c.noise_filter = (key, sos, np.zeros((sos.shape[0], 2)), gain)
+    _, sos, zi, gain = c.noise_filter
+    out, zf = sosfilt(sos, white, zi=zi)
+    c.noise_filter = (key, sos, zf, gain)
+    return out / gain
 
 
 def _arb_at(c: GeneratorChannel, pos: np.ndarray, step: float) -> np.ndarray:

@@ -36,6 +36,7 @@ FREQ_MIN_HZ, FREQ_MAX_HZ = 1e-6, 20e6
 VPP_MIN, VPP_MAX = 2e-3, 20.0
 PEAK_MAX_VOLT = 10.0
 SRATE_MIN_HZ, SRATE_MAX_HZ = 1.0, 250e6
+NOISE_BW_MIN_HZ, NOISE_BW_MAX_HZ = 1e-3, 20e6
 ARB_MIN_POINTS, ARB_MAX_POINTS = 8, 1_000_000
 ERROR_QUEUE_LEN = 20
 
@@ -59,7 +60,7 @@ def _mnemonic(long_form: str) -> re.Pattern:
 
 _M = {name: _mnemonic(name) for name in (
     "FUNCtion", "FREQuency", "VOLTage", "OFFSet", "ARBitrary", "SRATe", "DATA", "VOLatile",
-    "CLEar", "SYSTem", "ERRor",
+    "CLEar", "SYSTem", "ERRor", "NOISe", "BANDwidth",
 )}
 _SOURCE = re.compile(r"^(?:SOUR|SOURCE)([12]?)$", re.IGNORECASE)
 _OUTPUT = re.compile(r"^(?:OUTP|OUTPUT)([12]?)$", re.IGNORECASE)
@@ -280,6 +281,11 @@ class SimSignalGenerator:
                 if query:
                     return f"{c.arb_srate_hz:.12g}"
                 c.arb_srate_hz = self._number(arg, SRATE_MIN_HZ, SRATE_MAX_HZ)
+                return None
+            if names == ["FUNCtion", "NOISe", "BANDwidth"]:
+                if query:
+                    return f"{c.noise_bw_hz:.12g}"
+                c.noise_bw_hz = self._number(arg, NOISE_BW_MIN_HZ, NOISE_BW_MAX_HZ)
                 return None
             if names == ["DATA", "ARBitrary"] and not query:
                 return self._upload(arg)

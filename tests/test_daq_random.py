@@ -39,6 +39,35 @@ def test_periodic_random_stays_exact_near_nyquist_with_fine_world_steps(tmp_path
     assert np.max(err) < 1e-3, np.max(err)
 
 
+def test_continuous_random_on_the_payload_drives_only_below_nyquist(tmp_path):
+    """The free payload (modes to 2.6 kHz, four world steps per sample), 20-800 Hz at
+    4096 S/s, 16 Hann-windowed averages. The generators' noise bandwidth is set to 1000 Hz
+    (``noise_bandwidth_hz``), so no response lies above the DAQ's Nyquist frequency to fold
+    back: coherence 0.9994 median, 99 % of the values kept, FRFs within 0.7 % median (Hann
+    leakage at the peaks). Driven white to 8 kHz, the folded response read as noise:
+    coherence 0.85 median and 40 % of the values kept."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "examples" / "setup_sim_free.toml").read_text()
+    head, tail = text[: text.index("[excitation]")], text[text.index("[limits]"):]
+    setup = parse_setup(head + """[excitation]
+type = "random"
+
+[random]
+kind = "random"
+f_min_hz = 20.0
+f_max_hz = 800.0
+block_size = 2048
+averages = 16
+drive_vpp = 1.0
+
+""" + tail, str(tmp_path / "s.toml"))
+    run_test(setup, out=str(tmp_path / "run.h5"), sim=True, echo=lambda m: None)
+    frf = read_frf(tmp_path / "run.h5")
+    assert np.median(frf.coherence) > 0.99 and frf.valid_mask().mean() > 0.9
+    assert np.nanmedian(frf_error(frf, build_world(setup))) < 0.02
+
+
 def test_periodic_random_noise_on_errors_as_the_averages_predict(tmp_path):
     setup = parse_setup(random_setup(noise=True, averages=12, noise_v=2e-3), str(tmp_path / "s.toml"))
     run_on_sim(setup, tmp_path / "run.h5")

@@ -97,6 +97,18 @@ def test_arbitrary_waveform_upload(sim, world):
             gen.upload_arb(1, [1.0, 2.0], 5120.0)
 
 
+def test_noise_bandwidth(sim, world):
+    with SignalGenerator(sim.url, **FAST) as gen:
+        gen.set_function(1, "NOIS")
+        gen.set_noise_bandwidth(1, 1000.0)
+        assert float(gen.scpi.query("SOUR1:FUNC:NOIS:BAND?")) == 1000.0
+        assert world.generators[0].channels[0].noise_bw_hz == 1000.0
+        for bad in (0.0, float("nan"), 1e9):
+            with pytest.raises(RangeError):
+                gen.set_noise_bandwidth(1, bad)
+        gen.scpi.check_errors()
+
+
 @pytest.mark.parametrize("fault,error", [("silent", InstrumentTimeout), ("partial", InstrumentTimeout),
                                          ("garbage", ProtocolError)])
 def test_serial_faults_give_clear_errors_and_recover(sim, world, fault, error):

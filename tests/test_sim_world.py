@@ -195,3 +195,26 @@ def test_generator_plays_an_arb_band_limited_between_its_points(arb_rate_hz):
     v = np.concatenate([gen.next_samples(1, 500, fs_world), gen.next_samples(1, 700, fs_world)])
     pos = arb_rate_hz / fs_world * np.arange(1, 1201)
     np.testing.assert_allclose(v, multisine(pos), atol=1e-9 * np.abs(x).max())
+
+
+def test_generator_noise_keeps_its_rms_and_stays_within_its_bandwidth():
+    """NOIS with a 500 Hz bandwidth at 16384 S/s: sigma stays Vpp / 6, one continuous
+    record across calls, and the power above twice the bandwidth is what an 8th-order
+    low-pass leaves there (below 1e-4 of the total) instead of three quarters of it (white)."""
+    from scipy.signal import welch
+
+    from sim_devices.components import GeneratorModel
+
+    fs = 16384.0
+    gen = GeneratorModel(seed=3)
+    ch = gen.channels[0]
+    ch.function, ch.vpp, ch.output_on, ch.noise_bw_hz = "NOIS", 6.0, True, 500.0
+    v = np.concatenate([gen.next_samples(1, 3000, fs) for _ in range(40)])
+    assert np.std(v) == pytest.approx(1.0, rel=0.03)  # sigma = Vpp / 6 = 1 V
+    f, pxx = welch(v, fs=fs, nperseg=4096)
+    assert pxx[f > 1000].sum() < 1e-4 * pxx.sum()
+    # One record: the filter's state carries over, so 40 calls give what one call gives.
+    one = GeneratorModel(seed=3)
+    one.channels[0].function, one.channels[0].vpp, one.channels[0].output_on = "NOIS", 6.0, True
+    one.channels[0].noise_bw_hz = 500.0
+    np.testing.assert_allclose(v, one.next_samples(1, v.size, fs), rtol=0, atol=1e-12)

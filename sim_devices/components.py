@@ -188,16 +188,19 @@ def _band_limited_noise(c: GeneratorChannel, white: np.ndarray, fs_hz: float) ->
 
     The 33500B's noise is flat up to its set bandwidth; an 8th-order Butterworth low-pass at
     that bandwidth stands in for it (scipy), its state carried across calls so that the
-    noise is one continuous record. Scaled by its noise gain so sigma stays Vpp / 6.
+    noise is one continuous record. Scaled by its rms gain, sqrt(noise-equivalent bandwidth
+    / (fs / 2)) with NEB = f_c (pi / 2n) / sin(pi / 2n) (within 0.4 % up to 0.45 fs), so
+    sigma stays Vpp / 6. A bandwidth below 1e-4 fs is simulated at 1e-4 fs.
     """
     from scipy.signal import butter, sosfilt
 
     key = (c.noise_bw_hz, fs_hz)
     if not (c.noise_filter and c.noise_filter[0] == key):
-        sos = butter(8, c.noise_bw_hz, fs=fs_hz, output="sos")
-        impulse = np.zeros(int(40 * fs_hz / c.noise_bw_hz) + 64)
-        impulse[0] = 1.0
-        gain = float(np.sqrt(np.sum(sosfilt(sos, impulse) ** 2)))
+        order = 8
+        f_c = max(c.noise_bw_hz, 1e-4 * fs_hz)
+        sos = butter(order, f_c, fs=fs_hz, output="sos")
+        q = np.pi / (2 * order)
+        gain = float(np.sqrt(f_c * q / np.sin(q) / (0.5 * fs_hz)))
         c.noise_filter = (key, sos, np.zeros((sos.shape[0], 2)), gain)
     _, sos, zi, gain = c.noise_filter
     out, zf = sosfilt(sos, white, zi=zi)
@@ -215,7 +218,8 @@ def _arb_at(c: GeneratorChannel, pos: np.ndarray, step: float) -> np.ndarray:
     structure's response to them back onto f, which biased simulated periodic-random FRFs
     by up to 20 % near 800 Hz at 4096 S/s. The waveform is periodic, so its band-limited
     form is its Fourier series: resampled by FFT (scipy) when the world steps through it
-    at an integer number of points per sample, summed directly otherwise.
+    at an integer number of points per sample (the random runs: arb rate = DAQ rate), summed
+    directly otherwise (n N / 2 terms for n instants of an N-point arb).
     """
     from scipy.signal import resample
 
@@ -235,9 +239,10 @@ def _arb_at(c: GeneratorChannel, pos: np.ndarray, step: float) -> np.ndarray:
         w[-1] = 1.0  # the Nyquist line once, as cos (its sine part is zero at the points)
     k = np.arange(X.size)
     out = np.empty(pos.size)
-    for a in range(0, pos.size, 1024):  # (chunk, N/2) phase matrices stay small
-        ph = np.exp(2j * np.pi * np.outer(pos[a:a + 1024], k) / N)
-        out[a:a + 1024] = (ph * (w * X)).real.sum(axis=1)
+    rows = max(1, 2**21 // X.size)  # phase matrices of at most 2M entries (32 MB)
+    for a in range(0, pos.size, rows):
+        ph = np.exp(2j * np.pi * np.outer(pos[a:a + rows], k) / N)
+        out[a:a + rows] = (ph * (w * X)).real.sum(axis=1)
     return out
 
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ssid.frf import FRFData, accelerance, accelerance_from_model
 from ssid.errors import IdentificationError
+from ssid.frf import FRFData, accelerance, accelerance_from_model
 from ssid.identify import identify_mck
 from ssid.modal import complex_modes, modal_phase_collinearity, real_modes, root_frequency_damping
 from ssid.models import example_system, frf_on_test_stand

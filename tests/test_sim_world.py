@@ -200,7 +200,7 @@ def test_generator_plays_an_arb_band_limited_between_its_points(arb_rate_hz):
 def test_generator_noise_keeps_its_rms_and_stays_within_its_bandwidth():
     """NOIS with a 500 Hz bandwidth at 16384 S/s: sigma stays Vpp / 6, one continuous
     record across calls, and the power above twice the bandwidth is what an 8th-order
-    low-pass leaves there (below 1e-4 of the total) instead of three quarters of it (white)."""
+    low-pass leaves there (below 1e-4 of the total) instead of 88 % of it (white)."""
     from scipy.signal import welch
 
     from sim_devices.components import GeneratorModel

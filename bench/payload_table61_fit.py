@@ -33,17 +33,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from report_truth import REPORT_TARGETS_HZ, TABLE_6_1_HZ  # noqa: E402
 
-from ssid.models.beams import box_section  # noqa: E402
-from ssid.models.payload import IN, payload_simulator, z_energy_fraction  # noqa: E402
+from ssid.models.payload import (  # noqa: E402
+    CROSS_BOX,
+    RAIL_BOX,
+    payload_simulator,
+    z_energy_fraction,
+)
 
 N_FREQ = 34   # modes compared in frequency
 N_KIND = 30   # modes compared in kind (target or not)
 Z_SHARE = 0.3  # target_modes' default threshold
 REPORT_HZ = np.array(TABLE_6_1_HZ)
 REPORT_TARGET = np.isin(REPORT_HZ, REPORT_TARGETS_HZ)
-BOXES = {"rail": box_section(2.0 * IN, 2.0 * IN, 0.125 * IN),
-         "inner_cross": box_section(1.0 * IN, 1.0 * IN, 0.0625 * IN),
-         "outer_cross": box_section(1.0 * IN, 1.0 * IN, 0.0625 * IN)}
+BOXES = {"rail": RAIL_BOX, "inner_cross": CROSS_BOX, "outer_cross": CROSS_BOX}
 BUNGEE = (95.0, 130.0, 60.0)  # payload_simulator's defaults: Z N/m, RX and RY N m/rad
 
 

@@ -228,7 +228,7 @@ def _arb_at(c: GeneratorChannel, pos: np.ndarray, step: float) -> np.ndarray:
     on_grid = up >= 1 and abs(up * step - 1.0) < 1e-9 and abs(pos[0] * up - round(pos[0] * up)) < 1e-6
     if on_grid:
         if not (c.arb_table and c.arb_table[0] is arb and c.arb_table[1] == up):
-            c.arb_table = (arb, up, resample(arb, arb.size * up) if up > 1 else arb.copy())
+            c.arb_table = (arb, up, resample(arb, arb.size * up) if up > 1 else arb)
         table = c.arb_table[2]
         return table[np.rint(pos * up).astype(np.int64) % table.size]
     N = arb.size

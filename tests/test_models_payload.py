@@ -8,8 +8,8 @@ import scipy.linalg as sla
 
 from ssid.models.beams import assemble_grillage, box_section
 from ssid.models.payload import (
-    IN,
     INTERFACE_DOFS,
+    RAIL_BOX,
     Z_DOFS,
     attach_test_stand,
     modal_damping,
@@ -96,10 +96,10 @@ def test_frame_twist_is_carried_by_the_rails_torsion(payload):
     frequency."""
     from dataclasses import replace
 
-    box = box_section(2.0 * IN, 2.0 * IN, 0.125 * IN)
+    box = RAIL_BOX
     f_hz, _ = z_energy_fraction(payload)
     explicit, _ = z_energy_fraction(payload_simulator(rail=box))
-    assert np.allclose(explicit, f_hz, rtol=1e-12)  # the default rail is that box
+    assert np.allclose(explicit, f_hz, rtol=1e-12)  # the default rail is RAIL_BOX
     soft = payload_simulator(rail=replace(box, J_m4=box.J_m4 / 10))
     f_soft, _ = z_energy_fraction(soft)
     for model, f4 in ((payload, f_hz[3]), (soft, f_soft[3])):

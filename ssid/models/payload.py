@@ -27,6 +27,8 @@ from .beams import BeamSection, assemble_grillage, box_section
 
 __all__ = [
     "PayloadModel",
+    "RAIL_BOX",
+    "CROSS_BOX",
     "payload_simulator",
     "INTERFACE_DOFS",
     "Z_DOFS",
@@ -56,6 +58,9 @@ _OUTER = [(1, 12), (12, 18), (18, 5), (4, 15), (15, 17), (17, 8)]
 #: Multi-point constraints: Z of the first node equals Z of the second.
 _MPC = [(9, 18), (10, 17)]
 _BUNGEE_NODES = (11, 13, 14, 16)
+#: Default sections, aluminium boxes: 2 x 2 x 0.125 in rails, 1 x 1 x 0.0625 in cross-beams.
+RAIL_BOX = box_section(2.0 * IN, 2.0 * IN, 0.125 * IN)
+CROSS_BOX = box_section(1.0 * IN, 1.0 * IN, 0.0625 * IN)
 
 
 @dataclass
@@ -80,8 +85,8 @@ def payload_simulator(
     bungee_z_n_per_m: float = 95.0,
     bungee_rot_n_m_per_rad: tuple[float, float] = (130.0, 60.0),
     *,
-    rail: BeamSection | None = None,
-    inner_cross: BeamSection | None = None,
+    rail: BeamSection = RAIL_BOX,
+    inner_cross: BeamSection = CROSS_BOX,
     outer_cross: BeamSection | None = None,
 ) -> PayloadModel:
     """The 52-DOF payload simulator (see the module docstring).
@@ -92,17 +97,12 @@ def payload_simulator(
     bungee_rot_n_m_per_rad : (about X, about Y) rotational stiffness of each bungee attachment;
         with the vertical springs they set the three suspension modes (heave, pitch, roll).
     rail, inner_cross, outer_cross : sections of the two rails, of the cross-beams through the
-        bungee nodes and of those through nodes 17 and 18; default a 2 x 2 x 0.125 in box for
-        the rails and a 1 x 1 x 0.0625 in box for the cross-beams (aluminium).
+        bungee nodes and of those through nodes 17 and 18 (default ``inner_cross``).
 
     Returns
     -------
     PayloadModel with 52 DOFs, ordered node by node (Z, RX, RY), slaves' Z removed.
     """
-    if rail is None:
-        rail = box_section(2.0 * IN, 2.0 * IN, 0.125 * IN)
-    if inner_cross is None:
-        inner_cross = box_section(1.0 * IN, 1.0 * IN, 0.0625 * IN)
     if outer_cross is None:
         outer_cross = inner_cross
     xy = {nd: (x * IN, y * IN) for nd, (x, y) in _NODES_IN.items()}

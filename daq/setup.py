@@ -71,6 +71,14 @@ class DaqSpec:
     sample_rate_hz: int = 4096
     nominal_bitrate: int = 1_000_000
     data_bitrate: int = 5_000_000
+    #: The front end's alias-free band as a fraction of ``sample_rate_hz`` (its anti-alias
+    #: filter's passband edge): about 0.45 for a delta-sigma converter, 1/2.56 for an
+    #: analyser with an analog filter. No test band may reach past it.
+    passband_fraction: float = 0.45
+
+    @property
+    def passband_hz(self) -> float:
+        return self.passband_fraction * self.sample_rate_hz
 
 
 @dataclass(frozen=True)
@@ -291,6 +299,7 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
         sample_rate_hz=dq.int("sample_rate_hz", 4096, lo=1, hi=102400),
         nominal_bitrate=dq.int("nominal_bitrate", 1_000_000, lo=10_000, hi=1_000_000),
         data_bitrate=dq.int("data_bitrate", 5_000_000, lo=100_000, hi=8_000_000),
+        passband_fraction=dq.num("passband_fraction", 0.45, lo=0.1, hi=0.49),
     )
     dq.done()
 
@@ -333,7 +342,7 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
     ex = _Table(src, "[excitation]", doc.get("excitation", {}))
     excitation = ex.str("type", required=True, choices=("stepped_sine", "random"))
     ex.done()
-    sine = _parse_sine(src, doc, channels) if excitation == "stepped_sine" else None
+    sine = _parse_sine(src, doc, channels, daq) if excitation == "stepped_sine" else None
     rnd = _parse_random(src, doc, daq) if excitation == "random" else None
     if rnd is not None and rnd.estimator == "H2" and len(shakers) > 1:
         raise InputError(f"{src}: [random] estimator: H2 needs a single shaker; use H1 or Hv with several")
@@ -411,10 +420,21 @@ def _check_wiring(src, generators, amplifiers, shakers, channels) -> None:
                              "acceleration channel at the same DOF")
 
 
-def _parse_sine(src: str, doc: dict, channels: list[ChannelSpec]) -> SineSpec:
+def _f_max_in_passband(t: _Table, daq: DaqSpec) -> float:
+    """``f_max_hz``, refused beyond the DAQ's alias-free band: above it the anti-alias filter
+    takes the response away (or, without one, what is read is folded)."""
+    f_max = t.num("f_max_hz", required=True, lo=0.0, lo_open=True)
+    if f_max > daq.passband_hz * (1 + 1e-12):
+        raise t.error("f_max_hz", f"{f_max:g} Hz is beyond the DAQ's alias-free band, {daq.passband_hz:g} Hz "
+                      f"([daq] passband_fraction {daq.passband_fraction:g} x sample_rate_hz "
+                      f"{daq.sample_rate_hz}): raise sample_rate_hz or lower f_max_hz")
+    return f_max
+
+
+def _parse_sine(src: str, doc: dict, channels: list[ChannelSpec], daq: DaqSpec) -> SineSpec:
     t = _Table(src, "[stepped_sine]", doc.get("stepped_sine", {}))
     f_min = t.num("f_min_hz", required=True, lo=0.0, lo_open=True, hi=1e5)
-    f_max = t.num("f_max_hz", required=True, lo=0.0, lo_open=True, hi=1e5)
+    f_max = _f_max_in_passband(t, daq)
     if f_max <= f_min:
         raise t.error("f_max_hz", f"must be greater than f_min_hz ({f_min:g})")
     control = t.str("control", "force")
@@ -448,7 +468,7 @@ def _parse_sine(src: str, doc: dict, channels: list[ChannelSpec]) -> SineSpec:
 def _parse_random(src: str, doc: dict, daq: DaqSpec) -> RandomSpec:
     t = _Table(src, "[random]", doc.get("random", {}))
     f_min = t.num("f_min_hz", required=True, lo=0.0, lo_open=True, hi=1e5)
-    f_max = t.num("f_max_hz", required=True, lo=0.0, lo_open=True, hi=daq.sample_rate_hz / 2)
+    f_max = _f_max_in_passband(t, daq)
     if f_max <= f_min:
         raise t.error("f_max_hz", f"must be greater than f_min_hz ({f_min:g})")
     spec = RandomSpec(

@@ -9,7 +9,7 @@ import pytest
 from daq.setup import load_setup, parse_setup
 from ssid.errors import InputError
 
-from test_daq_helpers import cli, sine_setup
+from test_daq_helpers import cli, random_setup, sine_setup
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,6 +47,7 @@ def test_free_example_is_the_stand_example_off_its_stand():
     (("f_max_hz = 200.0", "f_max_hz = 50.0"), "[stepped_sine] f_max_hz"),
     (("force_n = 1.0", "force_n = -1"), "[stepped_sine] force_n"),
     (("sample_rate_hz = 4096", "sample_rate_hz = 4096.5"), "[daq] sample_rate_hz"),
+    (("sample_rate_hz = 4096", "sample_rate_hz = 4096\npassband_fraction = 0.6"), "[daq] passband_fraction"),
     (("sensitivity_mv_per_unit = 22.5", "sensitivity_mv_per_unit = 0"), "[[channels]] #1 sensitivity_mv_per_unit"),
     (('quantity = "force"', 'quantity = "forse"'), "[[channels]] #1 quantity"),
     (('force_channel = "force 1+Z"', 'force_channel = "acc 1+Z"'), "[[shakers]] #1 force_channel"),
@@ -70,6 +71,24 @@ def test_bad_setup_names_the_key(tmp_path, edit, key):
             load_setup(p)
     msg = str(e.value)
     assert key in msg and str(p) in msg and "\n" not in msg
+
+
+def test_band_beyond_the_daq_passband_is_refused(tmp_path):
+    """At 4096 S/s the front end's filter passes up to 0.45 fs = 1843.2 Hz: a stepped sine
+    or random band past it is refused, naming the limit and the way out; a band up to it is
+    taken, and an analyser-style 1/2.56 narrows it."""
+    p = tmp_path / "s.toml"
+    for text in (sine_setup(f_max=1900.0), random_setup().replace("f_max_hz = 200", "f_max_hz = 1900")):
+        p.write_text(text)
+        with pytest.raises(InputError) as e:
+            load_setup(p)
+        assert "f_max_hz: 1900 Hz is beyond the DAQ's alias-free band, 1843.2 Hz" in str(e.value)
+        assert "raise sample_rate_hz" in str(e.value)
+    p.write_text(sine_setup(f_max=1843.2))
+    assert load_setup(p).sine.f_max_hz == 1843.2
+    p.write_text(sine_setup(f_max=1843.2).replace("sample_rate_hz = 4096", "sample_rate_hz = 4096\npassband_fraction = 0.390625"))
+    with pytest.raises(InputError, match="alias-free band, 1600 Hz"):
+        load_setup(p)
 
 
 def test_cli_bad_input_is_one_line_exit_2(tmp_path):

@@ -15,7 +15,9 @@ simulated instruments through the ordinary drivers, exactly as to real ones.
 * ``sensor_noise_volt_rms`` (default 2e-6), ``sensor_range_volt`` (default 5);
 * ``generator_transport``: ``"pty"`` or ``"tcp"`` (default ``"tcp"``);
 * ``oversample``: internal time steps per sample of the world (default 1; a structure with
-  modes near the sample rate needs 4 or more, see :class:`sim_devices.world.World`);
+  modes near the sample rate needs 4 or more, see :class:`sim_devices.world.World`); with 2
+  or more the simulated front end's anti-alias filter (``[daq] passband_fraction``) acts on
+  the internal steps;
 * ``[sim.stand]``: ``stand_mass_kg``, ``stand_k_n_per_m``, ``stand_c_n_s_per_m``,
   ``ground_k_n_per_m`` of the stand under each reaction DOF;
 * ``[[sim.effects]]``: hidden effects, ``type`` one of ``added_mass`` (``dof``,
@@ -124,7 +126,8 @@ def build_world(setup: TestSetup):
     stand = StandSpec(reactions, **stand_kw) if reactions else None
     try:
         return World(M, C, K, dofs, shakers=shakers, sensors=sensors, stand=stand, effects=effects,
-                     sample_rate_hz=setup.daq.sample_rate_hz, noise=noise, seed=seed, oversample=oversample)
+                     sample_rate_hz=setup.daq.sample_rate_hz, noise=noise, seed=seed, oversample=oversample,
+                     antialias_passband=setup.daq.passband_fraction)
     except (WorldError, ValueError) as exc:
         raise InputError(f"{src}: [sim]: {exc}") from None
 

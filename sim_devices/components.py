@@ -13,6 +13,7 @@ import threading
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import firwin, kaiserord, upfirdn
 
 __all__ = [
     "AMP_FAULT_COMMS_WATCHDOG",
@@ -22,6 +23,7 @@ __all__ = [
     "AMP_FAULT_OVER_TEMPERATURE",
     "AMP_FAULT_OVER_TRAVEL",
     "AmplifierModel",
+    "AntiAliasFilter",
     "GeneratorChannel",
     "GeneratorModel",
     "SensorSpec",
@@ -312,3 +314,56 @@ class AmplifierModel:
             if not self.enabled:
                 return np.zeros_like(v_in)
             return np.clip(self.gain_v_per_v * v_in, -self.max_output_volt, self.max_output_volt)
+
+
+class AntiAliasFilter:
+    """The DAQ front end's anti-alias filter, run at the world's internal step.
+
+    A delta-sigma converter samples far above its output rate and decimates through a
+    linear-phase digital low-pass; this is that filter for ``oversample`` world steps per
+    output sample: a Kaiser-window FIR (scipy), flat to 1e-5 up to ``passband * fs`` and
+    100 dB down from ``(1 - passband) * fs``, above which content would fold back into the
+    passband. Its delay is a whole number of world steps, ``(n_taps - 1) / 2`` (the same on
+    every channel, so FRFs, ratios of channels, do not see it). Content between the passband
+    and ``(1 - passband) * fs`` folds onto the band above the passband, as on a real front
+    end, which is why a test's band must end at the passband (``[daq] passband_fraction``).
+
+    Parameters
+    ----------
+    fs_hz : float
+        Output sample rate.
+    oversample : int
+        World steps per output sample, at least 2 (with one step the world holds nothing
+        above Nyquist to remove).
+    passband : float
+        Passband edge as a fraction of ``fs_hz``, in (0, 0.5).
+    n_channels : int
+        Channels filtered together; each keeps its own history across calls.
+    """
+
+    def __init__(self, fs_hz: float, oversample: int, passband: float, n_channels: int) -> None:
+        if oversample < 2 or not 0 < passband < 0.5:
+            raise ValueError("the anti-alias filter needs oversample >= 2 and 0 < passband < 0.5")
+        fw = fs_hz * oversample
+        n_taps, beta = kaiserord(100.0, (1 - 2 * passband) * fs_hz / (0.5 * fw))
+        n_taps |= 1  # odd: linear phase with a delay of whole world steps
+        self.taps = firwin(n_taps, 0.5 * fs_hz, window=("kaiser", beta), fs=fw)
+        self.oversample = int(oversample)
+        self.delay_steps = (n_taps - 1) // 2
+        self._hist = np.zeros((n_channels, n_taps - 1))
+        # Outputs sit at the last world step of each sample (as the unfiltered world's do);
+        # leading zeros put them on upfirdn's decimation grid.
+        self._pad = (-(n_taps + oversample - 2)) % oversample
+
+    def reset(self) -> None:
+        self._hist[:] = 0.0
+
+    def process(self, x: np.ndarray) -> np.ndarray:
+        """Filter and decimate ``x: (n_channels, n * oversample)`` (world steps) to
+        ``(n_channels, n)`` output samples; the history carries over to the next call."""
+        ov, n_hist = self.oversample, self._hist.shape[1]
+        n = x.shape[1] // ov
+        buf = np.concatenate([np.zeros((x.shape[0], self._pad)), self._hist, x], axis=1)
+        self._hist = buf[:, buf.shape[1] - n_hist:].copy()
+        q0 = (self._pad + n_hist + ov - 1) // ov
+        return upfirdn(self.taps, buf, down=ov, axis=1)[:, q0:q0 + n]

@@ -2,8 +2,9 @@
 
 Chain: generator voltage -> amplifier (gain, enable, protection) -> electrodynamic shaker
 (armature, suspension, coil with back-EMF, stinger) -> structure (any M, C, K with hidden
-effects, optionally on a flexible test stand) -> sensors (sensitivity, noise floor, range).
-The DAQ simulator digitises the sensor voltages (range, coupling, quantisation).
+effects, optionally on a flexible test stand) -> sensors (sensitivity, noise floor, range)
+-> the DAQ front end's anti-alias filter (at the internal step, when there are several per
+sample). The DAQ simulator digitises the sensor voltages (range, coupling, quantisation).
 
 Time integration
 ----------------
@@ -40,6 +41,7 @@ from .components import (
     AMP_FAULT_OVER_TEMPERATURE,
     AMP_FAULT_OVER_TRAVEL,
     AmplifierModel,
+    AntiAliasFilter,
     GeneratorModel,
     SensorSpec,
     ShakerSpec,
@@ -67,7 +69,8 @@ class WorldBlock:
     overload : (n_sensors,) bool
         True where a transducer clipped somewhere in the block.
     physical : (n_sensors, n) float
-        The noise-free measured quantities in SI units (for tests).
+        The measured quantities at the sample instants in SI units, noise-free and before
+        the front end's anti-alias filter (for tests).
     """
 
     first_index: int
@@ -116,6 +119,11 @@ class World:
         steps, so a sine sampled at the output rate has images near ``fs - f`` that alias
         back onto ``f``; a structure with modes up to a few kHz (the payload simulator)
         needs a finer internal step for sub-percent FRFs at ``fs = 4096``.
+    antialias_passband : float or None
+        With ``oversample >= 2``, the sensors' voltages pass the DAQ front end's anti-alias
+        filter (:class:`~sim_devices.components.AntiAliasFilter`), flat up to this fraction
+        of the sample rate (default 0.45, a delta-sigma converter's). None, or one step per
+        sample, samples the sensors as they are (what lies above Nyquist folds back).
     """
 
     def __init__(
@@ -133,6 +141,7 @@ class World:
         noise: bool = True,
         seed: int = 0,
         oversample: int = 1,
+        antialias_passband: float | None = 0.45,
     ) -> None:
         self.lock = threading.RLock()
         self.nominal_dofs = list(dofs)
@@ -154,6 +163,8 @@ class World:
         self.amplifiers = [AmplifierModel() for _ in self.shakers]
         self._rng = np.random.default_rng(seed)
         self.oversample = max(1, int(oversample))
+        self.antialias_passband = antialias_passband
+        self._antialias: AntiAliasFilter | None = None
         self._assemble()
         self._modalise()
         self.sample_rate_hz = 0.0
@@ -318,6 +329,9 @@ class World:
             self._g1 = h * phi2
             self._g0 = h * (phi1 - phi2)
             self.sample_rate_hz = float(fs_hz)
+            if self.antialias_passband is not None and self.oversample > 1 and self.sensors:
+                self._antialias = AntiAliasFilter(fs_hz, self.oversample, self.antialias_passband,
+                                                  len(self.sensors))
 
     def reset_state(self) -> None:
         """Everything at rest, world clock at zero."""
@@ -325,6 +339,8 @@ class World:
             self._eta = np.zeros(self._lam.size, dtype=complex)
             self._u_prev = np.zeros(len(self.shakers))
             self.sample_index = 0
+            if self._antialias is not None:
+                self._antialias.reset()
 
     @property
     def time_s(self) -> float:
@@ -359,15 +375,17 @@ class World:
                 eta[m], _ = lfilter([g1, g0], [1.0, -E], w[m, 1:], zi=zi)
             self._eta = eta[:, -1].copy()
             self._u_prev = u[:, -1].copy()
-            if ov > 1:
-                eta = eta[:, ov - 1 :: ov]  # the states at the output sample instants
+            ns, nsen = len(self.shakers), len(self.sensors)
+            seen = None
+            if self._antialias is not None:  # the front end sees every world step
+                seen = self._antialias.process(self._Cmod_r[:nsen] @ eta.real - self._Cmod_i[:nsen] @ eta.imag)
+            eta = eta[:, ov - 1 :: ov]  # the states at the output sample instants
             y = self._Cmod_r @ eta.real - self._Cmod_i @ eta.imag  # Re(Cmod @ eta)
             self.sample_index += n
-            ns, nsen = len(self.shakers), len(self.sensors)
             self._update_shakers(y[nsen + ns : nsen + 2 * ns], y[nsen + 2 * ns :], n)
             phys = y[:nsen]
             sens = np.array([s.sensitivity_v_per_unit for s in self.sensors])[:, None]
-            volts = sens * phys
+            volts = sens * (phys if seen is None else seen)
             if self.noise:
                 noise = np.array([s.noise_volt_rms for s in self.sensors])[:, None]
                 volts = volts + noise * self._rng.standard_normal(volts.shape)

@@ -40,7 +40,8 @@ class SineEstimate:
     var : (n_ch,) float
         E|X - X_true|^2 from the residual noise.
     thd : (n_ch,) float
-        Harmonic distortion sqrt(|X2|^2 + |X3|^2) / |X|.
+        Harmonic distortion sqrt(|X2|^2 + |X3|^2) / |X|, over the harmonics inside the band
+        (zero when none is).
     peak : (n_ch,) float
         Largest |sample| of the record (for the limits).
     n : int
@@ -58,15 +59,18 @@ class SineFit:
     """Weighted least-squares fit at one frequency over windows of ``n`` samples (any start).
 
     The pseudo-inverse is computed once for local time; a window starting at absolute
-    sample ``s`` is the same fit with the phases turned by ``e^{-i h w s/fs}``.
+    sample ``s`` is the same fit with the phases turned by ``e^{-i h w s/fs}``. Harmonics are
+    fitted up to ``band_hz`` (the DAQ's passband edge; default 0.49 fs): above it the
+    anti-alias filter attenuates them, and near Nyquist they alias and make the fit singular.
     """
 
-    def __init__(self, freq_hz: float, fs_hz: float, n: int, harmonics: int = 3) -> None:
+    def __init__(self, freq_hz: float, fs_hz: float, n: int, harmonics: int = 3,
+                 band_hz: float | None = None) -> None:
         self.freq_hz, self.fs_hz, self.n = float(freq_hz), float(fs_hz), int(n)
         t = np.arange(self.n) / self.fs_hz
         w = 2 * np.pi * self.freq_hz
-        # Only harmonics below Nyquist are fitted (others alias and would be singular).
-        self.h = [h for h in range(1, harmonics + 1) if h * self.freq_hz < 0.5 * self.fs_hz * 0.98] or [1]
+        top = 0.49 * self.fs_hz if band_hz is None else min(float(band_hz), 0.49 * self.fs_hz)
+        self.h = [h for h in range(1, harmonics + 1) if h * self.freq_hz <= top] or [1]
         cols = []
         for h in self.h:
             cols += [np.cos(h * w * t), np.sin(h * w * t)]

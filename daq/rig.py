@@ -40,6 +40,8 @@ class Rig:
     ----------
     fs_hz : float
         Sample rate.
+    passband_hz : float
+        The DAQ's alias-free band (its anti-alias filter's passband edge).
     names : list of str
         Channel names, in the order of the rows of :meth:`acquire`.
     clock : int
@@ -47,6 +49,7 @@ class Rig:
     """
 
     fs_hz: float
+    passband_hz: float
     names: list[str]
     clock: int = 0
 
@@ -115,6 +118,7 @@ class InstrumentRig(Rig):
     def __init__(self, setup: TestSetup) -> None:
         self.setup = setup
         self.fs_hz = float(setup.daq.sample_rate_hz)
+        self.passband_hz = setup.daq.passband_hz
         self.names = [c.name for c in setup.channels]
         self.clock = 0
         self.gens: dict[str, SignalGenerator] = {}

@@ -179,6 +179,7 @@ class WorldRig:
     def __init__(self, setup: TestSetup, world) -> None:
         self.setup, self.world = setup, world
         self.fs_hz = float(setup.daq.sample_rate_hz)
+        self.passband_hz = setup.daq.passband_hz
         world.set_sample_rate(self.fs_hz)
         self.names = [c.name for c in setup.channels]
         self.rows = [c.input for c in setup.channels]

@@ -252,7 +252,7 @@ class SineLine:
         """
         rig, spec = self.rig, self.spec
         n_w, n_c = self._sizes(freq_hz)
-        fit = SineFit(freq_hz, rig.fs_hz, n_w)
+        fit = SineFit(freq_hz, rig.fs_hz, n_w, band_hz=rig.passband_hz)
         max_vpp = self.limits.max_drive_vpp
         ctl = self.control if self.control is not None else self.roles["force"][j]
         rig.sine(j, freq_hz, vpp)
@@ -324,5 +324,5 @@ class SineLine:
             raise LineAborted(reason)
         rec = np.hstack([buf[:, -n_w:], more])
         start = buf0 + buf.shape[1] - n_w - t_start
-        long_fit = SineFit(freq_hz, fs, rec.shape[1])
+        long_fit = SineFit(freq_hz, fs, rec.shape[1], band_hz=self.rig.passband_hz)
         return long_fit.fit(rec, start=start, noise_var=self.noise_var), rec

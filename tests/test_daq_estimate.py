@@ -24,6 +24,20 @@ def test_sine_fit_amplitude_harmonics_drift_and_start():
     np.testing.assert_allclose(np.mean(np.abs(Xs - X) ** 2, axis=0), var_pred, rtol=0.25)
 
 
+def test_sine_fit_counts_only_harmonics_inside_the_daq_passband():
+    """A line at 700 Hz at 4096 S/s: its 2nd harmonic (1400 Hz) lies inside a 0.45 fs
+    passband (1843 Hz), its 3rd (2100 Hz) beyond Nyquist. With the passband at 0.3 fs
+    (1229 Hz) the 2nd is beyond it too, where a front end's filter would have attenuated it,
+    so it is not fitted and the distortion reads zero rather than a wrong value."""
+    fs, f, n = 4096.0, 700.0, 4096
+    t = np.arange(n) / fs
+    x = (np.cos(2 * np.pi * f * t) + 0.02 * np.cos(2 * np.pi * 2 * f * t))[None, :]
+    assert SineFit(f, fs, n, band_hz=0.45 * fs).h == [1, 2]
+    assert abs(SineFit(f, fs, n, band_hz=0.45 * fs).fit(x, start=0).thd[0] - 0.02) < 1e-9
+    fit = SineFit(f, fs, n, band_hz=0.3 * fs)
+    assert fit.h == [1] and fit.fit(x, start=0).thd[0] == 0.0
+
+
 def test_multi_input_frf_exact_and_variance():
     rng = np.random.default_rng(1)
     H = rng.normal(size=(5, 2)) + 1j * rng.normal(size=(5, 2))

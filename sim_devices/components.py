@@ -13,7 +13,7 @@ import threading
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import firwin, kaiserord, upfirdn
+from scipy.signal import fftconvolve, firwin, kaiserord
 
 __all__ = [
     "AMP_FAULT_COMMS_WATCHDOG",
@@ -351,9 +351,6 @@ class AntiAliasFilter:
         self.oversample = int(oversample)
         self.delay_steps = (n_taps - 1) // 2
         self._hist = np.zeros((n_channels, n_taps - 1))
-        # Outputs sit at the last world step of each sample (as the unfiltered world's do);
-        # leading zeros put them on upfirdn's decimation grid.
-        self._pad = (-(n_taps + oversample - 2)) % oversample
 
     def reset(self) -> None:
         self._hist[:] = 0.0
@@ -361,9 +358,10 @@ class AntiAliasFilter:
     def process(self, x: np.ndarray) -> np.ndarray:
         """Filter and decimate ``x: (n_channels, n * oversample)`` (world steps) to
         ``(n_channels, n)`` output samples; the history carries over to the next call."""
-        ov, n_hist = self.oversample, self._hist.shape[1]
-        n = x.shape[1] // ov
-        buf = np.concatenate([np.zeros((x.shape[0], self._pad)), self._hist, x], axis=1)
-        self._hist = buf[:, buf.shape[1] - n_hist:].copy()
-        q0 = (self._pad + n_hist + ov - 1) // ov
-        return upfirdn(self.taps, buf, down=ov, axis=1)[:, q0:q0 + n]
+        buf = np.concatenate([self._hist, x], axis=1)
+        self._hist = buf[:, x.shape[1]:].copy()
+        # By FFT, all world steps: 2.4 times faster here than a polyphase decimator (upfirdn)
+        # computing only the outputs. 'valid' output i is the filter's output at x[:, i];
+        # the samples sit at the last world step of each sample, as the unfiltered world's do.
+        ov = self.oversample
+        return fftconvolve(buf, self.taps[None, :], mode="valid", axes=1)[:, ov - 1 :: ov]

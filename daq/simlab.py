@@ -293,6 +293,7 @@ raw_time = false
 interface = "socketcan"
 channel = "can0"
 sample_rate_hz = 4096          # 21 channels: 77 % of a 1/5 Mbit/s CAN FD bus
+passband_fraction = 0.45       # anti-alias filter passband edge / fs: bands up to 1843 Hz
 
 [[generators]]
 name = "gen0"

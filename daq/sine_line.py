@@ -52,6 +52,9 @@ class LineResult:
     dwell_s: float
     transient: float  # estimated remaining relative error of the transient
     decay: float  # |q| at the end (decay per window step)
+    #: (n_ch,) the transient's remaining error per channel (std, channel units; see
+    #: :meth:`SineLine.transient_per_channel`)
+    x_transient: np.ndarray | None = None
     raw: np.ndarray | None = None
     corrections: int = 0
     extra: dict = field(default_factory=dict)
@@ -129,6 +132,9 @@ class TransientMonitor:
         self.r = max(floor, prior)
         self.ehat = math.inf
         self.noise = 0.0
+        #: |D|^2 / ||D||^2 of the last difference above the noise: the transient's share per
+        #: entry of y (e_k = q e_(k-1) makes each difference parallel to the error itself).
+        self.shape: np.ndarray | None = None
 
     def update(self, y: np.ndarray, noise: float) -> bool:
         """Add the next window's vector ``y`` (and its noise); True when settled."""
@@ -169,6 +175,7 @@ class TransientMonitor:
         if dn > 3 * d_noise:
             self.big = (k, recent_d)
             self.ehat = gain * recent_d
+            self.shape = np.abs(D) ** 2 / dn**2
         elif self.big is not None:
             # Below the noise: bounded by the last visible difference, decayed since.
             self.ehat = min(gain * max(recent_d, d_noise), self.big[1] * r ** (k - self.big[0]) * gain)
@@ -213,24 +220,54 @@ class SineLine:
         n_c = int(math.ceil(n_w / WINDOW_STEPS))
         return n_c * WINDOW_STEPS, n_c
 
+    def _scales(self, est: SineEstimate, j: int) -> list[float]:
+        """Scale of each group of y (responses, reactions; present groups only): the group's
+        own size per unit force, but not below a tenth of its size on the lines so far -
+        where reactions (or responses) nearly vanish, accuracy is asked relative to their
+        usual level, not to their momentary near-zero."""
+        F = est.X[self.roles["force"][j]]
+        return [max(float(np.linalg.norm(est.X[idx] / F)), 0.1 * self.group_ref[g], 1e-300)
+                for g, idx in enumerate((self.resp, self.react)) if idx]
+
     def _y(self, est: SineEstimate, j: int) -> tuple[np.ndarray, np.ndarray]:
         """Responses and reactions per unit active force, each group scaled to unit norm
         by its own size (so m/s^2/N and N/N weigh alike), and the variance of that vector."""
         F = est.X[self.roles["force"][j]]
         vF = est.var[self.roles["force"][j]]
         parts, var = [], []
-        for g, idx in enumerate((self.resp, self.react)):
-            if not idx:
-                continue
+        for idx, s in zip([i for i in (self.resp, self.react) if i], self._scales(est, j)):
             y = est.X[idx] / F
             vy = (est.var[idx] + np.abs(y) ** 2 * vF) / max(abs(F) ** 2, 1e-300)
-            # Scale: the group's own size, but not below a tenth of its size on the lines so
-            # far - where reactions (or responses) nearly vanish, accuracy is asked relative
-            # to their usual level, not to their momentary near-zero.
-            s = max(float(np.linalg.norm(y)), 0.1 * self.group_ref[g], 1e-300)
             parts.append(y / s)
             var.append(vy / s**2)
         return np.concatenate(parts), np.concatenate(var)
+
+    def transient_per_channel(self, mon: TransientMonitor, est: SineEstimate, j: int,
+                              scales: list[float], excess: float, rel: float) -> np.ndarray:
+        """The transient's remaining error per channel (std, channel units), ``(n_ch,)``.
+
+        The monitor bounds the error of y (responses and reactions per unit active force)
+        by its norm, ``excess`` above the noise (``rel`` of the norm of y), and its last
+        differences give its shape: that of the modes still ringing, not of the forced
+        response. Shared out in
+        proportion to the response instead, channels near a node of the forced response got
+        a small share of an error they carry in full (payload, lines above its 78 Hz mode:
+        errors up to 35 times the stated standard deviation). The active force carries none
+        of it (y is per unit of it); other channels, which y does not hold, get the relative
+        transient times their amplitude. Without a difference above the noise, the relative
+        transient times each amplitude, as before the shape was kept.
+        """
+        X = np.abs(est.X)
+        out = rel * X
+        if mon.shape is None or excess <= 0:
+            return out
+        F = abs(est.X[self.roles["force"][j]])
+        out[self.roles["force"][j]] = 0.0
+        pos = 0
+        for idx, s in zip([i for i in (self.resp, self.react) if i], scales):
+            out[idx] = excess * np.sqrt(mon.shape[pos:pos + len(idx)]) * F * s
+            pos += len(idx)
+        return out
 
     def remember_level(self, est: SineEstimate, j: int) -> None:
         """Update the groups' usual levels with a finished line."""
@@ -293,16 +330,19 @@ class SineLine:
             if (buf.shape[1] - n_w) / rig.fs_hz >= spec.max_settle_s:
                 break
         self.decay_prev = mon.r
+        scales = self._scales(est, j)
         self.remember_level(est, j)
         est, rec = self._dwell(fit, est, buf, buf0, t_start, j, n_w, freq_hz, vpp)
         n_used = rec.shape[1]
         norm_y = max(float(np.linalg.norm(y)), 1e-300)
+        # Only the part of the transient bound above the noise is extra uncertainty: when
+        # the line stopped because the transient sank into the noise, the noise says it all.
+        excess = min(math.sqrt(max(mon.ehat**2 - mon.noise**2, 0.0)), norm_y)
         return LineResult(
             freq_hz=freq_hz, pattern=j, drive_vpp=vpp, est=est,
             settle_s=(rig.clock - t_all - n_used) / rig.fs_hz, dwell_s=n_used / rig.fs_hz,
-            # Only the part of the transient bound above the noise is extra uncertainty: when
-            # the line stopped because the transient sank into the noise, the noise says it all.
-            transient=float(min(math.sqrt(max(mon.ehat**2 - mon.noise**2, 0.0)) / norm_y, 1.0)), decay=mon.r,
+            transient=excess / norm_y, decay=mon.r,
+            x_transient=self.transient_per_channel(mon, est, j, scales, excess, excess / norm_y),
             raw=rec if self.keep_raw else None, corrections=corrections)
 
     def _dwell(self, fit: SineFit, est: SineEstimate, buf: np.ndarray, buf0: int, t_start: int, j: int,

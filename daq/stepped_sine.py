@@ -41,6 +41,17 @@ def sine_grid(setup: TestSetup) -> np.ndarray:
     return frequency_grid(s.f_min_hz, s.f_max_hz, s.n_lines, s.spacing, s.refine)
 
 
+def _variance_with_transient(row: dict) -> np.ndarray:
+    """Per-channel variance of a sub-line: the fit's noise plus the transient left at the end
+    of settling, which counts as uncertainty like noise (``X_transient``, shaped like the
+    modes still ringing, :meth:`daq.sine_line.SineLine.transient_per_channel`). Records
+    without it (files from before it was kept) take the relative transient times each
+    amplitude."""
+    X, var = np.abs(np.asarray(row["X"])), np.asarray(row["X_var"], float)
+    tr = np.asarray(row.get("X_transient", np.full(X.shape, np.nan)), float)
+    return var + np.where(np.isfinite(tr), tr, float(row["transient"]) * X) ** 2
+
+
 class SteppedSineRun:
     """One stepped-sine run (new or resumed) on ``rig``, stored in ``runfile``."""
 
@@ -112,7 +123,7 @@ class SteppedSineRun:
             row = {"grid_index": k, "pattern": p, "freq_hz": f, "drive_vpp": vpp, "status": STATUS_ABORTED,
                    "settle_s": dt, "dwell_s": 0.0, "transient": 1.0, "decay": 0.0, "wall_time": time.time(),
                    "X": np.full(nch, np.nan + 0j), "X_var": np.zeros(nch), "thd": np.zeros(nch),
-                   "reason": str(exc)}
+                   "X_transient": np.full(nch, np.nan), "reason": str(exc)}
             res = None
             self.echo(f"  line {k} shaker {p} {f:.2f} Hz aborted: {exc}")
         self.rf.append_record(row)
@@ -146,7 +157,9 @@ class SteppedSineRun:
         return {"grid_index": k, "pattern": res.pattern, "freq_hz": res.freq_hz, "drive_vpp": res.drive_vpp,
                 "status": status, "settle_s": res.settle_s, "dwell_s": res.dwell_s,
                 "transient": res.transient, "decay": res.decay, "wall_time": time.time(),
-                "X": res.est.X, "X_var": res.est.var, "thd": res.est.thd, "reason": reason}
+                "X": res.est.X, "X_var": res.est.var, "thd": res.est.thd,
+                "X_transient": res.x_transient if res.x_transient is not None else np.full(len(res.est.X), np.nan),
+                "reason": reason}
 
     def _accept(self, p: int, k: int, row: dict, live: bool) -> np.ndarray | None:
         """Book a sub-line (live or replayed): history, FRF line when complete, progress."""
@@ -183,9 +196,7 @@ class SteppedSineRun:
                     "coh": np.zeros((n_out, self.n_pat)), "valid": np.zeros((n_out, self.n_pat), bool),
                     "Hr": np.zeros((n_r, self.n_pat), complex), "Hr_var": np.zeros((n_r, self.n_pat))}
         X = np.stack([np.asarray(x["X"]) for x in rows], axis=1)  # (n_ch, n_pat)
-        # The transient left at the end of settling counts as uncertainty, like noise.
-        V = np.stack([np.asarray(x["X_var"]) + (float(x["transient"]) * np.abs(np.asarray(x["X"]))) ** 2
-                      for x in rows], axis=1)
+        V = np.stack([_variance_with_transient(x) for x in rows], axis=1)
         H, var = multi_input_frf(X[a], X[fi], V[a], V[fi])
         Hr, Hr_var = (multi_input_frf(X[r], X[fi], V[r], V[fi]) if n_r
                       else (np.zeros((0, self.n_pat), complex), np.zeros((0, self.n_pat))))

@@ -45,6 +45,7 @@ SINE_FIELDS = {
     "dwell_s": ("f8", False), "transient": ("f8", False), "decay": ("f8", False),
     "wall_time": ("f8", False),
     "X": ("c16", True), "X_var": ("f8", True), "thd": ("f8", True), "reason": ("S160", False),
+    "X_transient": ("f8", True),
 }
 _STR = h5py.string_dtype()
 
@@ -174,10 +175,14 @@ class RunFile:
         """Write one stepped-sine record row (not yet committed)."""
         rec = self.acq["records"]
         n = self.n_done
-        for name, (dt, _) in SINE_FIELDS.items():
+        for name, (dt, per_ch) in SINE_FIELDS.items():
+            if name not in rec:  # a file from before the field existed: unknown so far (NaN)
+                nch = rec["X"].shape[1]
+                rec.create_dataset(name, shape=(n, nch) if per_ch else (n,), maxshape=(None, nch) if per_ch else (None,),
+                                   chunks=(64, nch) if per_ch else (256,), dtype=dt, fillvalue=np.nan)
             ds = rec[name]
             ds.resize(n + 1, axis=0)
-            v = row.get(name, 0)
+            v = row.get(name, np.nan if name == "X_transient" else 0)  # NaN: not known
             if name == "reason":
                 v = str(v or "").encode("utf-8")[:160]
             ds[n] = v

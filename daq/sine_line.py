@@ -220,6 +220,10 @@ class SineLine:
         n_c = int(math.ceil(n_w / WINDOW_STEPS))
         return n_c * WINDOW_STEPS, n_c
 
+    def _groups(self) -> list[list[int]]:
+        """The channel groups of y in order: responses, reactions (present ones only)."""
+        return [idx for idx in (self.resp, self.react) if idx]
+
     def _scales(self, est: SineEstimate, j: int) -> list[float]:
         """Scale of each group of y (responses, reactions; present groups only): the group's
         own size per unit force, but not below a tenth of its size on the lines so far -
@@ -235,7 +239,7 @@ class SineLine:
         F = est.X[self.roles["force"][j]]
         vF = est.var[self.roles["force"][j]]
         parts, var = [], []
-        for idx, s in zip([i for i in (self.resp, self.react) if i], self._scales(est, j)):
+        for idx, s in zip(self._groups(), self._scales(est, j)):
             y = est.X[idx] / F
             vy = (est.var[idx] + np.abs(y) ** 2 * vF) / max(abs(F) ** 2, 1e-300)
             parts.append(y / s)
@@ -264,7 +268,7 @@ class SineLine:
         F = abs(est.X[self.roles["force"][j]])
         out[self.roles["force"][j]] = 0.0
         pos = 0
-        for idx, s in zip([i for i in (self.resp, self.react) if i], scales):
+        for idx, s in zip(self._groups(), scales):
             out[idx] = excess * np.sqrt(mon.shape[pos:pos + len(idx)]) * F * s
             pos += len(idx)
         return out

@@ -65,12 +65,15 @@ class SnapRig(WorldRig):
 
 def snapshot(w) -> dict:
     return {"eta": w._eta.copy(), "u": w._u_prev.copy(), "idx": w.sample_index,
+            "aa": None if w._antialias is None else w._antialias._hist.copy(),  # the DAQ filter's memory
             "gens": [copy.deepcopy(g.channels) for g in w.generators],
             "amps": [(a.enabled, a.gain_v_per_v) for a in w.amplifiers]}
 
 
 def restore(w, s: dict) -> None:
     w._eta, w._u_prev, w.sample_index = s["eta"].copy(), s["u"].copy(), s["idx"]
+    if s["aa"] is not None:
+        w._antialias._hist = s["aa"].copy()
     for g, ch in zip(w.generators, s["gens"]):
         g.channels = copy.deepcopy(ch)
     for a, (en, gain) in zip(w.amplifiers, s["amps"]):

@@ -13,7 +13,7 @@ import threading
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import fftconvolve, firwin, kaiserord
+from scipy.signal import butter, fftconvolve, firwin, kaiserord, resample, sosfilt
 
 __all__ = [
     "AMP_FAULT_COMMS_WATCHDOG",
@@ -194,8 +194,6 @@ def _band_limited_noise(c: GeneratorChannel, white: np.ndarray, fs_hz: float) ->
     / (fs / 2)) with NEB = f_c (pi / 2n) / sin(pi / 2n) (within 0.4 % up to 0.45 fs), so
     sigma stays Vpp / 6. A bandwidth below 1e-4 fs is simulated at 1e-4 fs.
     """
-    from scipy.signal import butter, sosfilt
-
     key = (c.noise_bw_hz, fs_hz)
     if not (c.noise_filter and c.noise_filter[0] == key):
         order = 8
@@ -223,8 +221,6 @@ def _arb_at(c: GeneratorChannel, pos: np.ndarray, step: float) -> np.ndarray:
     at an integer number of points per sample (the random runs: arb rate = DAQ rate), summed
     directly otherwise (n N / 2 terms for n instants of an N-point arb).
     """
-    from scipy.signal import resample
-
     arb = c.arb
     up = round(1.0 / step) if step > 0 else 0
     on_grid = up >= 1 and abs(up * step - 1.0) < 1e-9 and abs(pos[0] * up - round(pos[0] * up)) < 1e-6

@@ -15,6 +15,10 @@ first 16 target modes (Z-dominated: ``ssid.models.payload.target_modes``) agains
 the report's. It prints the factors and, mode by mode, the report's, the default model's and
 the fitted model's frequencies with their kinds (T: target). docs/replication.md ("Why our
 modes sit elsewhere") quotes seeds 1-3.
+
+With ``--rows`` it then runs section 2 of bench/replicate_report.py (reduced-order models,
+noise-free, the report's three spectra) on the fitted model, about 4 more minutes: does a
+modal density closer to the report's give the report's figures?
 """
 
 from __future__ import annotations
@@ -74,6 +78,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--maxiter", type=int, default=250)
+    ap.add_argument("--rows", action="store_true", help="then section 2's rows on the fitted model")
     args = ap.parse_args()
     t0 = time.perf_counter()
     bounds = [(-2.5, 2.5)] * 12 + [(-3.0, 3.0)] * 3
@@ -93,6 +98,25 @@ def main() -> None:
         kinds = ["T" if t else " " for t in (REPORT_TARGET[k], z0[k] >= Z_SHARE, z1[k] >= Z_SHARE)]
         print(f"{k + 1:4d} {REPORT_HZ[k]:11.2f} {kinds[0]} {f0[k]:10.1f} {kinds[1]} "
               f"{f1[k]:10.1f} {kinds[2]}")
+    if args.rows:
+        rows_on(fitted_model(res.x))
+
+
+def rows_on(payload) -> None:
+    """Section 2's rows (``replicate_reduced.reduced_noise_free_row``) on ``payload``, at
+    the report's spectra (the third to 2100 Hz, as the report's), in this process."""
+    import report_truth
+    from replicate_reduced import reduced_noise_free_row
+
+    report_truth._WORKER_TRUTH = truth = report_truth.Truth(payload)
+    print("\nsection 2 on the fitted model (columns as in docs/replication.md)")
+    for n in ("10", "12", "16"):
+        sensors, tm = truth.sensors(int(n))
+        print(f"{n}-DOF sensors: {', '.join(sensors)}; targets (Hz): "
+              f"{', '.join(f'{truth.f[i]:.1f}' for i in tm)}")
+        for key in (300, 650, 2100):
+            spec = (1.0, float(key), 512 if key < 2100 else 1024)
+            print(reduced_noise_free_row(n, f"1-{key} Hz, {spec[2]} lines", key, spec)[0], flush=True)
 
 
 if __name__ == "__main__":

@@ -40,8 +40,8 @@ SPECTRA = {300: (1.0, 300.0, 512), 650: (1.0, 650.0, 512), 2100: (1.0, 2300.0, 1
 class Truth:
     """The payload model, its modes and target modes."""
 
-    def __init__(self) -> None:
-        self.p = payload_simulator()
+    def __init__(self, payload=None) -> None:
+        self.p = payload_simulator() if payload is None else payload
         self.C = modal_damping(self.p.M, self.p.K, 0.02)
         lam, self.phi = sla.eigh(self.p.K, self.p.M)
         self.f = np.sqrt(lam) / (2 * np.pi)

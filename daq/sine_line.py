@@ -12,8 +12,11 @@ sequence, ``e_k = q e_{k-1}``, and the differences ``D_k = Y_k - Y_{k-1}`` show 
 The line stops settling as soon as this remaining error is below ``accuracy`` (relative)
 or below the noise of the estimate itself. ``|q|`` is never taken below the decay of the
 lightest damping expected (``damping_guess``), so that a fast-decaying transient cannot
-hide a slow one. The time spent therefore follows the physics: a few windows far from
-resonances, longer where a lightly damped mode was just excited strongly.
+hide a slow one. Before a line stops, that bound is checked against a multi-pole fit of
+the windows (:func:`multipole_transient`), which tells close modes ringing together apart;
+the line settles when both are below the target, and states the fit's error per channel.
+The time spent therefore follows the physics: a few windows far from resonances, longer
+where a lightly damped mode was just excited strongly.
 
 Level control: the force (or a control accelerometer) of the first window after a change
 is compared with the target; outside ``tolerance`` the drive is corrected (at most a factor
@@ -136,8 +139,8 @@ def multipole_transient(ys: np.ndarray, d_noise: float, spans: tuple[int, ...] =
     scipy have no vector Prony fit; it is two small least-squares problems per fit.
     """
     D = np.diff(np.asarray(ys), axis=0)
-    if len(D) < 3:
-        return None
+    if len(D) < 3 or not np.all(np.isfinite(D)):
+        return None  # (a dead force gauge makes y infinite: the single-decay bound then stands)
     out = np.zeros(D.shape[1])
     for span in sorted({min(s, len(D)) for s in spans}):
         Ds = D[-span:]

@@ -113,6 +113,8 @@ def test_multipole_fit_reads_the_error_of_three_close_modes_ringing_together():
     est_noise = multipole_transient(y_inf + noise, d_noise=1e-6 * np.sqrt(2 * n))
     assert est_noise is not None and np.linalg.norm(est_noise) < 1e-6 * np.sqrt(n)
     assert multipole_transient(ys[:3], d_noise=0.0) is None  # two differences: no fit
+    ys[7, 2] = np.inf  # a force of exactly zero in one window
+    assert multipole_transient(ys, d_noise=0.0) is None
 
 
 def test_schedule_refines_near_a_resonance_and_covers_every_shaker():

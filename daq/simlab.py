@@ -14,10 +14,10 @@ simulated instruments through the ordinary drivers, exactly as to real ones.
 * ``damping_ratio`` (payload only, default 0.02), ``noise`` (default true), ``seed``;
 * ``sensor_noise_volt_rms`` (default 2e-6), ``sensor_range_volt`` (default 5);
 * ``generator_transport``: ``"pty"`` or ``"tcp"`` (default ``"tcp"``);
-* ``oversample``: internal time steps per sample of the world (default 1; a structure with
+* ``oversample``: internal time steps per sample of the world (default 4: a structure with
   modes near the sample rate needs 4 or more, see :class:`sim_devices.world.World`); with 2
   or more the simulated front end's anti-alias filter (``[daq] passband_fraction``) acts on
-  the internal steps;
+  the internal steps, as a real front end's always does; 1 samples the world unfiltered;
 * ``[sim.stand]``: ``stand_mass_kg``, ``stand_k_n_per_m``, ``stand_c_n_s_per_m``,
   ``ground_k_n_per_m`` of the stand under each reaction DOF;
 * ``[[sim.effects]]``: hidden effects, ``type`` one of ``added_mass`` (``dof``,
@@ -83,7 +83,7 @@ def build_world(setup: TestSetup):
     noise_v = t.num("sensor_noise_volt_rms", 2e-6, lo=0.0)
     range_v = t.num("sensor_range_volt", 5.0, lo=0.01, lo_open=True)
     t.str("generator_transport", "tcp", choices=("pty", "tcp"))
-    oversample = t.int("oversample", 1, lo=1, hi=64)
+    oversample = t.int("oversample", 4, lo=1, hi=64)
     t.done()
     st = _Table(src, "[sim.stand]", stand_raw)
     stand_kw = {k: st.num(k, getattr(StandSpec, k), lo=0.0)

@@ -248,19 +248,22 @@ class TransientMonitor:
 
     def conclude(self) -> float:
         """The remaining error checked against :func:`multipole_transient` of the windows so
-        far: ``ehat``, the bound the line settles by, becomes the larger of the two; the fit's
-        error vector is kept (``fitted``) and gives ``shape``."""
+        far: ``ehat``, the bound the line settles by, becomes the larger of the two. Where
+        the last difference stands above the noise, the fit's error vector is kept
+        (``fitted``) and gives ``shape``; below it the fit sees no pole, and what the noise
+        hides is the single-decay bound's to say (``fitted`` None)."""
         e = multipole_transient(np.array(self.ys), self.noise * math.sqrt(2.0 / WINDOW_STEPS))
-        self.fitted = e
+        visible = self.big is not None and self.big[0] == len(self.ys) - 1
+        self.fitted = e if visible and e is not None and e.any() else None
         if e is not None and e.any():
-            en = float(np.linalg.norm(e))
-            self.ehat = max(self.ehat, en)
-            self.shape = e**2 / en**2
+            self.ehat = max(self.ehat, float(np.linalg.norm(e)))
+        if self.fitted is not None:
+            self.shape = e**2 / float(np.linalg.norm(e)) ** 2
         return self.ehat
 
     def stated_error(self) -> float:
-        """The remaining error to state as uncertainty: the multi-pole fit's where there is
-        one (within 1.3 times of the truth on the payload's lines near its 78 Hz modes, where
+        """The remaining error to state as uncertainty: the multi-pole fit's where it holds
+        (within 1.3 times of the truth on the payload's lines near its 78 Hz modes, where
         the single-decay bound, the settling criterion, was up to 12 times high away from
         the resonance and 1.7 times low at it), else the bound."""
         return self.ehat if self.fitted is None else float(np.linalg.norm(self.fitted))

@@ -188,6 +188,7 @@ class TransientMonitor:
         self.r = max(floor, prior)
         self.ehat = math.inf
         self.noise = 0.0
+        self.d_noise = 0.0  # noise of one window difference
         #: |D|^2 / ||D||^2 of the last difference above the noise: the transient's share per
         #: entry of y (e_k = q e_(k-1) makes each difference parallel to the error itself).
         self.shape: np.ndarray | None = None
@@ -205,7 +206,7 @@ class TransientMonitor:
         dn = float(np.linalg.norm(D))
         self.ds.append(dn)
         # Differences of windows overlapping by 3/4 carry about this much noise.
-        d_noise = noise * math.sqrt(2.0 / WINDOW_STEPS)
+        self.d_noise = d_noise = noise * math.sqrt(2.0 / WINDOW_STEPS)
         if k >= 2:
             Dp = self.ys[-2] - self.ys[-3]
             den = float(np.vdot(Dp, Dp).real)
@@ -252,13 +253,13 @@ class TransientMonitor:
         the last difference stands above the noise, the fit's error vector is kept
         (``fitted``) and gives ``shape``; below it the fit sees no pole, and what the noise
         hides is the single-decay bound's to say (``fitted`` None)."""
-        e = multipole_transient(np.array(self.ys), self.noise * math.sqrt(2.0 / WINDOW_STEPS))
-        visible = self.big is not None and self.big[0] == len(self.ys) - 1
-        self.fitted = e if visible and e is not None and e.any() else None
+        e = multipole_transient(np.array(self.ys), self.d_noise)
+        self.fitted = None
         if e is not None and e.any():
-            self.ehat = max(self.ehat, float(np.linalg.norm(e)))
-        if self.fitted is not None:
-            self.shape = e**2 / float(np.linalg.norm(e)) ** 2
+            en = float(np.linalg.norm(e))
+            self.ehat = max(self.ehat, en)
+            if self.big is not None and self.big[0] == len(self.ys) - 1:  # last difference visible
+                self.fitted, self.shape = e, e**2 / en**2
         return self.ehat
 
     def stated_error(self) -> float:

@@ -132,6 +132,11 @@ class SteppedSineRun:
         y = self._accept(p, k, row, live=True)
         self.n_done += 1
         self.rf.commit(self.n_done)
+        # Printed only once committed: a line the engineer saw is a line a resume keeps.
+        if res is not None:
+            self.echo(f"  shaker {p} {row['freq_hz']:9.3f} Hz  drive {row['drive_vpp']:.3f} Vpp  "
+                      f"|F| {abs(row['X'][self.roles['force'][p]]):.3g} N  settle {row['settle_s']:.3f} s  "
+                      f"dwell {row['dwell_s']:.3f} s  [{self.n_done} sub-lines, {self.test_time_s:.1f} s test time]")
         if self.events:
             self._sub_line_event(row, res)
         return y
@@ -176,11 +181,6 @@ class SteppedSineRun:
             for g, idx in enumerate((self.roles["response"], self.roles["reaction"])):
                 if idx and abs(F) > 0:
                     self.line.group_ref[g] = max(self.line.group_ref[g], float(np.linalg.norm(X[idx] / F)))
-        if live:
-            F = abs(X[self.roles["force"][p]])
-            self.echo(f"  shaker {p} {row['freq_hz']:9.3f} Hz  drive {row['drive_vpp']:.3f} Vpp  "
-                      f"|F| {F:.3g} N  settle {row['settle_s']:.3f} s  dwell {row['dwell_s']:.3f} s  "
-                      f"[{self.n_done + 1} sub-lines, {self.test_time_s:.1f} s test time]")
         if all((q, k) in self.rows for q in range(self.n_pat)):
             self._write_line(k)
         return self._y(X, p)

@@ -231,6 +231,8 @@ def test_sigint_stops_a_run_started_with_sigint_ignored(tmp_path):
     assert proc.returncode == 130, err
     with h5py.File(tmp_path / "run.h5") as f:
         assert f["acq"].attrs["state"] == "interrupted"
+        n_done = int(f["acq/n_done"][0])
+    assert f"{n_done} measurement records are kept in" in err and n_done > 0, err
     assert f"continue with: ssidlab acquire --resume {tmp_path / 'run.h5'} --sim" in err, err
 
 
@@ -248,6 +250,7 @@ def test_a_run_stopped_by_a_fault_says_how_to_continue(tmp_path):
     lines = p.stderr.strip().splitlines()
     assert p.returncode == 3 and len(lines) == 2, p.stderr
     assert lines[0].startswith("ssidlab acquire: stopped: run stopped safely: instrument lost"), lines[0]
+    assert lines[1].startswith("ssidlab acquire: nothing was measured yet; the setup is kept in"), lines[1]
     assert lines[1].endswith(f"continue with: ssidlab acquire --resume '{out}'")  # quoted for the shell
     with h5py.File(out) as f:
         assert f["acq"].attrs["state"].startswith("stopped: instrument lost")

@@ -158,6 +158,8 @@ def run_bands(args: argparse.Namespace) -> int:
             # The bands' findings are kept (JSON, chart) even when no model can be made.
             out["model_error"] = str(exc)
             write_json(args.json, out)
+            if not args.quiet:
+                print(_table(out))
             hint = ("; another --scale may give positive modal masses (docs/algorithm.md, "
                     "known limits)" if "modal mass" in str(exc) else "")
             raise InputError(f"{args.frf}: no modal model ({exc}){hint}; the modes found are "

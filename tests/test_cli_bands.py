@@ -147,7 +147,8 @@ def test_bands_settings_change_the_bands(reduced):
 
 def test_bands_without_enough_modes_for_a_model_keeps_what_it_found(reduced):
     """Below 70 Hz the 8-DOF system has 3 modes, fewer than the 4 sensors: no 4-DOF modal
-    model exists. The run says so (status 2, one line) and the modes found stay in the JSON."""
+    model exists. The run says so (status 2, one line), prints the modes it found and keeps
+    them in the JSON."""
     M, C, K, dofs, d = reduced
     f_true = _root_freq_hz(M, C, K)
     assert np.sum(f_true < 70) == 3
@@ -159,6 +160,8 @@ def test_bands_without_enough_modes_for_a_model_keeps_what_it_found(reduced):
     assert "model_error" in res and not (d / "few.h5").exists()
     found = [m["freq_hz"] for m in res["modes"]]
     assert len(found) <= 3 and _all_true(found, f_true)
+    table = p.stdout.strip().splitlines()
+    assert table[-1].split()[0] == str(len(found)), p.stdout
 
 
 @pytest.mark.parametrize("extra, message", [

@@ -87,15 +87,17 @@ def _modes(model: Model, who: str) -> tuple[np.ndarray, np.ndarray]:
 def _tam(analysis: Model, retained: np.ndarray, tam: str, interface: Sequence[str] | None,
          targets: Sequence[int] | None, test_dofs: Sequence[str]):
     """TAM of the analysis model at ``retained``; ``"none"`` when nothing is omitted."""
+    # Interface labels are checked even when no reduction follows: a mistyped one must not
+    # pass unnoticed because the analysis model happens to hold only the test DOFs.
+    missing = [d for d in interface or [] if d not in test_dofs]
+    if missing:
+        raise InputError(f"interface DOF {missing[0]!r} is not among the test DOFs")
     if retained.size == analysis.n:
         return "none", analysis.M[np.ix_(retained, retained)], analysis.K[np.ix_(retained, retained)]
     if tam not in TAM_METHODS:
         raise InputError(f"unknown TAM {tam!r}; choose one of {', '.join(TAM_METHODS)}")
     boundary = None
     if interface:
-        missing = [d for d in interface if d not in test_dofs]
-        if missing:
-            raise InputError(f"interface DOF {missing[0]!r} is not among the test DOFs")
         boundary = dof_indices(analysis.dofs, interface, "interface DOF")
     elif tam == "cb":
         raise InputError("--tam cb needs the interface DOFs (--interface)")

@@ -139,6 +139,9 @@ def test_mode_list():
          "interface"),
         (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--interface", "2+Z",
           "--json", "{d}/o.json"], "not among the test DOFs"),
+        # Same DOFs, so no TAM is built: a mistyped interface is still refused.
+        (["--model", "{d}/fem.h5", "--model", "{d}/fem.mat", "--tam", "cb", "--interface", "99+Z",
+          "--json", "{d}/o.json"], "interface DOF '99\\+Z' is not among the test DOFs"),
         (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--tam", "serep", "--targets", "1-99",
           "--json", "{d}/o.json"], "--targets"),
         (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--targets", "x", "--json", "{d}/o.json"],

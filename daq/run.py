@@ -6,7 +6,8 @@ in the safe state (all generator outputs off, all amplifiers disabled, acquisiti
 before the function returns or raises, and the run file holds every completed line:
 
 * complete: the run file is replaced by the compact FRF file (plus ``/acq``), and the
-  FRFs are exported to UFF 58 if ``[output] uff`` is set;
+  FRFs are exported to UFF 58 if ``[output] uff`` is set (beside a run file given by
+  ``out``, with its name);
 * stopped, interrupted or failed: ``/acq`` attribute ``state`` says why and the file can
   be continued with ``ssidlab acquire --resume FILE``.
 """
@@ -255,7 +256,9 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
 
         uff = Path(setup.uff_file)
         if not uff.is_absolute() and out is not None:
-            uff = path.parent / uff.name
+            # Named after the run file: runs of one setup into different files (run1.h5,
+            # run2.h5) must not overwrite each other's export.
+            uff = path.with_suffix(uff.suffix or ".uff")
         try:
             write_uff_frf(str(uff), frf)
         except InputError as exc:

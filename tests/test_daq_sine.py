@@ -203,6 +203,12 @@ def test_uff58_export(tmp_path):
     ok = frf.valid_mask()
     np.testing.assert_array_equal(back.valid_mask(), ok)
     np.testing.assert_allclose(back.H[ok], frf.H[ok], rtol=1e-10)
+    # A second run of the same setup into another file exports beside it under its name,
+    # leaving the first run's UFF alone.
+    before = (tmp_path / "run.uff").read_bytes()
+    summary2, _ = run_on_sim(setup, tmp_path / "second.h5")
+    assert summary2["uff"] == str(tmp_path / "second.uff") and (tmp_path / "second.uff").is_file()
+    assert (tmp_path / "run.uff").read_bytes() == before
 
 
 def test_sigint_stops_a_run_started_with_sigint_ignored(tmp_path):

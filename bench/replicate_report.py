@@ -150,7 +150,10 @@ Still open: 12 sensors at 1-1158 Hz, seed 3 (section 3's `bands` miss): band 0's
 of the mode is 1.775 Hz with damping -6.4 % and MPC 0.07, 38 % off, so the mode is found in
 band 1 only. With more overlap of the 96 Hz bands, 2/3, seed 3 comes back but seed 2
 selects a false root (981.9 Hz); with 3/4, seed 3 stays lost and seed 2 selects two (74.2,
-981.8 Hz): the default stays 1/2. Before the rule above, seed 2 was lost too: its estimates failed criterion 2
+981.8 Hz): the default stays 1/2. A third band at the record's low edge alone (its first
+3/4 band, beside the half and the whole one) does not help either: seed 3 then selects a root
+at 1.6 Hz, 24 % off the mode, and seed 2 a false one at 74.2 Hz (tried on 15
+records: 10, 12 and 16 sensors, section 3's spectra, seeds 1-3, one BLAS thread). Before the rule above, seed 2 was lost too: its estimates failed criterion 2
 (-0.3 %) or criterion 4's factor 2 on damping (8.2 % against 1.9 %), which lines this far
 from the mode do not determine. Dropping that check for pairs of unresolved roots
 (2 zeta f < df) was tried: it brought back seed 2, but on the 18 records it also selected a

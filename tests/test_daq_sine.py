@@ -48,6 +48,25 @@ def test_noise_free_stepped_sine_matches_the_world(tmp_path):
     assert settle.max() > 4 * settle.min()  # settling follows the transient, not a fixed count
 
 
+def _payload_band_z(tmp_path, f_min: str, f_max: str, n_lines: str, noise: bool) -> np.ndarray:
+    """Run the example setup (payload on its stand) over a band; each value's error against
+    the simulated truth in units of its stated standard deviation, reactions included."""
+    text = (Path(__file__).resolve().parents[1] / "examples" / "setup_sim.toml").read_text()
+    text = (text.replace("f_min_hz = 20.0", f"f_min_hz = {f_min}").replace("f_max_hz = 1500.0", f"f_max_hz = {f_max}")
+            .replace("n_lines = 40 ", f"n_lines = {n_lines} ").replace("min_coherence = 0.9", "min_coherence = 0.0"))
+    if not noise:
+        text = text.replace("noise = true", "noise = false")
+    setup = parse_setup(text, str(tmp_path / "s.toml"))
+    assert setup.min_coherence == 0.0 and setup.sim["noise"] is noise
+    run_test(setup, out=str(tmp_path / "run.h5"), sim=True, echo=lambda m: None)
+    frf = read_frf(tmp_path / "run.h5")
+    ref = build_world(setup).frf(frf.freq_hz, outputs=frf.outputs, inputs=frf.inputs)
+    z = np.concatenate([(np.abs(frf.H - ref.H) / np.sqrt(frf.H_var)).ravel(),
+                        (np.abs(frf.H_reaction - ref.H_reaction) / np.sqrt(frf.H_reaction_var)).ravel()])
+    assert frf.valid_mask().all() and np.isfinite(z).all()
+    return z
+
+
 def test_stated_uncertainty_covers_the_error_beside_a_ringing_mode(tmp_path):
     """The payload on its stand (the demo's setup), 60-130 Hz around its 78 Hz modes, sensor
     noise on. Each value's error against the simulated truth, in units of its stated
@@ -57,20 +76,24 @@ def test_stated_uncertainty_covers_the_error_beside_a_ringing_mode(tmp_path):
     of the response count too. With one decay rate read from all the ringing modes together
     the 95th and 99th percentiles were 2.25 and 4.4 (largest 11); with the transient shared
     out in proportion to each channel's forced response, 9.4 and more (largest 34). The
-    multi-pole fit of the settling windows gives 1.6 and 2.2 (largest 3.5)."""
-    text = (Path(__file__).resolve().parents[1] / "examples" / "setup_sim.toml").read_text()
-    text = (text.replace("f_min_hz = 20.0", "f_min_hz = 60.0").replace("f_max_hz = 1500.0", "f_max_hz = 130.0")
-            .replace("n_lines = 40 ", "n_lines = 8 ").replace("min_coherence = 0.9", "min_coherence = 0.0"))
-    setup = parse_setup(text, str(tmp_path / "s.toml"))
-    assert setup.min_coherence == 0.0
-    run_test(setup, out=str(tmp_path / "run.h5"), sim=True, echo=lambda m: None)
-    frf = read_frf(tmp_path / "run.h5")
-    ref = build_world(setup).frf(frf.freq_hz, outputs=frf.outputs, inputs=frf.inputs)
-    z = np.concatenate([(np.abs(frf.H - ref.H) / np.sqrt(frf.H_var)).ravel(),
-                        (np.abs(frf.H_reaction - ref.H_reaction) / np.sqrt(frf.H_reaction_var)).ravel()])
-    assert frf.valid_mask().all() and np.isfinite(z).all()
+    multi-pole fit of the settling windows gave 1.6 and 2.2 (largest 3.5); with the windows
+    sharing one scale (not each its own norm, which hid the part of the transient along the
+    response), 1.3 and 1.6 (largest 2.1)."""
+    z = _payload_band_z(tmp_path, "60.0", "130.0", "8", noise=True)
     p95, p99 = np.percentile(z, [95, 99])
-    assert p95 < 2 and p99 < 3, (p95, p99)
+    assert p95 < 1.73 and p99 < 2.15, (p95, p99)
+
+
+def test_stated_uncertainty_covers_the_error_at_a_lightly_damped_resonance(tmp_path):
+    """Noise off, so what is stated is the transient left after settling. The payload on its
+    stand has a mode at 79.47 Hz with 0.29 % damping; the lines of 78.5-80.5 Hz pass within
+    0.04 Hz of it, where the ringing mode has the shape of the forced response and its
+    transient is mostly a change of the response's magnitude. When each settling window
+    was scaled by its own norm, the monitor saw a fraction of it: 99th percentile of
+    error / stated std 3.7, largest 3.9 (0.04 Hz from the mode). A complex Gaussian error
+    exceeds 2.15 of its standard deviations 1 % of the time."""
+    z = _payload_band_z(tmp_path, "78.5", "80.5", "5", noise=False)
+    assert np.percentile(z, 99) < 2.15 and z.max() < 3, (np.percentile(z, 99), z.max())
 
 
 def test_noise_on_errors_within_predicted_variance(tmp_path):

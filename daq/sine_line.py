@@ -41,6 +41,7 @@ from .setup import Limits, SineSpec
 __all__ = ["LineResult", "SineLine", "TransientMonitor", "initial_drive", "noise_floor"]
 
 WINDOW_STEPS = 4  # window advance = n_w / WINDOW_STEPS
+RESCALE_TOL = 0.1  # relative change of a group's own norm that rescales the monitor's windows
 
 
 @dataclass
@@ -195,8 +196,10 @@ class TransientMonitor:
         #: the multi-pole fit's error per entry of y at the last :meth:`conclude` (or None)
         self.fitted: np.ndarray | None = None
 
-    def update(self, y: np.ndarray, noise: float) -> bool:
-        """Add the next window's vector ``y`` (and its noise); True when settled."""
+    def update(self, y: np.ndarray, noise: float, check: bool = True) -> bool:
+        """Add the next window's vector ``y`` (and its noise); True when settled (with
+        ``check`` False, as when windows are replayed, the state is updated and False is
+        returned)."""
         self.ys.append(y)
         self.noise = noise
         k = len(self.ys) - 1
@@ -240,6 +243,8 @@ class TransientMonitor:
             self.ehat = min(gain * max(recent_d, d_noise), self.big[1] * r ** (k - self.big[0]) * gain)
         else:
             self.ehat = noise  # nothing ever rose above the noise: noise-limited from the start
+        if not check:
+            return False
         # y holds one unit-norm block per quantity (responses, reactions): the accuracy is
         # asked of each block, not of their sum.
         threshold = max(self.accuracy * float(np.linalg.norm(y)) / math.sqrt(self.blocks), noise)
@@ -332,29 +337,35 @@ class SineLine:
         return np.concatenate(parts), np.concatenate(var)
 
     def transient_per_channel(self, mon: TransientMonitor, est: SineEstimate, j: int,
-                              scales: list[float], excess: float, rel: float) -> np.ndarray:
+                              scales: list[float], y_var: np.ndarray, rel: float) -> np.ndarray:
         """The transient's remaining error per channel (std, channel units), ``(n_ch,)``.
 
-        The monitor bounds the error of y (responses and reactions per unit active force)
-        by its norm, ``excess`` above the noise (``rel`` of the norm of y), and its
-        multi-pole fit (without one, its last difference) gives its shape: that of the modes
-        still ringing, not of the forced response. Shared out in
-        proportion to the response instead, channels near a node of the forced response got
-        a small share of an error they carry in full (payload, lines above its 78 Hz mode:
-        errors up to 35 times the stated standard deviation). The active force carries none
-        of it (y is per unit of it); other channels, which y does not hold, get the relative
-        transient times their amplitude. Without a difference above the noise, the relative
-        transient times each amplitude, as before the shape was kept.
+        The monitor bounds the error of y (responses and reactions per unit active force,
+        group by group divided by ``scales``) by its norm, and its multi-pole fit (without
+        one, its last difference) gives its shape: that of the modes still ringing, not of
+        the forced response. Shared out in proportion to the response instead, channels near
+        a node of the forced response got a small share of an error they carry in full
+        (payload, lines above its 78 Hz mode: errors up to 35 times the stated standard
+        deviation). Each entry's share counts only above that entry's own noise (``y_var``,
+        the variance of y in the last settling window): the part of the bound the noise
+        accounts for is in the fit's variance already. Taken above the noise of y as a whole
+        instead, the noise of a quiet group (load cells near a zero of the reactions) hid the
+        transient of the other (example world, noise off: errors up to 60 times the stated
+        standard deviation at 1e-4 of the response). The active force carries none of it (y
+        is per unit of it); other channels, which y does not hold, get ``rel`` (the bound
+        above the noise, relative to y) times their amplitude, and so does every channel
+        when no difference rose above the noise.
         """
         X = np.abs(est.X)
         out = rel * X
-        if mon.shape is None or excess <= 0:
+        if mon.shape is None:
             return out
         F = abs(est.X[self.roles["force"][j]])
         out[self.roles["force"][j]] = 0.0
+        share = np.sqrt(np.maximum(mon.stated_error() ** 2 * mon.shape - y_var, 0.0))
         pos = 0
         for idx, s in zip(self._groups(), scales):
-            out[idx] = excess * np.sqrt(mon.shape[pos:pos + len(idx)]) * F * s
+            out[idx] = share[pos:pos + len(idx)] * F * s
             pos += len(idx)
         return out
 
@@ -386,14 +397,23 @@ class SineLine:
         buf = np.zeros((len(rig.names), 0))
         buf0 = rig.clock  # clock of buf[:, 0]
         blocks = int(bool(self.resp)) + int(bool(self.react))
-        mon = TransientMonitor(spec.accuracy, self.floor_decay(freq_hz, n_c), self.decay_prev, blocks)
-        # The windows' y share one scale per group for the monitor's life, set by its first
-        # window. Scaled by each window's own norm, y lost the part of the transient along
-        # itself: at a resonance the ringing mode has the forced response's shape, so what
-        # remained was nearly all a change of magnitude, and the monitor saw a fraction of
-        # it (payload on its stand, 79.47 Hz line beside a 0.29 %-damped mode: stated error
-        # 2.5 times low, line error 2.5e-3 against an accuracy of 1e-3).
+
+        def new_monitor() -> TransientMonitor:
+            return TransientMonitor(spec.accuracy, self.floor_decay(freq_hz, n_c), self.decay_prev, blocks)
+
+        mon = new_monitor()
+        # The monitor's windows share one scale per group. Scaled by each window's own norm,
+        # y lost the part of the transient along itself: at a resonance the ringing mode has
+        # the forced response's shape, so what remained was nearly all a change of magnitude
+        # and the monitor saw a fraction of it (payload on its stand, 79.47 Hz line beside a
+        # 0.29 %-damped mode: stated error 2.5 times low, line error 2.5e-3 against an
+        # accuracy of 1e-3). The scales still follow the current window's own norms (they
+        # weigh the groups, and set the noise each group adds): when one has moved by more
+        # than RESCALE_TOL, the windows so far are replayed in the new scales. Kept from the
+        # first window instead, a group inflated by that window's transient was under-weighted
+        # for the rest of the line.
         scales: list[float] | None = None
+        windows: list[SineEstimate] = []
         corrections = 0
         level_checked = False
         while True:
@@ -418,11 +438,15 @@ class SineLine:
                     corrections += 1
                     level_checked = False
                     buf, buf0 = np.zeros((len(rig.names), 0)), rig.clock
-                    mon = TransientMonitor(spec.accuracy, self.floor_decay(freq_hz, n_c), self.decay_prev, blocks)
-                    scales = None
+                    mon, scales, windows = new_monitor(), None, []
                     continue
-            if scales is None:
-                scales = self._scales(est, j)
+            own = self._scales(est, j)
+            if scales is None or max(abs(o / s - 1) for o, s in zip(own, scales)) > RESCALE_TOL:
+                scales, mon = own, new_monitor()
+                for w in windows:
+                    yw, vw = self._y(w, j, scales)
+                    mon.update(yw, float(np.sqrt(np.sum(vw))), check=False)
+            windows.append(est)
             y, vy = self._y(est, j, scales)
             if mon.update(y, float(np.sqrt(np.sum(vy)))):
                 break
@@ -441,7 +465,7 @@ class SineLine:
             freq_hz=freq_hz, pattern=j, drive_vpp=vpp, est=est,
             settle_s=(rig.clock - t_all - n_used) / rig.fs_hz, dwell_s=n_used / rig.fs_hz,
             transient=excess / norm_y, decay=mon.r,
-            x_transient=self.transient_per_channel(mon, est, j, scales, excess, excess / norm_y),
+            x_transient=self.transient_per_channel(mon, est, j, scales, vy, excess / norm_y),
             raw=rec if self.keep_raw else None, corrections=corrections)
 
     def _dwell(self, fit: SineFit, est: SineEstimate, buf: np.ndarray, buf0: int, t_start: int, j: int,

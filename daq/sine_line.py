@@ -245,8 +245,8 @@ class TransientMonitor:
             self.ehat = noise  # nothing ever rose above the noise: noise-limited from the start
         if not check:
             return False
-        # y holds one unit-norm block per quantity (responses, reactions): the accuracy is
-        # asked of each block, not of their sum.
+        # y holds one block per quantity (responses, reactions), each of about unit norm
+        # (within RESCALE_TOL): the accuracy is asked of each block, not of their sum.
         threshold = max(self.accuracy * float(np.linalg.norm(y)) / math.sqrt(self.blocks), noise)
         # The multi-pole fit is the check before stopping (it costs more than the estimate
         # above, which is updated every window).

@@ -9,6 +9,8 @@ the forces; :func:`report_noise_frf` does both and forms H = A / F as its ``calv
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from .frf import FRFData
@@ -214,7 +216,11 @@ def roughness_weights(H: np.ndarray, valid: np.ndarray) -> np.ndarray:
     d2 = H[:-2] - 2 * H[1:-1] + H[2:]
     ok = valid[:-2] & valid[1:-1] & valid[2:]
     r2 = np.where(ok, np.abs(d2) ** 2, np.nan)
-    with np.errstate(all="ignore"):
+    # An FRF with no three valid lines in a row (or a band of two lines) has no level:
+    # NaN here, filled by _weights_from_levels, without numpy's "empty slice" warning
+    # reaching the engineer's terminal.
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         s2 = np.nanmedian(r2, axis=0) / (6 * np.log(2.0))
     return _weights_from_levels(s2, valid)
 

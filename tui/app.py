@@ -50,29 +50,19 @@ from .session import (
     LiveRun,
     ProgressParser,
     RunOutcome,
-    check_lab_instruments,
+    one_line,
     parse_event,
     run_file_choice,
     run_file_state,
 )
-from .setup_view import (
-    channel_options,
-    channel_rows,
-    checked_instrument_rows,
-    configured_instrument_rows,
-    describe_setup,
-    instruments_in_use_rows,
-)
+from .setup_tab import SetupTabActions
+from .setup_view import instruments_in_use_rows
 from .widgets import FrfPlot
 
 __all__ = ["LabApp"]
 
 
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).splitlines()) or type(exc).__name__
-
-
-class LabApp(App):
+class LabApp(SetupTabActions, App):
     """The lab-run TUI. ``setup_path``, ``out``, ``model`` and ``sim`` pre-fill the Setup tab."""
 
     ENABLE_COMMAND_PALETTE = False  # every action has its key; the footer needs the room
@@ -192,15 +182,7 @@ class LabApp(App):
         self.query_one(ResultsPane).enable_exports(self.results is not None)
         self.refresh_bindings()
 
-    # ------------------------------------------------------------------ setup
-    @staticmethod
-    def _sim_text(on: bool) -> str:
-        return " on: simulated instruments (--sim)" if on else " off: the setup's real instruments"
-
-    def on_switch_changed(self, event: Switch.Changed) -> None:
-        if event.switch.id == "sim":
-            self.query_one("#sim-state", Static).update(self._sim_text(event.value))
-
+    # ------------------------------------------------------------------ tabs
     def action_show_tab(self, tab: str) -> None:
         self.query_one(TabbedContent).active = tab
         pane = self.query_one(f"#{tab}", TabPane)
@@ -214,95 +196,6 @@ class LabApp(App):
 
     def on_tabbed_content_tab_activated(self, event: TabbedContent.TabActivated) -> None:
         self.refresh_bindings()
-
-    def on_input_submitted(self, event: Input.Submitted) -> None:
-        if event.input.id in ("setup-path", "out-path", "model-path"):
-            self.action_load()
-
-    def action_load(self) -> None:
-        from daq.setup import load_setup
-        from ssid.errors import InputError
-
-        path = self.query_one("#setup-path", Input).value.strip()
-        err = self.query_one("#setup-error", Static)
-        table = self.query_one("#channels", DataTable)
-        table.clear()
-        self.setup = None
-        if not path:
-            err.update("error: enter a setup file path")
-            self.query_one("#excitation", Static).update("no setup loaded")
-            return
-        try:
-            setup = load_setup(path)
-        except (InputError, OSError, ValueError) as exc:
-            err.update(f"error: {_one_line(exc)}")
-            self.query_one("#excitation", Static).update("no setup loaded")
-            return
-        self.setup = setup
-        err.update("")
-        table.add_rows(channel_rows(setup))
-        self.query_one("#excitation", Static).update(describe_setup(setup))
-        out = self.query_one("#out-path", Input)
-        if not out.value.strip():
-            out.value = setup.output_file
-        self._fill_instruments(configured_instrument_rows(setup))
-        options = channel_options(setup)
-        if self.channel not in {v for _, v in options}:  # keep the engineer's choice across reloads
-            self.channel = (setup.outputs.index(setup.inputs[0]), 0) if setup.inputs[0] in setup.outputs else (0, 0)
-        for sel_id in ("#channel", "#result-channel"):
-            sel = self.query_one(sel_id, Select)
-            sel.set_options(options)
-            sel.value = self.channel
-
-    def action_new(self) -> None:
-        """Create the setup file in the path field from the simulated lab's example, then load it."""
-        from daq.simlab import example_setup_text
-
-        path = Path(self.query_one("#setup-path", Input).value.strip() or "setup.toml")
-        err = self.query_one("#setup-error", Static)
-        if path.exists():
-            err.update(f"error: {path} exists: not overwritten (Ctrl+L loads it)")
-            return
-        try:
-            path.write_text(example_setup_text(), encoding="utf-8")
-        except OSError as exc:
-            err.update(f"error: {path}: {_one_line(exc)}")
-            return
-        self.query_one("#setup-path", Input).value = str(path)
-        self.action_load()
-        self.notify(f"created {path} from the example setup: edit it for your lab, Ctrl+L reloads")
-
-    def _fill_instruments(self, rows: list[tuple[str, str, str, str, str]]) -> None:
-        t = self.query_one("#instruments", DataTable)
-        t.clear()
-        for r in rows:
-            t.add_row(*r)
-
-    def action_check(self) -> None:
-        if self.running:
-            self.notify("the run owns the instruments; their state is on the Run tab", severity="warning")
-            return
-        self.action_load()
-        if self.setup is None:
-            self.notify("load a valid setup first", severity="error")
-            return
-        self.query_one("#check-status", Static).update("checking instruments...")
-        self._check(self.setup, self.query_one("#sim", Switch).value)
-
-    @work(thread=True, exclusive=True, group="check")
-    def _check(self, setup, sim: bool) -> None:
-        try:
-            states = check_lab_instruments(setup, sim)
-        except Exception as exc:  # noqa: BLE001 -- e.g. a setup the simulated lab cannot build
-            self.call_from_thread(self._show_line, "#setup-error", f"error: {_one_line(exc)}")
-            return
-        rows, msg = checked_instrument_rows(states, sim)
-        self.call_from_thread(self._fill_instruments, rows)
-        self.call_from_thread(self._show_line, "#check-status", msg)
-
-    def _show_line(self, selector: str, text: str) -> None:
-        """Update a one-line Static (in the UI thread: workers never touch widgets)."""
-        self.query_one(selector, Static).update(text)
 
     # ------------------------------------------------------------------ run
     @property
@@ -404,7 +297,7 @@ class LabApp(App):
         try:
             acq.start()
         except OSError as exc:
-            self.call_from_thread(self._finished, RunOutcome(-1, False, acq.out, None), _one_line(exc))
+            self.call_from_thread(self._finished, RunOutcome(-1, False, acq.out, None), one_line(exc))
             return
         for line in acq.lines():
             ev = parse_event(line)
@@ -424,7 +317,7 @@ class LabApp(App):
             try:
                 results = analyse_run(acq.out, setup, sim=sim, model_path=model_path or None)
             except Exception as exc:  # noqa: BLE001 -- any identification failure is one line; the file is fine
-                self.call_from_thread(self._show_results, None, f"identification failed: {_one_line(exc)}")
+                self.call_from_thread(self._show_results, None, f"identification failed: {one_line(exc)}")
             else:
                 self.call_from_thread(self._show_results, results, results.description)
 
@@ -489,7 +382,7 @@ class LabApp(App):
         try:
             paths = export_results(self.results, kind, *self.channel)
         except Exception as exc:  # noqa: BLE001 -- an export failure is one line; nothing else is lost
-            self.query_one(ResultsPane).export_status(f"export {kind} failed: {_one_line(exc)}")
+            self.query_one(ResultsPane).export_status(f"export {kind} failed: {one_line(exc)}")
             return
         self.query_one(ResultsPane).export_status("wrote " + ", ".join(str(p) for p in paths))
 

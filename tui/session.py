@@ -30,11 +30,16 @@ from pathlib import Path
 
 from daq.control import parse_event_line as parse_event  # the run's event lines (ssidlab acquire --events)
 
-__all__ = ["Acquisition", "LiveRun", "ProgressParser", "RunOutcome", "check_lab_instruments", "parse_event",
-           "run_file_choice", "run_file_state"]
+__all__ = ["Acquisition", "LiveRun", "ProgressParser", "RunOutcome", "check_lab_instruments", "one_line",
+           "parse_event", "run_file_choice", "run_file_state"]
 
 #: Exit statuses of ``ssidlab acquire`` (docs/acquisition.md).
 EXIT_TEXT = {0: "complete", 2: "bad input", 3: "stopped safely by a fault", 130: "interrupted (safe)"}
+
+
+def one_line(exc: BaseException) -> str:
+    """An error as one line of a status field (its lines joined; its type if it says nothing)."""
+    return " ".join(str(exc).splitlines()) or type(exc).__name__
 
 
 class Acquisition:

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .session import one_line
+
 __all__ = ["ModeRow", "RunResults", "analyse_run", "export_results"]
 
 
@@ -101,7 +103,7 @@ def analyse_run(path: str | Path, setup=None, *, sim: bool = False, model_path: 
     try:
         mac_model, disc_model, words = _models(setup, sim, model_path)
     except Exception as exc:  # noqa: BLE001 -- a bad model file is a note, not a lost result
-        out.notes.append(f"analysis model: {' '.join(str(exc).splitlines())}")
+        out.notes.append(f"analysis model: {one_line(exc)}")
         return out
     out.model_source = words if mac_model is not None else ""
     if mac_model is None:
@@ -112,7 +114,7 @@ def analyse_run(path: str | Path, setup=None, *, sim: bool = False, model_path: 
 
         out.pairs = list(correlate_models(res.to_model(), mac_model).summary["paired_modes"])
     except Exception as exc:  # noqa: BLE001
-        out.notes.append(f"MAC: {' '.join(str(exc).splitlines())}")
+        out.notes.append(f"MAC: {one_line(exc)}")
     try:
         from ssid.discrepancy import find_discrepancy
 
@@ -122,7 +124,7 @@ def analyse_run(path: str | Path, setup=None, *, sim: bool = False, model_path: 
         out.updated_model = upd = disc.updated_model
         out.updated = accelerance_under_test_loads(upd.M, upd.C, upd.K, list(upd.dofs), measured)
     except Exception as exc:  # noqa: BLE001
-        out.notes.append(f"discrepancy workflow: {' '.join(str(exc).splitlines())}")
+        out.notes.append(f"discrepancy workflow: {one_line(exc)}")
     return out
 
 

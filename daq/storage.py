@@ -34,7 +34,7 @@ from ssid.errors import InputError
 from ssid.frf import FRFData
 from ssid.io import write_frf
 
-__all__ = ["RunFile", "STATUS_ABORTED", "STATUS_OK", "SINE_FIELDS"]
+__all__ = ["RunFile", "STATUS_ABORTED", "STATUS_OK", "SINE_FIELDS", "peek_run_file"]
 
 STATUS_OK, STATUS_ABORTED = 0, 1
 
@@ -48,6 +48,21 @@ SINE_FIELDS = {
     "X_transient": ("f8", True),
 }
 _STR = h5py.string_dtype()
+
+
+def peek_run_file(path: str | Path) -> tuple[str | None, int] | None:
+    """``(state, n_done)`` of a run file, read-only (the file is not trimmed or touched):
+    ``state`` None and ``n_done`` 0 where ``/acq`` lacks them; None when there is no readable
+    HDF5 file with ``/acq`` at ``path``."""
+    try:
+        with h5py.File(path, "r") as f:
+            acq = f.get("acq")
+            if not isinstance(acq, h5py.Group):
+                return None
+            state, n_done = acq.attrs.get("state"), acq.get("n_done")
+            return (None if state is None else str(state)), (0 if n_done is None else int(n_done[0]))
+    except Exception:  # noqa: BLE001 -- no file, not HDF5, a broken /acq: nothing to report
+        return None
 
 
 class RunFile:

@@ -90,25 +90,17 @@ def _read_control(control, stream) -> None:
 def _say_how_to_continue(run_path: Path, sim: bool) -> None:
     """The line an engineer needs after a stop: where the measured lines are, and the
     command that continues the run from its first incomplete line."""
+    from daq.storage import peek_run_file
+
     if run_path.is_file():
         cmd = f"ssidlab acquire --resume {shlex.quote(str(run_path))}" + (" --sim" if sim else "")
         # A fault before the first line (an instrument that never answered) leaves a file with
         # the setup only: say so rather than claim measured lines were kept.
-        n = _records_done(run_path)
+        peek = peek_run_file(run_path)
+        n = peek[1] if peek else 0
         kept = (f"{n} measurement records are kept in {run_path}" if n
                 else f"nothing was measured yet; the setup is kept in {run_path}")
         print(f"ssidlab acquire: {kept}; continue with: {cmd}", file=sys.stderr, flush=True)
-
-
-def _records_done(run_path: Path) -> int:
-    """Committed records of a run file (stepped-sine sub-lines, or random averages); 0 if unreadable."""
-    import h5py
-
-    try:
-        with h5py.File(run_path, "r") as f:
-            return int(f["acq/n_done"][0])
-    except (OSError, KeyError):
-        return 0
 
 
 class _Terminated(KeyboardInterrupt):

@@ -203,13 +203,10 @@ class RunOutcome:
 
 def run_file_state(path: str | Path) -> str | None:
     """The ``/acq`` ``state`` attribute of a run file (read-only), or None."""
-    try:
-        import h5py
+    from daq.storage import peek_run_file
 
-        with h5py.File(path, "r") as f:
-            return str(f["acq"].attrs["state"])
-    except Exception:  # noqa: BLE001 -- no file, not HDF5, no /acq: nothing to show
-        return None
+    peek = peek_run_file(path)
+    return peek[0] if peek else None
 
 
 def check_lab_instruments(setup, sim: bool) -> list:

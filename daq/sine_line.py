@@ -166,6 +166,12 @@ def multipole_transient(ys: np.ndarray, d_noise: float, spans: tuple[int, ...] =
     return out
 
 
+def _excess(mon: "TransientMonitor") -> float:
+    """The part of a monitor's stated transient error above its noise (the noise is in the
+    fit's variance already)."""
+    return math.sqrt(max(mon.stated_error() ** 2 - mon.noise ** 2, 0.0))
+
+
 class TransientMonitor:
     """Remaining transient error of a sequence of window estimates (module docstring).
 
@@ -178,16 +184,19 @@ class TransientMonitor:
     prior : float
         Decay per step found at the end of the previous line (used until two differences
         give an estimate of their own).
+    level : float or None
+        The size of y the accuracy is relative to (None: each window's own norm).
     """
 
-    def __init__(self, accuracy: float, floor: float, prior: float, blocks: int = 1) -> None:
-        self.accuracy, self.floor, self.prior, self.blocks = accuracy, floor, prior, max(1, blocks)
+    def __init__(self, accuracy: float, floor: float, prior: float, level: float | None = None) -> None:
+        self.accuracy, self.floor, self.prior, self.level = accuracy, floor, prior, level
         self.ys: list[np.ndarray] = []
         self.qs: list[float] = []
         self.ds: list[float] = []
         self.big: tuple[int, float] | None = None
         self.r = max(floor, prior)
         self.ehat = math.inf
+        self.threshold = 0.0  # the error the current window may keep (set by update)
         self.noise = 0.0
         self.d_noise = 0.0  # noise of one window difference
         #: |D|^2 / ||D||^2 of the last difference above the noise: the transient's share per
@@ -197,9 +206,8 @@ class TransientMonitor:
         self.fitted: np.ndarray | None = None
 
     def update(self, y: np.ndarray, noise: float, check: bool = True) -> bool:
-        """Add the next window's vector ``y`` (and its noise); True when settled (with
-        ``check`` False, as when windows are replayed, the state is updated and False is
-        returned)."""
+        """Add the next window's vector ``y`` (and its noise); True when :meth:`settled`
+        (with ``check`` False the state is updated and False is returned)."""
         self.ys.append(y)
         self.noise = noise
         k = len(self.ys) - 1
@@ -243,14 +251,15 @@ class TransientMonitor:
             self.ehat = min(gain * max(recent_d, d_noise), self.big[1] * r ** (k - self.big[0]) * gain)
         else:
             self.ehat = noise  # nothing ever rose above the noise: noise-limited from the start
-        if not check:
-            return False
-        # y holds one block per quantity (responses, reactions), each of about unit norm
-        # (within RESCALE_TOL): the accuracy is asked of each block, not of their sum.
-        threshold = max(self.accuracy * float(np.linalg.norm(y)) / math.sqrt(self.blocks), noise)
-        # The multi-pole fit is the check before stopping (it costs more than the estimate
-        # above, which is updated every window).
-        return self.ehat <= threshold and self.conclude() <= threshold
+        level = float(np.linalg.norm(y)) if self.level is None else self.level
+        self.threshold = max(self.accuracy * level, noise)
+        return check and self.settled()
+
+    def settled(self) -> bool:
+        """True when the remaining error is below the accuracy asked, or below the noise:
+        the single-decay bound first, then the multi-pole fit (it costs more than the bound,
+        which is updated every window)."""
+        return self.ehat <= self.threshold and self.conclude() <= self.threshold
 
     def conclude(self) -> float:
         """The remaining error checked against :func:`multipole_transient` of the windows so
@@ -322,51 +331,53 @@ class SineLine:
         return [max(float(np.linalg.norm(est.X[idx] / F)), 0.1 * self.group_ref[g], 1e-300)
                 for g, idx in enumerate((self.resp, self.react)) if idx]
 
-    def _y(self, est: SineEstimate, j: int, scales: list[float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _y_groups(self, est: SineEstimate, j: int,
+                  scales: list[float] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
         """Responses and reactions per unit active force, each group divided by its scale
-        (default :meth:`_scales` of ``est``: unit norm, so m/s^2/N and N/N weigh alike),
-        and the variance of that vector."""
+        (default :meth:`_scales` of ``est``: unit norm, so m/s^2/N and N/N weigh alike):
+        ``(y, var y)`` per present group."""
         F = est.X[self.roles["force"][j]]
         vF = est.var[self.roles["force"][j]]
-        parts, var = [], []
+        out = []
         for idx, s in zip(self._groups(), self._scales(est, j) if scales is None else scales):
             y = est.X[idx] / F
             vy = (est.var[idx] + np.abs(y) ** 2 * vF) / max(abs(F) ** 2, 1e-300)
-            parts.append(y / s)
-            var.append(vy / s**2)
-        return np.concatenate(parts), np.concatenate(var)
+            out.append((y / s, vy / s**2))
+        return out
 
-    def transient_per_channel(self, mon: TransientMonitor, est: SineEstimate, j: int,
-                              scales: list[float], y_var: np.ndarray, rel: float) -> np.ndarray:
+    def _y(self, est: SineEstimate, j: int, scales: list[float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The groups of :meth:`_y_groups` in one vector, and its variance."""
+        parts = self._y_groups(est, j, scales)
+        return np.concatenate([y for y, _ in parts]), np.concatenate([v for _, v in parts])
+
+    def transient_per_channel(self, mons: list[TransientMonitor], est: SineEstimate, j: int,
+                              scales: list[float], y_vars: list[np.ndarray], rel: float) -> np.ndarray:
         """The transient's remaining error per channel (std, channel units), ``(n_ch,)``.
 
-        The monitor bounds the error of y (responses and reactions per unit active force,
-        group by group divided by ``scales``) by its norm, and its multi-pole fit (without
-        one, its last difference) gives its shape: that of the modes still ringing, not of
-        the forced response. Shared out in proportion to the response instead, channels near
-        a node of the forced response got a small share of an error they carry in full
-        (payload, lines above its 78 Hz mode: errors up to 35 times the stated standard
-        deviation). Each entry's share counts only above that entry's own noise (``y_var``,
-        the variance of y in the last settling window): the part of the bound the noise
-        accounts for is in the fit's variance already. Taken above the noise of y as a whole
-        instead, the noise of a quiet group (load cells near a zero of the reactions) hid the
-        transient of the other (example world, noise off: errors up to 60 times the stated
-        standard deviation at 1e-4 of the response). The active force carries none of it (y
-        is per unit of it); other channels, which y does not hold, get ``rel`` (the bound
-        above the noise, relative to y) times their amplitude, and so does every channel
-        when no difference rose above the noise.
+        Each group's monitor (``mons``, one per group of y: responses, reactions, each per
+        unit active force divided by its scale in ``scales``) bounds the error of its group by
+        its norm, and its multi-pole fit (without one, its last difference) gives its shape:
+        that of the modes still ringing, not of the forced response. Shared out in proportion
+        to the response instead, channels near a node of the forced response got a small
+        share of an error they carry in full (payload, lines above its 78 Hz mode: errors up
+        to 35 times the stated standard deviation). Each entry's share counts only above that
+        entry's own noise (``y_vars``, the variance of each group's y in the last settling
+        window): the part of the bound the noise accounts for is in the fit's variance
+        already. A group whose differences never rose above its noise gets its bound above
+        that noise, relative to its y, times each channel's amplitude. The active force
+        carries none of it (y is per unit of it); other channels, which y does not hold, get
+        ``rel`` (the bound above the noise, relative to y as a whole) times their amplitude.
         """
         X = np.abs(est.X)
         out = rel * X
-        if mon.shape is None:
-            return out
         F = abs(est.X[self.roles["force"][j]])
         out[self.roles["force"][j]] = 0.0
-        share = np.sqrt(np.maximum(mon.stated_error() ** 2 * mon.shape - y_var, 0.0))
-        pos = 0
-        for idx, s in zip(self._groups(), scales):
-            out[idx] = share[pos:pos + len(idx)] * F * s
-            pos += len(idx)
+        for mon, idx, s, vy in zip(mons, self._groups(), scales, y_vars):
+            if mon.shape is None:
+                norm_g = max(float(np.linalg.norm(X[idx])) / max(F, 1e-300) / s, 1e-300)
+                out[idx] = _excess(mon) / norm_g * X[idx]
+            else:
+                out[idx] = np.sqrt(np.maximum(mon.stated_error() ** 2 * mon.shape - vy, 0.0)) * F * s
         return out
 
     def remember_level(self, est: SineEstimate, j: int) -> None:
@@ -396,23 +407,31 @@ class SineLine:
         t_start = t_all = rig.clock  # every scan of this line counts as test time, discarded ones too
         buf = np.zeros((len(rig.names), 0))
         buf0 = rig.clock  # clock of buf[:, 0]
-        blocks = int(bool(self.resp)) + int(bool(self.react))
 
         def new_monitor() -> TransientMonitor:
-            return TransientMonitor(spec.accuracy, self.floor_decay(freq_hz, n_c), self.decay_prev, blocks)
+            # y's groups are in units of their scales: the accuracy is asked of that unit (a
+            # group's own size, or a tenth of its usual one where it nearly vanishes).
+            return TransientMonitor(spec.accuracy, self.floor_decay(freq_hz, n_c), self.decay_prev)
 
-        mon = new_monitor()
+        # One monitor per group of y (responses, reactions), each with its own noise: with one
+        # for y as a whole, a noisy group (load cells far less sensitive than the
+        # accelerometers) set the noise the transient was compared with, so the other group
+        # stopped settling while its transient stood above its own noise, and that transient
+        # went unstated (payload on its stand, 60-130 Hz, load cells 1000 times less
+        # sensitive: accelerances' errors up to 11 times their stated standard deviation).
+        groups = self._groups()
+        mons = [new_monitor() for _ in groups]
         # The monitor's windows share one scale per group. Scaled by each window's own norm,
         # y lost the part of the transient along itself: at a resonance the ringing mode has
         # the forced response's shape, so what remained was nearly all a change of magnitude
         # and the monitor saw a fraction of it (payload on its stand, 79.47 Hz line beside a
         # 0.29 %-damped mode: stated error 2.5 times low, line error 2.5e-3 against an
         # accuracy of 1e-3). The scales still follow the current window's own norms (they
-        # weigh the groups, and set the noise each group adds): when one has moved by more
-        # than RESCALE_TOL, the windows so far are replayed in the new scales. Kept from the
-        # first window instead, a group inflated by that window's transient was under-weighted
+        # set the accuracy asked of the group): when one has moved by more than RESCALE_TOL,
+        # that group's windows so far are replayed in its new scale. Kept from the first
+        # window instead, a group inflated by that window's transient was asked too little
         # for the rest of the line.
-        scales: list[float] | None = None
+        scales: list[float] = []
         windows: list[SineEstimate] = []
         corrections = 0
         level_checked = False
@@ -438,34 +457,42 @@ class SineLine:
                     corrections += 1
                     level_checked = False
                     buf, buf0 = np.zeros((len(rig.names), 0)), rig.clock
-                    mon, scales, windows = new_monitor(), None, []
+                    mons, scales, windows = [new_monitor() for _ in groups], [], []
                     continue
             own = self._scales(est, j)
-            if scales is None or max(abs(o / s - 1) for o, s in zip(own, scales)) > RESCALE_TOL:
-                scales, mon = own, new_monitor()
-                for w in windows:
-                    yw, vw = self._y(w, j, scales)
-                    mon.update(yw, float(np.sqrt(np.sum(vw))), check=False)
+            if not scales:
+                scales = own
+            for g, (o, sc) in enumerate(zip(own, scales)):
+                if abs(o / sc - 1) > RESCALE_TOL:
+                    scales[g], mons[g] = o, new_monitor()
+                    for w in windows:
+                        yw, vw = self._y_groups(w, j, scales)[g]
+                        mons[g].update(yw, float(np.sqrt(np.sum(vw))), check=False)
             windows.append(est)
-            y, vy = self._y(est, j, scales)
-            if mon.update(y, float(np.sqrt(np.sum(vy)))):
+            parts = self._y_groups(est, j, scales)
+            for mon, (y, vy) in zip(mons, parts):
+                mon.update(y, float(np.sqrt(np.sum(vy))), check=False)
+            # The groups must be settled at once; the multi-pole fits are run only when every
+            # group's bound already says so.
+            if all(mon.ehat <= mon.threshold for mon in mons) and all(mon.settled() for mon in mons):
                 break
             if (buf.shape[1] - n_w) / rig.fs_hz >= spec.max_settle_s:
-                mon.conclude()
+                for mon in mons:
+                    mon.conclude()
                 break
-        self.decay_prev = mon.r
+        self.decay_prev = max((mon.r for mon in mons), default=0.0)  # the slowest decay seen
         self.remember_level(est, j)
         est, rec = self._dwell(fit, est, buf, buf0, t_start, j, n_w, freq_hz, vpp)
         n_used = rec.shape[1]
-        norm_y = max(float(np.linalg.norm(y)), 1e-300)
+        norm_y = max(float(np.sqrt(sum(np.sum(np.abs(y) ** 2) for y, _ in parts))), 1e-300)
         # Only the part of the transient bound above the noise is extra uncertainty: when
         # the line stopped because the transient sank into the noise, the noise says it all.
-        excess = min(math.sqrt(max(mon.stated_error()**2 - mon.noise**2, 0.0)), norm_y)
+        excess = min(math.sqrt(sum(_excess(mon) ** 2 for mon in mons)), norm_y)
         return LineResult(
             freq_hz=freq_hz, pattern=j, drive_vpp=vpp, est=est,
             settle_s=(rig.clock - t_all - n_used) / rig.fs_hz, dwell_s=n_used / rig.fs_hz,
-            transient=excess / norm_y, decay=mon.r,
-            x_transient=self.transient_per_channel(mon, est, j, scales, vy, excess / norm_y),
+            transient=excess / norm_y, decay=self.decay_prev,
+            x_transient=self.transient_per_channel(mons, est, j, scales, [vy for _, vy in parts], excess / norm_y),
             raw=rec if self.keep_raw else None, corrections=corrections)
 
     def _dwell(self, fit: SineFit, est: SineEstimate, buf: np.ndarray, buf0: int, t_start: int, j: int,

@@ -324,9 +324,11 @@ class SineLine:
 
     def _scales(self, est: SineEstimate, j: int) -> list[float]:
         """Scale of each group of y (responses, reactions; present groups only): the group's
-        own size per unit force, but not below a tenth of its size on the lines so far -
-        where reactions (or responses) nearly vanish, accuracy is asked relative to their
-        usual level, not to their momentary near-zero."""
+        own size per unit force, but not below a tenth of its size on the lines so far. The
+        settling monitors ask the accuracy of each group's own size whatever its scale (the
+        noise bounds what they can ask); the floor keeps the scale of a group near a zero
+        (reactions passing through zero) from following its transient, and lets the dwell
+        judge such a group's noise against its usual level, not its momentary near-zero."""
         F = est.X[self.roles["force"][j]]
         return [max(float(np.linalg.norm(est.X[idx] / F)), 0.1 * self.group_ref[g], 1e-300)
                 for g, idx in enumerate((self.resp, self.react)) if idx]
@@ -409,8 +411,10 @@ class SineLine:
         buf0 = rig.clock  # clock of buf[:, 0]
 
         def new_monitor() -> TransientMonitor:
-            # y's groups are in units of their scales: the accuracy is asked of that unit (a
-            # group's own size, or a tenth of its usual one where it nearly vanishes).
+            # The accuracy is asked of each window's own size of the group. Asked of the
+            # group's scale (a tenth of its largest level so far where it is smaller), the
+            # lines far below a resonance were let settle to 7e-3 of their size
+            # (bench/sweep_time.py --quick, where all now settle within 1e-3).
             return TransientMonitor(spec.accuracy, self.floor_decay(freq_hz, n_c), self.decay_prev)
 
         # One monitor per group of y (responses, reactions), each with its own noise: with one

@@ -41,7 +41,6 @@ from .setup import Limits, SineSpec
 __all__ = ["LineResult", "SineLine", "TransientMonitor", "initial_drive", "noise_floor"]
 
 WINDOW_STEPS = 4  # window advance = n_w / WINDOW_STEPS
-RESCALE_TOL = 0.1  # relative change of a group's own norm that rescales the monitor's windows
 
 
 @dataclass
@@ -184,12 +183,10 @@ class TransientMonitor:
     prior : float
         Decay per step found at the end of the previous line (used until two differences
         give an estimate of their own).
-    level : float or None
-        The size of y the accuracy is relative to (None: each window's own norm).
     """
 
-    def __init__(self, accuracy: float, floor: float, prior: float, level: float | None = None) -> None:
-        self.accuracy, self.floor, self.prior, self.level = accuracy, floor, prior, level
+    def __init__(self, accuracy: float, floor: float, prior: float) -> None:
+        self.accuracy, self.floor, self.prior = accuracy, floor, prior
         self.ys: list[np.ndarray] = []
         self.qs: list[float] = []
         self.ds: list[float] = []
@@ -251,8 +248,7 @@ class TransientMonitor:
             self.ehat = min(gain * max(recent_d, d_noise), self.big[1] * r ** (k - self.big[0]) * gain)
         else:
             self.ehat = noise  # nothing ever rose above the noise: noise-limited from the start
-        level = float(np.linalg.norm(y)) if self.level is None else self.level
-        self.threshold = max(self.accuracy * level, noise)
+        self.threshold = max(self.accuracy * float(np.linalg.norm(y)), noise)
         return check and self.settled()
 
     def settled(self) -> bool:
@@ -425,18 +421,15 @@ class SineLine:
         # sensitive: accelerances' errors up to 11 times their stated standard deviation).
         groups = self._groups()
         mons = [new_monitor() for _ in groups]
-        # The monitor's windows share one scale per group. Scaled by each window's own norm,
-        # y lost the part of the transient along itself: at a resonance the ringing mode has
-        # the forced response's shape, so what remained was nearly all a change of magnitude
-        # and the monitor saw a fraction of it (payload on its stand, 79.47 Hz line beside a
-        # 0.29 %-damped mode: stated error 2.5 times low, line error 2.5e-3 against an
-        # accuracy of 1e-3). The scales still follow the current window's own norms (they
-        # set the accuracy asked of the group): when one has moved by more than RESCALE_TOL,
-        # that group's windows so far are replayed in its new scale. Kept from the first
-        # window instead, a group inflated by that window's transient was asked too little
-        # for the rest of the line.
+        # A group's windows share one scale, the first window's. Scaled by each window's own
+        # norm, y lost the part of the transient along itself: at a resonance the ringing
+        # mode has the forced response's shape, so what remained was nearly all a change of
+        # magnitude and the monitor saw a fraction of it (payload on its stand, 79.47 Hz line
+        # beside a 0.29 %-damped mode: stated error 2.5 times low, line error 2.5e-3 against
+        # an accuracy of 1e-3). A monitor of one group does not depend on its scale (its
+        # bound, noise and threshold scale alike); the scales only put y in units in which
+        # m/s^2/N and N/N compare, for the dwell and the stated uncertainty.
         scales: list[float] = []
-        windows: list[SineEstimate] = []
         corrections = 0
         level_checked = False
         while True:
@@ -461,18 +454,10 @@ class SineLine:
                     corrections += 1
                     level_checked = False
                     buf, buf0 = np.zeros((len(rig.names), 0)), rig.clock
-                    mons, scales, windows = [new_monitor() for _ in groups], [], []
+                    mons, scales = [new_monitor() for _ in groups], []
                     continue
-            own = self._scales(est, j)
             if not scales:
-                scales = own
-            for g, (o, sc) in enumerate(zip(own, scales)):
-                if abs(o / sc - 1) > RESCALE_TOL:
-                    scales[g], mons[g] = o, new_monitor()
-                    for w in windows:
-                        yw, vw = self._y_groups(w, j, scales)[g]
-                        mons[g].update(yw, float(np.sqrt(np.sum(vw))), check=False)
-            windows.append(est)
+                scales = self._scales(est, j)
             parts = self._y_groups(est, j, scales)
             for mon, (y, vy) in zip(mons, parts):
                 mon.update(y, float(np.sqrt(np.sum(vy))), check=False)

@@ -322,9 +322,9 @@ class SineLine:
         """Scale of each group of y (responses, reactions; present groups only): the group's
         own size per unit force, but not below a tenth of its size on the lines so far. The
         settling monitors ask the accuracy of each group's own size whatever its scale (the
-        noise bounds what they can ask); the floor keeps the scale of a group near a zero
-        (reactions passing through zero) from following its transient, and lets the dwell
-        judge such a group's noise against its usual level, not its momentary near-zero."""
+        noise bounds what they can ask); the floor lets the dwell judge the noise of a group
+        near a zero (reactions passing through zero) against its usual level, not its
+        momentary near-zero."""
         F = est.X[self.roles["force"][j]]
         return [max(float(np.linalg.norm(est.X[idx] / F)), 0.1 * self.group_ref[g], 1e-300)
                 for g, idx in enumerate((self.resp, self.react)) if idx]

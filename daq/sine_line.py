@@ -165,12 +165,6 @@ def multipole_transient(ys: np.ndarray, d_noise: float, spans: tuple[int, ...] =
     return out
 
 
-def _excess(mon: "TransientMonitor") -> float:
-    """The part of a monitor's stated transient error above its noise (the noise is in the
-    fit's variance already)."""
-    return math.sqrt(max(mon.stated_error() ** 2 - mon.noise ** 2, 0.0))
-
-
 class TransientMonitor:
     """Remaining transient error of a sequence of window estimates (module docstring).
 
@@ -202,14 +196,14 @@ class TransientMonitor:
         #: the multi-pole fit's error per entry of y at the last :meth:`conclude` (or None)
         self.fitted: np.ndarray | None = None
 
-    def update(self, y: np.ndarray, noise: float, check: bool = True) -> bool:
-        """Add the next window's vector ``y`` (and its noise); True when :meth:`settled`
-        (with ``check`` False the state is updated and False is returned)."""
+    def update(self, y: np.ndarray, noise: float) -> None:
+        """Add the next window's vector ``y`` (and its noise); :meth:`settled` then says
+        whether the line may stop."""
         self.ys.append(y)
         self.noise = noise
         k = len(self.ys) - 1
         if k == 0:
-            return False
+            return  # one window: no difference yet (ehat stays infinite)
         D = self.ys[-1] - self.ys[-2]
         dn = float(np.linalg.norm(D))
         self.ds.append(dn)
@@ -249,13 +243,16 @@ class TransientMonitor:
         else:
             self.ehat = noise  # nothing ever rose above the noise: noise-limited from the start
         self.threshold = max(self.accuracy * float(np.linalg.norm(y)), noise)
-        return check and self.settled()
+
+    def bound_met(self) -> bool:
+        """The single-decay bound (updated every window) is below the accuracy asked or the
+        noise."""
+        return self.ehat <= self.threshold
 
     def settled(self) -> bool:
         """True when the remaining error is below the accuracy asked, or below the noise:
-        the single-decay bound first, then the multi-pole fit (it costs more than the bound,
-        which is updated every window)."""
-        return self.ehat <= self.threshold and self.conclude() <= self.threshold
+        :meth:`bound_met` first, then the multi-pole fit (it costs more than the bound)."""
+        return self.bound_met() and self.conclude() <= self.threshold
 
     def conclude(self) -> float:
         """The remaining error checked against :func:`multipole_transient` of the windows so
@@ -278,6 +275,11 @@ class TransientMonitor:
         the single-decay bound, the settling criterion, was up to 12 times high away from
         the resonance and 1.7 times low at it), else the bound."""
         return self.ehat if self.fitted is None else float(np.linalg.norm(self.fitted))
+
+    def excess(self) -> float:
+        """The part of :meth:`stated_error` above the noise (the noise is in the fit's
+        variance already)."""
+        return math.sqrt(max(self.stated_error() ** 2 - self.noise ** 2, 0.0))
 
 
 class SineLine:
@@ -373,7 +375,7 @@ class SineLine:
         for mon, idx, s, vy in zip(mons, self._groups(), scales, y_vars):
             if mon.shape is None:
                 norm_g = max(float(np.linalg.norm(X[idx])) / max(F, 1e-300) / s, 1e-300)
-                out[idx] = _excess(mon) / norm_g * X[idx]
+                out[idx] = mon.excess() / norm_g * X[idx]
             else:
                 out[idx] = np.sqrt(np.maximum(mon.stated_error() ** 2 * mon.shape - vy, 0.0)) * F * s
         return out
@@ -460,10 +462,10 @@ class SineLine:
                 scales = self._scales(est, j)
             parts = self._y_groups(est, j, scales)
             for mon, (y, vy) in zip(mons, parts):
-                mon.update(y, float(np.sqrt(np.sum(vy))), check=False)
+                mon.update(y, float(np.sqrt(np.sum(vy))))
             # The groups must be settled at once; the multi-pole fits are run only when every
             # group's bound already says so.
-            if all(mon.ehat <= mon.threshold for mon in mons) and all(mon.settled() for mon in mons):
+            if all(mon.bound_met() for mon in mons) and all(mon.settled() for mon in mons):
                 break
             if (buf.shape[1] - n_w) / rig.fs_hz >= spec.max_settle_s:
                 for mon in mons:
@@ -476,7 +478,7 @@ class SineLine:
         norm_y = max(float(np.sqrt(sum(np.sum(np.abs(y) ** 2) for y, _ in parts))), 1e-300)
         # Only the part of the transient bound above the noise is extra uncertainty: when
         # the line stopped because the transient sank into the noise, the noise says it all.
-        excess = min(math.sqrt(sum(_excess(mon) ** 2 for mon in mons)), norm_y)
+        excess = min(math.sqrt(sum(mon.excess() ** 2 for mon in mons)), norm_y)
         return LineResult(
             freq_hz=freq_hz, pattern=j, drive_vpp=vpp, est=est,
             settle_s=(rig.clock - t_all - n_used) / rig.fs_hz, dwell_s=n_used / rig.fs_hz,

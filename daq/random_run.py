@@ -22,6 +22,7 @@ drive level of a random test is fixed, so the next average would exceed it again
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -32,6 +33,7 @@ from .estimate import SpectralSums, frf_from_spectra, spectra_of_blocks
 from .rig import Rig
 from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
 from .safety import RunStopped, check_limits, limit_usage
+from .sine_line import noise_floor
 from .setup import TestSetup
 from .storage import RunFile
 
@@ -66,6 +68,68 @@ def multisine(n: int, band: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return x / np.max(np.abs(x))
 
 
+def periodic_transient(periods: list[np.ndarray], n_samples: int, noise_var: np.ndarray,
+                       groups: list[list[int]], accuracy: float) -> float:
+    """Transient left in the last period of a periodic excitation, over what it may keep.
+
+    Each change of the multisine starts a transient: every mode rings from the state the old
+    signal left, and a ring that has not died out within a period leaks into every line of
+    its rectangular window. In period k the transient at a line is a sum of geometric
+    sequences (one per mode, decay ``z = exp(lambda T)`` per period), so the same
+    single-decay reasoning as a stepped-sine dwell (:class:`daq.sine_line.TransientMonitor`)
+    bounds what remains from the differences of successive periods: ``e_k = q / (1 - q) D_k``
+    with ``q`` the complex step ratio at the line, its magnitude never below the envelope
+    decay over all lines (a fast ring must not hide a slow one).
+
+    Parameters
+    ----------
+    periods : list of (n_ch, n_bins) complex arrays
+        Spectra (rect window, scaled by 1/n) of the last three or four periods at the band's
+        bins, oldest first.
+    n_samples : int
+        Samples per period.
+    noise_var : (n_ch,) array
+        Per-sample noise floor of each channel (``daq.sine_line.noise_floor``).
+    groups : list of channel index lists
+        Channels whose accuracy is asked together (forces, responses, reactions): a line's
+        transient is compared with that group's level at the line.
+    accuracy : float
+        Relative accuracy asked of each line.
+
+    Returns
+    -------
+    float
+        Largest ratio of the remaining transient to ``accuracy`` times the group's level, over
+        the lines and groups where the last difference stands above the noise (0: nothing
+        does; <= 1: settled). ``inf`` with fewer than three periods.
+    """
+    if len(periods) < 3:
+        return math.inf
+    diffs = [b - a for a, b in zip(periods[:-1], periods[1:])]
+    worst = 0.0
+    for g in groups:
+        # White noise of variance v per sample gives E|X|^2 = v / n at a bin of a period's
+        # spectrum scaled by 1/n; a difference of two periods carries twice that.
+        d_noise = math.sqrt(2.0 * float(np.sum(noise_var[g])) / n_samples)
+        d = [np.linalg.norm(D[g], axis=0) for D in diffs]
+        seen = d[-1] > 3 * d_noise  # lines where the last difference is transient, not noise
+        if not seen.any():
+            continue
+        ratios = [math.sqrt(np.sum(b[a > 3 * d_noise] ** 2) / np.sum(a[a > 3 * d_noise] ** 2))
+                  for a, b in zip(d[:-1], d[1:]) if np.any(a > 3 * d_noise)]
+        env = max(ratios) if ratios else 1.0
+        Dp, D = diffs[-2][g][:, seen], diffs[-1][g][:, seen]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.sum(np.conj(Dp) * D, axis=0) / np.sum(np.abs(Dp) ** 2, axis=0)
+        q = np.nan_to_num(q, nan=env)
+        mag = np.clip(np.maximum(np.abs(q), env), 0.0, 0.99)
+        gain = mag / np.maximum(np.abs(1 - mag * np.exp(1j * np.angle(q))), 1 - mag)
+        level = accuracy * np.linalg.norm(periods[-1][g][:, seen], axis=0)
+        with np.errstate(divide="ignore"):
+            worst = max(worst, float(np.max(gain * d[-1][seen] / level)))
+    return worst
+
+
 class RandomRun:
     """One random run (new or resumed) on ``rig``, stored in ``runfile``."""
 
@@ -90,6 +154,8 @@ class RandomRun:
         else:
             self.S = SpectralSums.empty(self.freq.size, n_in, n_y)
         self.test_time_s = float(saved.get("test_time_s", 0.0)) if saved else 0.0
+        self.noise_var: np.ndarray | None = None
+        self.unsettled = 0  # periodic averages analysed before their transient had died out
 
     # ------------------------------------------------------------------ acquisition
     def _acquire(self, n: int) -> np.ndarray:
@@ -105,6 +171,44 @@ class RandomRun:
                 self.rig.drive_off(j)
             raise RunStopped(f"limit exceeded during random excitation: {reason}")
         return data
+
+    def _noise_floor(self) -> np.ndarray:
+        """Per-sample noise of each channel, drives off: what a period's difference may hold
+        without being transient."""
+        t0 = self.rig.clock
+        nf = noise_floor(self.rig, self.setup.channels)
+        self.test_time_s += (self.rig.clock - t0) / self.rig.fs_hz
+        return nf
+
+    def _settle_periodic(self, n: int) -> np.ndarray:
+        """Periods of the new multisine until the last one is in steady state; returns it.
+
+        At least ``settle_blocks`` periods before it; then, with ``accuracy`` > 0, periods
+        until :func:`periodic_transient` finds the transient below the accuracy asked (or
+        the noise), for at most ``max_settle_s``. A fixed count cannot suit every structure:
+        on the payload on its stand the 1-6 Hz suspension modes ring for seconds after each
+        change, and two periods of 0.5 s left FRFs up to 16 % off at 60-100 Hz.
+        """
+        r = self.spec
+        if r.accuracy <= 0:
+            return self._acquire((r.settle_blocks + 1) * n)[:, -n:]
+        if r.settle_blocks > 2:
+            self._acquire((r.settle_blocks - 2) * n)
+        groups = [g for g in (self.fi, self.roles["response"], self.roles["reaction"]) if g]
+        spectra, t_start = [], self.test_time_s
+        while True:
+            data = self._acquire(n)
+            spectra = [*spectra[-3:], spectra_of_blocks([data], "rect")[0][:, self.mask]]
+            # Half the accuracy to each group: a line's FRF is a ratio of response to force
+            # and carries both their errors.
+            left = periodic_transient(spectra, n, self.noise_var, groups, r.accuracy / 2)
+            if left <= 1.0:
+                return data
+            if self.test_time_s - t_start >= r.max_settle_s:
+                self.unsettled += 1
+                self.echo(f"  average {self.S.n_avg + 1}: not in steady state after {r.max_settle_s:g} s "
+                          f"(transient {left:.3g} times what the accuracy allows; raise max_settle_s)")
+                return data
 
     def _add(self, blocks: list[np.ndarray], window: str) -> None:
         X = spectra_of_blocks(blocks, window)[:, :, self.mask]
@@ -167,6 +271,8 @@ class RandomRun:
             if blocks:
                 self._add(blocks, r.window)
         else:
+            if r.kind == "periodic" and r.accuracy > 0:
+                self.noise_var = self._noise_floor()
             while self.S.n_avg < r.averages:
                 self._hold()
                 a = self.S.n_avg
@@ -180,7 +286,7 @@ class RandomRun:
                         x[:nb] = rng.standard_normal(nb)
                     self.rig.arb(j, x, r.drive_vpp)
                 if r.kind == "periodic":
-                    data = self._acquire((r.settle_blocks + 1) * n)[:, -n:]
+                    data = self._settle_periodic(n)
                 else:
                     data = self._acquire(n)
                 self._add([data], "rect")
@@ -217,4 +323,5 @@ class RandomRun:
         d = self.result()
         return {"excitation": f"random ({self.spec.kind}, {self.spec.estimator})", "n_lines": int(self.freq.size),
                 "n_avg": int(self.S.n_avg), "n_values_blanked": int(np.count_nonzero(~d["valid"])),
-                "test_time_s": self.test_time_s, "min_coherence": float(np.min(d["coherence"]))}
+                "test_time_s": self.test_time_s, "min_coherence": float(np.min(d["coherence"])),
+                **({"unsettled_averages": self.unsettled} if self.spec.kind == "periodic" else {})}

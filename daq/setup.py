@@ -121,6 +121,8 @@ class RandomSpec:
     burst_fraction: float = 0.5
     settle_blocks: int = 2
     seed: int = 0
+    accuracy: float = 1e-3
+    max_settle_s: float = 20.0
 
 
 @dataclass(frozen=True)
@@ -482,7 +484,12 @@ def _parse_random(src: str, doc: dict, daq: DaqSpec) -> RandomSpec:
         estimator=t.str("estimator", "H1", choices=("H1", "H2", "Hv")),
         burst_fraction=t.num("burst_fraction", 0.5, lo=0.05, hi=0.95),
         settle_blocks=t.int("settle_blocks", 2, lo=0, hi=100),
-        seed=t.int("seed", 0, lo=0))
+        seed=t.int("seed", 0, lo=0),
+        accuracy=t.num("accuracy", 1e-3, lo=0.0, hi=0.5),
+        max_settle_s=t.num("max_settle_s", 20.0, lo=0.0, hi=3600.0, lo_open=True))
+    for key in ("accuracy", "max_settle_s"):
+        if key in doc.get("random", {}) and spec.kind != "periodic":
+            raise t.error(key, "applies to kind = \"periodic\" only (its steady-state check)")
     if spec.f_min_hz < daq.sample_rate_hz / spec.block_size:
         raise t.error("f_min_hz", f"below the frequency resolution {daq.sample_rate_hz / spec.block_size:g} Hz "
                       "(sample_rate_hz / block_size)")

@@ -36,7 +36,7 @@ from .estimate import SineEstimate, SineFit
 from .rig import Rig
 from .control import raise_if_interrupted
 from .safety import LineAborted, check_limits
-from .setup import Limits, SineSpec
+from .setup import ChannelSpec, Limits, SineSpec
 
 __all__ = ["LineResult", "SineLine", "TransientMonitor", "initial_drive", "noise_floor"]
 
@@ -63,8 +63,7 @@ class LineResult:
     extra: dict = field(default_factory=dict)
 
 
-def noise_floor(rig: Rig, ranges_volt: np.ndarray, sens_v_per_unit: np.ndarray, seconds: float = 0.25,
-                max_wait_s: float = 3.0) -> np.ndarray:
+def noise_floor(rig: Rig, channels: list[ChannelSpec], seconds: float = 0.25, max_wait_s: float = 3.0) -> np.ndarray:
     """Per-sample noise variance of each channel with every drive off (the noise floor).
 
     Measured once the structure is at rest: while a chunk's variance is still falling
@@ -77,7 +76,9 @@ def noise_floor(rig: Rig, ranges_volt: np.ndarray, sens_v_per_unit: np.ndarray, 
     Never below the 24-bit quantisation step's variance (``(range / 2^23)^2 / 12``).
     """
     n = max(64, int(seconds * rig.fs_hz))
-    q = (np.asarray(ranges_volt) / 2**23 / np.asarray(sens_v_per_unit)) ** 2 / 12
+    ranges_volt = np.array([c.range_volt for c in channels])
+    sens_v_per_unit = np.array([c.sensitivity_mv_per_unit / 1e3 for c in channels])
+    q = (ranges_volt / 2**23 / sens_v_per_unit) ** 2 / 12
     var = None
     for _ in range(max(1, int(np.ceil(max_wait_s / seconds)))):
         raise_if_interrupted()  # a Ctrl-C swallowed elsewhere (daq.control)

@@ -221,10 +221,8 @@ class SteppedSineRun:
             self.echo(f"resuming: {len(self.replay)} sub-lines on file, replaying the schedule")
         # The noise floor (all drives off) sets the noise of every estimate: the residual of
         # a fit would also hold the transient still decaying while settling.
-        ch = self.setup.channels
         t0 = self.rig.clock
-        nf = noise_floor(self.rig, np.array([c.range_volt for c in ch]),
-                         np.array([c.sensitivity_mv_per_unit / 1e3 for c in ch]))
+        nf = noise_floor(self.rig, self.setup.channels)
         self.line.noise_var = nf
         self.rf.write_arrays("noise_floor", {f"session{len(self.rf.meta.get('sessions', []))}": nf})
         self.test_time_s += (self.rig.clock - t0) / self.rig.fs_hz

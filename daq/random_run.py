@@ -219,7 +219,8 @@ class RandomRun:
         d = self.result()
         self.rf.write_arrays("random", {"Gxx": self.S.Gxx, "Gyx": self.S.Gyx, "Gyy": self.S.Gyy,
                                         "n_avg": np.int64(self.S.n_avg), "test_time_s": self.test_time_s})
-        self.rf.write_view(d["H"], d["var"], d["coherence"], d["valid"], d.get("Hr"), d.get("Hr_var"))
+        self.rf.write_view(d["H"], d["var"], d["coherence"], d["valid"], d.get("Hr"), d.get("Hr_var"),
+                           n_avg=self.S.n_avg)
         self.rf.commit(self.S.n_avg)
         self.echo(f"  average {self.S.n_avg}/{self.spec.averages}  min coherence "
                   f"{np.min(d['coherence']):.3f}  [{self.test_time_s:.1f} s test time]")

@@ -208,10 +208,14 @@ class RunFile:
         self._write(k, H, H_var, coherence, valid, H_reaction, H_reaction_var)
         self.acq["line_done"][k] = True
 
-    def write_view(self, H, H_var, coherence, valid, H_reaction=None, H_reaction_var=None) -> None:
-        """The whole contract view at once (random runs: every average refines every bin)."""
+    def write_view(self, H, H_var, coherence, valid, H_reaction=None, H_reaction_var=None,
+                   n_avg: int | None = None) -> None:
+        """The whole contract view at once (random runs: every average refines every bin),
+        with the contract's ``n_avg`` of what it holds, so that a stopped run's file says it."""
         self._write(Ellipsis, H, H_var, coherence, valid, H_reaction, H_reaction_var)
         self.acq["line_done"][...] = True
+        if n_avg is not None:
+            self.f.attrs["n_avg"] = np.int64(n_avg)
 
     def _write(self, k, H, H_var, coherence, valid, H_reaction, H_reaction_var) -> None:
         # A variance of 0 where a value is unknown: readers treat it as "no estimate".

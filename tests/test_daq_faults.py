@@ -12,7 +12,7 @@ from daq.setup import parse_setup
 from daq.simlab import start_sim_lab
 from ssid.io import read_frf
 
-from test_daq_helpers import all_safe, sine_setup
+from test_daq_helpers import all_safe, random_setup, sine_setup
 
 FAULTS = {
     "interlock": (lambda lab: lab.amplifiers[0].set_interlock(False), "interlock open"),
@@ -25,10 +25,11 @@ FAULTS = {
 }
 
 
-def stopped_run(tmp_path, inject, n_lines: int = 6) -> tuple[str, bool]:
-    """A run on the simulated lab with ``inject(lab)`` called at its third progress line:
-    the RunStopped message, and whether every simulated drive was off before the lab stopped."""
-    setup = parse_setup(sine_setup(n_lines=n_lines, refine=2), str(tmp_path / "s.toml"))
+def stopped_run(tmp_path, inject, n_lines: int = 6, text: str | None = None) -> tuple[str, bool]:
+    """A run on the simulated lab (``text``: its setup, a stepped sine by default) with
+    ``inject(lab)`` called at its third progress line: the RunStopped message, and whether
+    every simulated drive was off before the lab stopped."""
+    setup = parse_setup(text or sine_setup(n_lines=n_lines, refine=2), str(tmp_path / "s.toml"))
     handle, inst = start_sim_lab(setup)
     seen = []
 
@@ -71,3 +72,17 @@ def test_an_amplifier_gone_silent_is_not_called_safe(tmp_path):
         state = f["acq"].attrs["state"]
         assert state.startswith("stopped: instrument lost") and "safe state not confirmed: amp0:" in state
     assert read_frf(tmp_path / "run.h5").n_freq > 0  # the lines measured before are kept
+
+
+@pytest.mark.parametrize("fault", ["interlock", "overload", "bus_off", "generator_lost"])
+def test_fault_mid_random_run_ends_in_the_safe_state(tmp_path, fault):
+    """The same faults during periodic random (the arbitrary waveform playing, periods read
+    one at a time while the steady state is checked): safe, said, and the averages before
+    kept."""
+    inject, words = FAULTS[fault]
+    msg, safe = stopped_run(tmp_path, inject, text=random_setup(averages=12))
+    assert safe, f"not safe after {fault}"
+    assert words in msg and msg.startswith("run stopped safely") and "\n" not in msg
+    with h5py.File(tmp_path / "run.h5") as f:
+        assert f["acq"].attrs["state"].startswith("stopped:") and f["acq/n_done"][0] >= 3
+    assert read_frf(tmp_path / "run.h5").n_avg >= 3

@@ -234,6 +234,8 @@ def test_second_effect_is_reported_and_can_be_added():
     assert one.info["residual"]["closed"] is False
     nxt = one.info["residual"]["next_effect"]
     assert {one.dofs[0], nxt["dofs"][0]} == {dofs[3], dofs[6]}
+    assert nxt["gap_with_it"] < 0.5 * one.gap_after  # a missing part, not a pattern of the errors
+    assert f"which would lower it to {nxt['gap_with_it']:.3g}" in one.info["residual"]["text"]
     two = find_discrepancy(nominal, frf, max_effects=2)
     # Both added: the spring exactly; at the mass's DOF an oscillator tuned far above the band
     # may stand in for the mass (its mass is then the added mass; see docs/discrepancy.md).
@@ -244,6 +246,7 @@ def test_second_effect_is_reported_and_can_be_added():
     assert by_dof[dofs[3]].name in ("added_mass", "attached_oscillator")
     assert by_dof[dofs[3]].parameters["mass_kg"] == pytest.approx(0.2, rel=0.05)
     assert two.gap_after < 1.3 < one.gap_after
+    assert two.gap_after <= nxt["gap_with_it"]  # refitting the first effect with it only helps
 
 
 def test_json_follows_the_contract_and_the_updated_model_is_valid(tmp_path):

@@ -329,7 +329,8 @@ def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_
         b = second.best
         nxt = None if b.name == "none" else {"effect": b.name, "dofs": list(b.effect.dofs),
                                               "parameters": b.effect.parameters,
-                                              "criterion_gain_over_none": -second.none().delta_criterion}
+                                              "criterion_gain_over_none": -second.none().delta_criterion,
+                                              "gap_with_it": float(np.sqrt(b.rss / second.n_valid))}
     closed = nxt is None if (second is not None or not effects) else None
     if closed is None:
         text = f"{effects[0].describe()} found; whether it closes the gap was not checked"
@@ -343,6 +344,8 @@ def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_
         # pattern in a residual below the stated noise: say so, or the line reads as a
         # contradiction.
         within = ", within the stated noise" if gap_after <= GAP_WITHIN_NOISE else ""
+        # What the next effect would buy tells a pattern of the errors from a missing effect.
         text = (f"one effect does not close the gap (gap after {gap_after:.3g}{within}): the second "
-                f"search names {nxt['effect']} at {'-'.join(nxt['dofs'])}")
+                f"search names {nxt['effect']} at {'-'.join(nxt['dofs'])}, which would lower it to "
+                f"{nxt['gap_with_it']:.3g}")
     return {"closed": closed, "text": text, "next_effect": nxt}

@@ -488,8 +488,8 @@ def _parse_random(src: str, doc: dict, daq: DaqSpec) -> RandomSpec:
         accuracy=t.num("accuracy", 1e-3, lo=0.0, hi=0.5),
         max_settle_s=t.num("max_settle_s", 20.0, lo=0.0, hi=3600.0, lo_open=True))
     for key in ("accuracy", "max_settle_s"):
-        if key in doc.get("random", {}) and spec.kind != "periodic":
-            raise t.error(key, "applies to kind = \"periodic\" only (its steady-state check)")
+        if key in doc.get("random", {}) and spec.kind == "random":
+            raise t.error(key, "applies to kind = \"periodic\" or \"burst\" only (their steady-state check)")
     if spec.f_min_hz < daq.sample_rate_hz / spec.block_size:
         raise t.error("f_min_hz", f"below the frequency resolution {daq.sample_rate_hz / spec.block_size:g} Hz "
                       "(sample_rate_hz / block_size)")

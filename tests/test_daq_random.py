@@ -105,6 +105,19 @@ def test_continuous_random_welch_and_resume(tmp_path):
     assert np.nanmedian(err) < 0.1
 
 
+def test_burst_random_is_analysed_in_steady_state(tmp_path):
+    """Analysed in the first block, a burst's ring was cut at the block's end and the last
+    average's entered at its start: on the 14-DOF example at 40-200 Hz with 2048-sample
+    blocks, whose modes outlast the block, FRFs were up to 25 % off with coherence 0.96. The
+    generator repeats the burst; analysed in the checked steady state, like periodic random,
+    noise-free FRFs are within the accuracy asked (1e-3)."""
+    setup = parse_setup(random_setup(kind="burst", averages=4, settle=2), str(tmp_path / "s.toml"))
+    summary, world = run_on_sim(setup, tmp_path / "run.h5")
+    assert summary["state"] == "complete" and summary["unsettled_averages"] == 0 and all_safe(world)
+    err = frf_error(read_frf(tmp_path / "run.h5"), build_world(setup))
+    assert np.max(err) < 1e-3, np.max(err)
+
+
 def _payload_periodic(tmp_path, extra: str = ""):
     """The example setup (payload on its stand) with periodic random over its band, noise
     off, four averages; the run's summary and its FRF's error against the simulated truth."""

@@ -227,8 +227,10 @@ class RandomRun:
         self.rf.write_view(d["H"], d["var"], d["coherence"], d["valid"], d.get("Hr"), d.get("Hr_var"),
                            n_avg=self.S.n_avg)
         self.rf.commit(self.S.n_avg)
-        self.echo(f"  average {self.S.n_avg}/{self.spec.averages}  min coherence "
-                  f"{np.min(d['coherence']):.3f}  [{self.test_time_s:.1f} s test time]")
+        # With no more averages than shakers the coherence is 1 whatever the data.
+        coh = (f"min coherence {np.min(d['coherence']):.3f}" if self.S.n_avg > len(self.fi)
+               else f"coherence after {len(self.fi) + 1} averages")
+        self.echo(f"  average {self.S.n_avg}/{self.spec.averages}  {coh}  [{self.test_time_s:.1f} s test time]")
         if self.events:
             self._spectrum_event(d)
         self.peaks = None

@@ -128,7 +128,7 @@ def periodic_transient(periods: list[np.ndarray], n_samples: int, noise_var: np.
             q = np.sum(np.conj(Dp) * D, axis=0) / np.sum(np.abs(Dp) ** 2, axis=0)
         q = np.nan_to_num(q, nan=env)
         mag = np.clip(np.maximum(np.abs(q), env), 0.0, 0.99)
-        gain = mag / np.maximum(np.abs(1 - mag * np.exp(1j * np.angle(q))), 1 - mag)
+        gain = mag / np.abs(1 - mag * np.exp(1j * np.angle(q)))  # |q / (1 - q)|, q of magnitude mag
         level = accuracy * np.linalg.norm(periods[-1][g][:, seen], axis=0)
         with np.errstate(divide="ignore"):
             worst = max(worst, float(np.max(gain * d[-1][seen] / level)))
@@ -160,7 +160,7 @@ class RandomRun:
             self.S = SpectralSums.empty(self.freq.size, n_in, n_y)
         self.test_time_s = float(saved.get("test_time_s", 0.0)) if saved else 0.0
         self.noise_var: np.ndarray | None = None
-        self.unsettled = 0  # periodic averages analysed before their transient had died out
+        self.unsettled = 0  # periodic or burst averages analysed before their transient had died out
 
     # ------------------------------------------------------------------ acquisition
     def _acquire(self, n: int) -> np.ndarray:

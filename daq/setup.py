@@ -170,6 +170,12 @@ class TestSetup:
     def reactions(self) -> list[str]:
         return [c.dof for c in self.channels if c.quantity == "reaction"]
 
+    def drive_limit_vpp(self, shaker: int) -> float:
+        """Largest drive of shaker ``shaker`` (index): ``[limits] max_drive_vpp`` or its
+        generator's ``max_vpp``, whichever is smaller (the driver refuses more)."""
+        gen = next(g for g in self.generators if g.name == self.shakers[shaker].generator)
+        return min(self.limits.max_drive_vpp, gen.max_vpp)
+
     def channel_index(self, name: str) -> int:
         return [c.name for c in self.channels].index(name)
 

@@ -304,13 +304,17 @@ class SineLine:
         Channel index of the control accelerometer (None: control on the active force).
     keep_raw : bool
         Return the dwell window's samples.
+    drive_limits_vpp : list of float or None
+        Largest drive per shaker (``TestSetup.drive_limit_vpp``); None: ``max_drive_vpp``.
     """
 
     def __init__(self, rig: Rig, spec: SineSpec, limits: Limits, roles: dict[str, list[int]],
-                 control: int | None = None, keep_raw: bool = False) -> None:
+                 control: int | None = None, keep_raw: bool = False,
+                 drive_limits_vpp: list[float] | None = None) -> None:
         self.rig, self.spec, self.limits, self.roles = rig, spec, limits, roles
         self.control = control
         self.keep_raw = keep_raw
+        self.drive_limits_vpp = drive_limits_vpp
         self.decay_prev = 0.0
         self.noise_var: np.ndarray | None = None  # per-sample noise floor of each channel
         self.group_ref = [0.0, 0.0]  # largest |y| of responses and reactions seen so far
@@ -409,7 +413,9 @@ class SineLine:
         rig, spec = self.rig, self.spec
         n_w, n_c = self._sizes(freq_hz)
         fit = SineFit(freq_hz, rig.fs_hz, n_w, band_hz=rig.passband_hz)
-        max_vpp = self.limits.max_drive_vpp
+        # The level control must not ask more than the generator takes: it refuses, and that
+        # stops the run (a generator range of 4 Vpp under a set-up limit of 10 did).
+        max_vpp = self.drive_limits_vpp[j] if self.drive_limits_vpp else self.limits.max_drive_vpp
         ctl = self.control if self.control is not None else self.roles["force"][j]
         rig.sine(j, freq_hz, vpp)
         t_start = t_all = rig.clock  # every scan of this line counts as test time, discarded ones too
@@ -454,8 +460,8 @@ class SineLine:
             want = vpp * target / max(level, 1e-30)
             if want > max_vpp * (1 + 1e-9):
                 raise LineAborted(f"drive limit: the target needs {want:.4g} Vpp, more than "
-                                  f"max_drive_vpp {max_vpp:g}")
-            vpp = float(min(max(want, vpp / spec.compression, 0.002), vpp * spec.compression))
+                                  f"{max_vpp:g} Vpp (max_drive_vpp, or the generator's max_vpp)")
+            vpp = float(min(max(want, vpp / spec.compression, 0.002), vpp * spec.compression, max_vpp))
             rig.sine(j, freq_hz, vpp)
             corrections += 1
             level_checked = False

@@ -64,7 +64,9 @@ class SteppedSineRun:
         self.grid = sine_grid(setup)
         control = None if self.spec.control == "force" else setup.channel_index(self.spec.control)
         self.ctl_channel = control
-        self.line = SineLine(rig, self.spec, setup.limits, self.roles, control, keep_raw=setup.raw_time)
+        self.drive_limits_vpp = [setup.drive_limit_vpp(p) for p in range(len(setup.shakers))]
+        self.line = SineLine(rig, self.spec, setup.limits, self.roles, control, keep_raw=setup.raw_time,
+                             drive_limits_vpp=self.drive_limits_vpp)
         self.target = self.spec.force_n if control is None else self.spec.control_target
         self.n_pat = len(setup.shakers)
         self.rows: dict[tuple[int, int], dict] = {}
@@ -89,6 +91,14 @@ class SteppedSineRun:
         ch = self.ctl_channel if self.ctl_channel is not None else self.roles["force"][p]
         return float(abs(X[ch]))
 
+    def _level_note(self, res: LineResult) -> str:
+        """What a kept line's control level was when the level control could not bring it
+        within the tolerance (corrections or settling time used up); '' when it did."""
+        ratio = self._control_level(res.est.X, res.pattern) / self.target
+        if abs(ratio - 1) <= self.spec.tolerance:
+            return ""
+        return f"level {ratio:.2f} of the target (tolerance {self.spec.tolerance:g})"
+
     def measure(self, p: int, k: int) -> np.ndarray | None:
         """Callback of the schedule: the response vector per unit force, or None (aborted)."""
         if self.replayed < len(self.replay):
@@ -111,12 +121,12 @@ class SteppedSineRun:
         if self.active is not None and self.active != p:
             self.rig.drive_off(self.active)
         self.active = p
-        vpp = initial_drive(self.history[p], f, self.target, self.spec, self.setup.limits.max_drive_vpp)
+        vpp = initial_drive(self.history[p], f, self.target, self.spec, self.drive_limits_vpp[p])
         nch = len(self.rig.names)
         t0 = self.rig.clock
         try:
             res = self.line.measure(p, f, vpp, self.target)
-            row = self._row(k, res, STATUS_OK, "")
+            row = self._row(k, res, STATUS_OK, self._level_note(res))
         except LineAborted as exc:
             self.rig.drive_off(p)  # the drive goes to zero before anything else
             dt = (self.rig.clock - t0) / self.rig.fs_hz
@@ -136,7 +146,8 @@ class SteppedSineRun:
         if res is not None:
             self.echo(f"  shaker {p} {row['freq_hz']:9.3f} Hz  drive {row['drive_vpp']:.3f} Vpp  "
                       f"|F| {abs(row['X'][self.roles['force'][p]]):.3g} N  settle {row['settle_s']:.3f} s  "
-                      f"dwell {row['dwell_s']:.3f} s  [{self.n_done} sub-lines, {self.test_time_s:.1f} s test time]")
+                      f"dwell {row['dwell_s']:.3f} s  [{self.n_done} sub-lines, {self.test_time_s:.1f} s test time]"
+                      + (f"  {row['reason']}" if row["reason"] else ""))
         if self.events:
             self._sub_line_event(row, res)
         return y

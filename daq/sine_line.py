@@ -300,17 +300,16 @@ class SineLine:
     limits : Limits
     roles : dict
         Channel indices: ``force`` (per shaker), ``response``, ``reaction``.
+    drive_limits_vpp : list of float
+        Largest drive per shaker (``TestSetup.drive_limit_vpp``).
     control : int or None
         Channel index of the control accelerometer (None: control on the active force).
     keep_raw : bool
         Return the dwell window's samples.
-    drive_limits_vpp : list of float or None
-        Largest drive per shaker (``TestSetup.drive_limit_vpp``); None: ``max_drive_vpp``.
     """
 
     def __init__(self, rig: Rig, spec: SineSpec, limits: Limits, roles: dict[str, list[int]],
-                 control: int | None = None, keep_raw: bool = False,
-                 drive_limits_vpp: list[float] | None = None) -> None:
+                 drive_limits_vpp: list[float], control: int | None = None, keep_raw: bool = False) -> None:
         self.rig, self.spec, self.limits, self.roles = rig, spec, limits, roles
         self.control = control
         self.keep_raw = keep_raw
@@ -415,7 +414,7 @@ class SineLine:
         fit = SineFit(freq_hz, rig.fs_hz, n_w, band_hz=rig.passband_hz)
         # The level control must not ask more than the generator takes: it refuses, and that
         # stops the run (a generator range of 4 Vpp under a set-up limit of 10 did).
-        max_vpp = self.drive_limits_vpp[j] if self.drive_limits_vpp else self.limits.max_drive_vpp
+        max_vpp = self.drive_limits_vpp[j]
         ctl = self.control if self.control is not None else self.roles["force"][j]
         rig.sine(j, freq_hz, vpp)
         t_start = t_all = rig.clock  # every scan of this line counts as test time, discarded ones too

@@ -65,8 +65,8 @@ class SteppedSineRun:
         control = None if self.spec.control == "force" else setup.channel_index(self.spec.control)
         self.ctl_channel = control
         self.drive_limits_vpp = [setup.drive_limit_vpp(p) for p in range(len(setup.shakers))]
-        self.line = SineLine(rig, self.spec, setup.limits, self.roles, control, keep_raw=setup.raw_time,
-                             drive_limits_vpp=self.drive_limits_vpp)
+        self.line = SineLine(rig, self.spec, setup.limits, self.roles, self.drive_limits_vpp, control,
+                             keep_raw=setup.raw_time)
         self.target = self.spec.force_n if control is None else self.spec.control_target
         self.n_pat = len(setup.shakers)
         self.rows: dict[tuple[int, int], dict] = {}

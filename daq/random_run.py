@@ -38,7 +38,7 @@ from .estimate import SpectralSums, frf_from_spectra, spectra_of_blocks
 from .rig import Rig
 from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
 from .safety import RunStopped, check_limits, limit_usage
-from .sine_line import noise_floor
+from .sine_line import geometric_tail_gain, noise_floor
 from .setup import TestSetup
 from .storage import RunFile
 
@@ -128,7 +128,7 @@ def periodic_transient(periods: list[np.ndarray], n_samples: int, noise_var: np.
             q = np.sum(np.conj(Dp) * D, axis=0) / np.sum(np.abs(Dp) ** 2, axis=0)
         q = np.nan_to_num(q, nan=env)
         mag = np.clip(np.maximum(np.abs(q), env), 0.0, 0.99)
-        gain = mag / np.abs(1 - mag * np.exp(1j * np.angle(q)))  # |q / (1 - q)|, q of magnitude mag
+        gain = geometric_tail_gain(mag, np.angle(q))
         level = accuracy * np.linalg.norm(periods[-1][g][:, seen], axis=0)
         with np.errstate(divide="ignore"):
             worst = max(worst, float(np.max(gain * d[-1][seen] / level)))

@@ -39,7 +39,7 @@ from .control import raise_if_interrupted
 from .safety import LineAborted, check_limits
 from .setup import ChannelSpec, Limits, SineSpec
 
-__all__ = ["LineResult", "SineLine", "TransientMonitor", "initial_drive", "noise_floor"]
+__all__ = ["LineResult", "SineLine", "TransientMonitor", "geometric_tail_gain", "initial_drive", "noise_floor"]
 
 WINDOW_STEPS = 4  # window advance = n_w / WINDOW_STEPS
 
@@ -112,6 +112,14 @@ def initial_drive(history: list[tuple[float, float, float]], freq_hz: float, tar
     want = target / max(g, 1e-30)
     c = spec.compression
     return float(min(max(want, v1 / c, 0.002), v1 * c, max_vpp))
+
+
+def geometric_tail_gain(mag, angle):
+    """``|q / (1 - q)|`` for ``q = mag exp(j angle)``: the error still to come in a sequence
+    whose steps shrink by ``q`` each (``e_k = q e_(k-1)``) is this gain times its last step
+    ``|D_k|``. Scalars or arrays. (``|1 - q| >= 1 - mag`` always; the ``max`` only keeps
+    rounding from going below it.)"""
+    return mag / np.maximum(np.abs(1 - mag * np.exp(1j * angle)), 1 - mag)
 
 
 #: Drive corrections per line at most. Each changes the drive by ``compression`` at most, so
@@ -235,7 +243,7 @@ class TransientMonitor:
         else:
             env = self.prior
         mag = min(max(env, self.floor), 0.99)
-        gains = [(mag / max(abs(1 - mag * np.exp(1j * np.angle(q))), 1 - mag), mag) for q in self.qs[-2:]]
+        gains = [(float(geometric_tail_gain(mag, np.angle(q))), mag) for q in self.qs[-2:]]
         gain, r = max(gains) if gains else (mag / (1 - mag), mag)
         self.r = r
         # Two transients can cancel in one difference (a turning point of the error vector):

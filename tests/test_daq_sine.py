@@ -65,8 +65,7 @@ def test_acceleration_control_holds_the_response_level(tmp_path):
     assert summary["state"] == "complete" and all_safe(world)
     err = frf_error(read_frf(tmp_path / "run.h5"), build_world(setup))
     assert np.max(err) < 5e-3, np.max(err)
-    acc = [c.name for c in setup.channels].index("acc 3+Z")
-    force = [c.name for c in setup.channels].index("force 1+Z")
+    acc, force = setup.channel_index("acc 3+Z"), setup.channel_index("force 1+Z")
     with h5py.File(tmp_path / "run.h5") as f:
         ok = f["acq/records/status"][()] == 0
         X = f["acq/records/X"][()][ok]

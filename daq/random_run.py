@@ -153,14 +153,17 @@ class RandomRun:
         self.freq = random_bins(setup)
         n_in, n_y = len(self.fi), len(self.yi)
         saved = runfile.read_arrays("random")
+        # Periodic or burst averages in the sums analysed before their transient had died
+        # out; stored with the sums, so a resumed run's summary counts the whole run.
+        self.unsettled = 0
         if saved and int(saved["n_avg"]) == runfile.n_done and runfile.n_done > 0:
             self.S = SpectralSums(saved["Gxx"], saved["Gyx"], saved["Gyy"], None, int(saved["n_avg"]))
+            self.unsettled = int(saved.get("unsettled_averages", 0))
             echo(f"resuming: {self.S.n_avg} averages on file")
         else:
             self.S = SpectralSums.empty(self.freq.size, n_in, n_y)
         self.test_time_s = float(saved.get("test_time_s", 0.0)) if saved else 0.0
         self.noise_var: np.ndarray | None = None
-        self.unsettled = 0  # periodic or burst averages analysed before their transient had died out
 
     # ------------------------------------------------------------------ acquisition
     def _acquire(self, n: int) -> np.ndarray:
@@ -223,7 +226,8 @@ class RandomRun:
     def _commit(self) -> None:
         d = self.result()
         self.rf.write_arrays("random", {"Gxx": self.S.Gxx, "Gyx": self.S.Gyx, "Gyy": self.S.Gyy,
-                                        "n_avg": np.int64(self.S.n_avg), "test_time_s": self.test_time_s})
+                                        "n_avg": np.int64(self.S.n_avg), "test_time_s": self.test_time_s,
+                                        "unsettled_averages": np.int64(self.unsettled)})
         self.rf.write_view(d["H"], d["var"], d["coherence"], d["valid"], d.get("Hr"), d.get("Hr_var"),
                            n_avg=self.S.n_avg)
         self.rf.commit(self.S.n_avg)

@@ -41,7 +41,7 @@ from daq.estimate import SineFit  # noqa: E402
 from daq.run import run_test  # noqa: E402
 from daq.setup import load_setup  # noqa: E402
 from daq.simlab import WorldRig, build_world  # noqa: E402
-from daq.sine_line import WINDOW_STEPS  # noqa: E402
+from daq.steady_state import WINDOW_STEPS  # noqa: E402
 
 
 class SnapRig(WorldRig):

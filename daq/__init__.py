@@ -13,8 +13,9 @@ module                      what
                             Welch spectra, H1 / H2 / Hv, ordinary and multiple coherence
 ``daq.schedule``            stepped-sine line grid and the adaptive sweep (refines near
                             resonances on the fly; one sweep per shaker)
-``daq.sine_line``           one stepped-sine line: level control, settling by the measured
-                            transient decay, dwell, noise floor
+``daq.sine_line``           one stepped-sine line: level control, settling, dwell
+``daq.steady_state``        the transient left after a change (stepped-sine windows, periods
+                            of periodic and burst random), bounded from the data; noise floor
 ``daq.stepped_sine``        the stepped-sine run: sub-lines -> FRF lines, quality, blanking,
                             resume by replaying the records
 ``daq.random_run``          continuous, periodic and burst random (MIMO), spectral averaging

@@ -27,7 +27,6 @@ drive level of a random test is fixed, so the next average would exceed it again
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import numpy as np
@@ -38,8 +37,8 @@ from .estimate import SpectralSums, frf_from_spectra, spectra_of_blocks
 from .rig import Rig
 from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
 from .safety import RunStopped, check_limits, limit_usage
-from .sine_line import geometric_tail_gain, noise_floor
 from .setup import TestSetup
+from .steady_state import noise_floor, periodic_transient
 from .storage import RunFile
 
 __all__ = ["RandomRun", "noise_bandwidth_hz", "random_bins"]
@@ -71,68 +70,6 @@ def multisine(n: int, band: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     spec[band] = np.exp(2j * np.pi * rng.random(int(band.sum())))
     x = np.fft.irfft(spec, n)
     return x / np.max(np.abs(x))
-
-
-def periodic_transient(periods: list[np.ndarray], n_samples: int, noise_var: np.ndarray,
-                       groups: list[list[int]], accuracy: float) -> float:
-    """Transient left in the last period of a periodic excitation, over what it may keep.
-
-    Each change of the multisine starts a transient: every mode rings from the state the old
-    signal left, and a ring that has not died out within a period leaks into every line of
-    its rectangular window. In period k the transient at a line is a sum of geometric
-    sequences (one per mode, decay ``z = exp(lambda T)`` per period), so the same
-    single-decay reasoning as a stepped-sine dwell (:class:`daq.sine_line.TransientMonitor`)
-    bounds what remains from the differences of successive periods: ``e_k = q / (1 - q) D_k``
-    with ``q`` the complex step ratio at the line, its magnitude never below the envelope
-    decay over all lines (a fast ring must not hide a slow one).
-
-    Parameters
-    ----------
-    periods : list of (n_ch, n_bins) complex arrays
-        Spectra (rect window, scaled by 1/n) of the last three or four periods at the band's
-        bins, oldest first.
-    n_samples : int
-        Samples per period.
-    noise_var : (n_ch,) array
-        Per-sample noise floor of each channel (``daq.sine_line.noise_floor``).
-    groups : list of channel index lists
-        Channels whose accuracy is asked together (forces, responses, reactions): a line's
-        transient is compared with that group's level at the line.
-    accuracy : float
-        Relative accuracy asked of each line.
-
-    Returns
-    -------
-    float
-        Largest ratio of the remaining transient to ``accuracy`` times the group's level, over
-        the lines and groups where the last difference stands above the noise (0: nothing
-        does; <= 1: settled). ``inf`` with fewer than three periods.
-    """
-    if len(periods) < 3:
-        return math.inf
-    diffs = [b - a for a, b in zip(periods[:-1], periods[1:])]
-    worst = 0.0
-    for g in groups:
-        # White noise of variance v per sample gives E|X|^2 = v / n at a bin of a period's
-        # spectrum scaled by 1/n; a difference of two periods carries twice that.
-        d_noise = math.sqrt(2.0 * float(np.sum(noise_var[g])) / n_samples)
-        d = [np.linalg.norm(D[g], axis=0) for D in diffs]
-        seen = d[-1] > 3 * d_noise  # lines where the last difference is transient, not noise
-        if not seen.any():
-            continue
-        ratios = [math.sqrt(np.sum(b[a > 3 * d_noise] ** 2) / np.sum(a[a > 3 * d_noise] ** 2))
-                  for a, b in zip(d[:-1], d[1:]) if np.any(a > 3 * d_noise)]
-        env = max(ratios) if ratios else 1.0
-        Dp, D = diffs[-2][g][:, seen], diffs[-1][g][:, seen]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = np.sum(np.conj(Dp) * D, axis=0) / np.sum(np.abs(Dp) ** 2, axis=0)
-        q = np.nan_to_num(q, nan=env)
-        mag = np.clip(np.maximum(np.abs(q), env), 0.0, 0.99)
-        gain = geometric_tail_gain(mag, np.angle(q))
-        level = accuracy * np.linalg.norm(periods[-1][g][:, seen], axis=0)
-        with np.errstate(divide="ignore"):
-            worst = max(worst, float(np.max(gain * d[-1][seen] / level)))
-    return worst
 
 
 class RandomRun:

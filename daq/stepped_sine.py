@@ -30,7 +30,8 @@ from .rig import Rig
 from .safety import LineAborted, limit_usage
 from .schedule import frequency_grid, sweep_plan
 from .setup import TestSetup
-from .sine_line import LineResult, SineLine, initial_drive, noise_floor
+from .sine_line import LineResult, SineLine, initial_drive
+from .steady_state import noise_floor
 from .storage import STATUS_ABORTED, STATUS_OK, RunFile
 
 __all__ = ["SteppedSineRun", "sine_grid"]

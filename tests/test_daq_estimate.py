@@ -6,7 +6,7 @@ import numpy as np
 
 from daq.estimate import SineFit, SpectralSums, frf_from_spectra, multi_input_frf
 from daq.schedule import frequency_grid, sweep_plan
-from daq.sine_line import TransientMonitor, multipole_transient
+from daq.steady_state import TransientMonitor, multipole_transient
 
 
 def test_sine_fit_amplitude_harmonics_drift_and_start():

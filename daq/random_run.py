@@ -38,7 +38,7 @@ from .rig import Rig
 from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
 from .safety import RunStopped, check_limits, limit_usage
 from .setup import TestSetup
-from .steady_state import noise_floor, periodic_transient
+from .steady_state import periodic_transient, record_noise_floor
 from .storage import RunFile
 
 __all__ = ["RandomRun", "noise_bandwidth_hz", "random_bins"]
@@ -116,14 +116,6 @@ class RandomRun:
                 self.rig.drive_off(j)
             raise RunStopped(f"limit exceeded during random excitation: {reason}")
         return data
-
-    def _noise_floor(self) -> np.ndarray:
-        """Per-sample noise of each channel, drives off: what a period's difference may hold
-        without being transient."""
-        t0 = self.rig.clock
-        nf = noise_floor(self.rig, self.setup.channels)
-        self.test_time_s += (self.rig.clock - t0) / self.rig.fs_hz
-        return nf
 
     def _settle_periodic(self, n: int) -> np.ndarray:
         """Periods of the new multisine until the last one is in steady state; returns it.
@@ -221,7 +213,9 @@ class RandomRun:
                 self._add(blocks, r.window)
         else:
             if r.accuracy > 0:
-                self.noise_var = self._noise_floor()
+                # What a period's difference may hold without being transient.
+                self.noise_var, took_s = record_noise_floor(self.rig, self.setup.channels, self.rf)
+                self.test_time_s += took_s
             while self.S.n_avg < r.averages:
                 self._hold()
                 a = self.S.n_avg

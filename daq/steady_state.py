@@ -32,9 +32,10 @@ import numpy as np
 from .control import raise_if_interrupted
 from .rig import Rig
 from .setup import ChannelSpec
+from .storage import RunFile
 
 __all__ = ["MULTIPOLE_ORDERS", "MULTIPOLE_SPANS", "TransientMonitor", "WINDOW_STEPS", "geometric_tail_gain",
-           "multipole_transient", "noise_floor", "periodic_transient"]
+           "multipole_transient", "noise_floor", "periodic_transient", "record_noise_floor"]
 
 WINDOW_STEPS = 4  # window advance = n_w / WINDOW_STEPS
 
@@ -68,6 +69,16 @@ def noise_floor(rig: Rig, channels: list[ChannelSpec], seconds: float = 0.25, ma
             return v
         var = v
     return var
+
+
+def record_noise_floor(rig: Rig, channels: list[ChannelSpec], rf: RunFile) -> tuple[np.ndarray, float]:
+    """:func:`noise_floor`, kept in the run file as ``/acq/noise_floor/session<k>`` (``k``
+    this session's number: a resumed run measures it again, the structure may have been
+    touched); returns it and the test time it took (s)."""
+    t0 = rig.clock
+    nf = noise_floor(rig, channels)
+    rf.write_arrays("noise_floor", {f"session{len(rf.meta.get('sessions', []))}": nf})
+    return nf, (rig.clock - t0) / rig.fs_hz
 
 
 def geometric_tail_gain(mag, angle):

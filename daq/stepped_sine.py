@@ -31,7 +31,7 @@ from .safety import LineAborted, limit_usage
 from .schedule import frequency_grid, sweep_plan
 from .setup import TestSetup
 from .sine_line import LineResult, SineLine, initial_drive
-from .steady_state import noise_floor
+from .steady_state import record_noise_floor
 from .storage import STATUS_ABORTED, STATUS_OK, RunFile
 
 __all__ = ["SteppedSineRun", "sine_grid"]
@@ -233,11 +233,8 @@ class SteppedSineRun:
             self.echo(f"resuming: {len(self.replay)} sub-lines on file, replaying the schedule")
         # The noise floor (all drives off) sets the noise of every estimate: the residual of
         # a fit would also hold the transient still decaying while settling.
-        t0 = self.rig.clock
-        nf = noise_floor(self.rig, self.setup.channels)
-        self.line.noise_var = nf
-        self.rf.write_arrays("noise_floor", {f"session{len(self.rf.meta.get('sessions', []))}": nf})
-        self.test_time_s += (self.rig.clock - t0) / self.rig.fs_hz
+        self.line.noise_var, took_s = record_noise_floor(self.rig, self.setup.channels, self.rf)
+        self.test_time_s += took_s
         sweep_plan(self.measure, self.n_pat, len(self.grid), s.refine, s.max_change)
         if self.replayed < len(self.replay):
             raise InputError(f"{self.rf.path}: {len(self.replay) - self.replayed} records beyond the end of "

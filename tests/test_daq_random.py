@@ -150,7 +150,8 @@ def test_periodic_random_waits_for_steady_state_on_the_payload(tmp_path):
 def test_a_resumed_run_counts_every_unsettled_average(tmp_path):
     """An accuracy no transient meets within ``max_settle_s`` leaves every average
     unsettled. Interrupted after its second average and resumed, the run's summary counts
-    all four, not the last session's two: the count is stored with the spectral sums."""
+    all four, not the last session's two: the count is stored with the spectral sums. The
+    noise floor each session measured is in the file, as a stepped sine's is."""
     text = random_setup(averages=4, settle=2).replace(
         "drive_vpp = 0.5\n", "drive_vpp = 0.5\naccuracy = 1e-12\nmax_settle_s = 0.1\n")
     setup = parse_setup(text, str(tmp_path / "s.toml"))
@@ -166,3 +167,5 @@ def test_a_resumed_run_counts_every_unsettled_average(tmp_path):
     assert sum("not in steady state" in m for m in said) == 2
     summary, world = run_on_sim(setup, tmp_path / "run.h5", resume=True)
     assert summary["n_avg"] == 4 and summary["unsettled_averages"] == 4 and all_safe(world)
+    with h5py.File(tmp_path / "run.h5") as f:  # each session's noise floor is kept
+        assert sorted(f["acq/noise_floor"]) == ["session1", "session2"]

@@ -268,6 +268,9 @@ class SteppedSineRun:
         return {
             "excitation": "stepped_sine", "n_grid": int(len(self.grid)), "n_lines": int(frf.n_freq),
             "n_sub_lines": len(rows), "n_aborted": len(rows) - len(ok),
+            # kept, with the control level outside the tolerance (the record's reason says how far)
+            # (replayed rows hold the file's bytes, live ones str)
+            "n_level_off": sum(1 for r in ok if len(r.get("reason", ""))),
             "n_values_blanked": int(np.count_nonzero(~frf.valid_mask())),
             "test_time_s": self.test_time_s,
             "settle_time_s": float(sum(r["settle_s"] for r in rows)),

@@ -154,5 +154,15 @@ def run_acquire(args: argparse.Namespace) -> int:
             f.write("\n")
     if not args.quiet and "n_lines" in summary:
         print(f"done: {summary['file']} ({summary['state']}; {summary['n_lines']} lines, "
-              f"{summary['test_time_s']:.1f} s test time)")
+              f"{summary['test_time_s']:.1f} s test time{_caveats(summary)})")
     return 0
+
+
+def _caveats(summary: dict) -> str:
+    """What the engineer should know before using the FRFs, from the run's summary: the
+    per-line and per-average messages have scrolled away by the end of a long run."""
+    said = [f"; {n} {what.format('' if n == 1 else 's')}" for key, what in (
+        ("n_aborted", "sub-line{} aborted"), ("n_level_off", "sub-line{} kept off its level"),
+        ("unsettled_averages", "average{} not in steady state"), ("n_values_blanked", "FRF value{} blanked"))
+        if (n := int(summary.get(key, 0)))]
+    return "".join(said)

@@ -47,7 +47,7 @@ def test_guide_commands_run_as_written(tmp_path):
     assert disc["gap_after"] < 0.01 * disc["gap_before"]
     # With the mass added the model reproduces the measured FRFs as well as the simulated
     # truth does: its gap is the RMS of the measurement's errors against the truth in units
-    # of their stated standard deviations (0.84), which is near 1 (the stated uncertainty is
+    # of their stated standard deviations (0.83), which is near 1 (the stated uncertainty is
     # calibrated), and the statement says it is within the stated noise.
     setup_path = tmp_path / "examples" / "setup_sim.toml"
     setup = parse_setup(setup_path.read_text(), str(setup_path))

@@ -35,7 +35,14 @@ __all__ = ["LineAborted", "RunStopped", "check_limits", "describe_fault", "limit
 
 
 class LineAborted(Exception):
-    """A limit was exceeded during a line; the drive has to go to zero for this line."""
+    """A limit was exceeded during a line; the drive has to go to zero for this line.
+
+    ``drive_vpp`` is the drive the line had when it was aborted (the record keeps it: the
+    level control may have moved far from the line's first drive)."""
+
+    def __init__(self, reason: str, drive_vpp: float | None = None) -> None:
+        super().__init__(reason)
+        self.drive_vpp = drive_vpp
 
 
 class RunStopped(Exception):

@@ -271,7 +271,7 @@ class SineLine:
                 first_windows_trusted = False
                 if want > max_vpp * (1 + 1e-9):
                     raise LineAborted(f"drive limit: the target needs {want:.4g} Vpp, more than "
-                                      f"{max_vpp:g} Vpp (max_drive_vpp, or the generator's max_vpp)")
+                                      f"{max_vpp:g} Vpp (max_drive_vpp, or the generator's max_vpp)", vpp)
             vpp = new_vpp
             rig.sine(j, freq_hz, vpp)
             corrections += 1
@@ -286,7 +286,7 @@ class SineLine:
             buf = np.hstack([buf, data])
             reason = check_limits(self.limits, np.max(np.abs(data), axis=1), self.roles, vpp, rig.names)
             if reason:
-                raise LineAborted(reason)
+                raise LineAborted(reason, vpp)
             start = buf0 + buf.shape[1] - n_w
             est = fit.fit(buf[:, -n_w:], start=start - t_start, noise_var=self.noise_var)
             if not level_checked:
@@ -340,7 +340,7 @@ class SineLine:
         peaks = np.max(np.abs(more), axis=1)
         reason = check_limits(self.limits, peaks, self.roles, vpp, self.rig.names)
         if reason:
-            raise LineAborted(reason)
+            raise LineAborted(reason, vpp)
         rec = np.hstack([buf[:, -n_w:], more])
         start = buf0 + buf.shape[1] - n_w - t_start
         long_fit = SineFit(freq_hz, fs, rec.shape[1], band_hz=self.rig.passband_hz)

@@ -159,6 +159,7 @@ def test_a_target_beyond_the_generators_range_aborts_the_line_not_the_run(tmp_pa
         freq = f["acq/records/freq_hz"][()]
     assert 0 < np.count_nonzero(status == 1) < status.size and drive.max() <= 4.0
     assert status[np.argmin(abs(freq - 187.146))] == 0
+    assert np.all(drive[status == 1] >= 2.0)  # the drive reached when aborted, not the first (0.05 Vpp)
     assert all(r.startswith("drive limit: the target needs") and "generator's max_vpp" in r
                for r, st in zip(reason, status) if st == 1)
 

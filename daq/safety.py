@@ -14,6 +14,8 @@ Two levels:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from drivers.errors import (
@@ -31,7 +33,7 @@ from drivers.errors import (
 
 from .setup import Limits
 
-__all__ = ["LineAborted", "RunStopped", "check_limits", "describe_fault", "limit_usage"]
+__all__ = ["LineAborted", "RunStopped", "check_limits", "describe_fault", "drive_headroom_vpp", "limit_usage"]
 
 
 class LineAborted(Exception):
@@ -96,6 +98,21 @@ def check_limits(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]],
         if p[k] > lim:
             return f"{what} {p[k]:.4g} {unit} on {names[idx[k]]!r} above the limit {lim:g} {unit}"
     return None
+
+
+def drive_headroom_vpp(limits: Limits, amplitudes: np.ndarray, roles: dict[str, list[int]],
+                       drive_vpp: float) -> float:
+    """The drive (Vpp) at which the first limited channel would reach its limit, every channel
+    scaling with the drive from ``amplitudes`` (per channel) measured at ``drive_vpp``; inf
+    where no limited channel has a finite limit and a level."""
+    cap = math.inf
+    for role, attr, _unit, _what in _LIMITED:
+        idx = roles.get(role, [])
+        lim = getattr(limits, attr)
+        a = float(np.max(np.asarray(amplitudes)[idx])) if idx else 0.0
+        if np.isfinite(lim) and a > 0:
+            cap = min(cap, drive_vpp * lim / a)
+    return cap
 
 
 def limit_usage(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]], drive_vpp: float) -> dict[str, float]:

@@ -11,7 +11,8 @@ and again of the settled line, is compared with the target; outside ``tolerance`
 is corrected (at most a factor ``compression`` per step, ramped, ``MAX_CORRECTIONS`` per
 line) and settling starts again. A first window holds the change's transient, so it is
 trusted only while the corrections it asks keep one direction (see ``measure``); a settled
-level needing more than the drive limit aborts the line. The first guess comes from
+level needing more than the drive limit, or a drive that would take a channel past its
+limit (every channel scales with the drive), aborts the line before that drive is applied. The first guess comes from
 the previous lines (log-log extrapolation of force per volt), so corrections are rare
 except where the force drops out at resonances.
 """
@@ -260,10 +261,16 @@ class SineLine:
                 return False
             want = vpp * target / max(level, 1e-30)
             new_vpp = float(min(max(want, vpp / spec.compression, 0.002), vpp * spec.compression, max_vpp))
+            # Every channel scales with the drive: the target's drive is not approached when
+            # it would take a channel past its limit. Stepped into, it was caught only once
+            # exceeded (a x2 step from 44 N put 88 N on a 50 N force limit), and its transient
+            # clipped the DAQ, which stopped the run.
+            over = (check_limits(self.limits, est.peak * (want / vpp), self.roles, min(want, max_vpp), rig.names)
+                    if want > vpp else None)
             if not settled:
                 way = math.copysign(1.0, want - vpp)
-                # (a first window asking beyond the drive limit is read again once settled)
-                first_windows_trusted &= way * first_way >= 0 and new_vpp != vpp
+                # (a first window asking beyond a limit is read again once settled)
+                first_windows_trusted &= way * first_way >= 0 and new_vpp != vpp and over is None
                 if not first_windows_trusted:
                     return False
                 first_way = way
@@ -272,6 +279,8 @@ class SineLine:
                 if want > max_vpp * (1 + 1e-9):
                     raise LineAborted(f"drive limit: the target needs {want:.4g} Vpp, more than "
                                       f"{max_vpp:g} Vpp (max_drive_vpp, or the generator's max_vpp)", vpp)
+                if over:
+                    raise LineAborted(f"limit: the target needs {want:.4g} Vpp, which would put {over}", vpp)
             vpp = new_vpp
             rig.sine(j, freq_hz, vpp)
             corrections += 1

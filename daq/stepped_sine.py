@@ -16,6 +16,7 @@ controller's history exactly; measuring then continues with the first line not r
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 
@@ -27,7 +28,7 @@ from ssid.frf import FRFData
 from .control import RunControl, RunEvents, frf_line_event, hold_if_paused
 from .estimate import multi_input_frf
 from .rig import Rig
-from .safety import LineAborted, limit_usage
+from .safety import LineAborted, drive_headroom_vpp, limit_usage
 from .schedule import frequency_grid, sweep_plan
 from .setup import TestSetup
 from .sine_line import LineResult, SineLine, initial_drive
@@ -72,6 +73,8 @@ class SteppedSineRun:
         self.n_pat = len(setup.shakers)
         self.rows: dict[tuple[int, int], dict] = {}
         self.history: dict[int, list[tuple[float, float, float]]] = {p: [] for p in range(self.n_pat)}
+        # Per shaker, the drive at which the last kept line's channels would reach their limits.
+        self.headroom_vpp: dict[int, float] = {p: math.inf for p in range(self.n_pat)}
         self.replay = list(self._recorded_rows())
         self.replayed = 0
         self.n_done = runfile.n_done
@@ -123,6 +126,12 @@ class SteppedSineRun:
             self.rig.drive_off(self.active)
         self.active = p
         vpp = initial_drive(self.history[p], f, self.target, self.spec, self.drive_limits_vpp[p])
+        # The first drive is extrapolated from the control level alone; kept below what takes
+        # the last line's channels to their limits, with room for the response to change by
+        # max_change. Past a point where the target needs more than a limit, the extrapolation
+        # had every following line start at the drive limit: 8 Vpp put 80-88 N on a 50 N force
+        # limit, line after line, until the DAQ clipped and the run stopped.
+        vpp = min(vpp, max(self.headroom_vpp[p] / (1 + self.spec.max_change), 0.002))
         nch = len(self.rig.names)
         t0 = self.rig.clock
         try:
@@ -188,6 +197,7 @@ class SteppedSineRun:
             return None
         X = np.asarray(row["X"])
         self.history[p].append((float(row["freq_hz"]), float(row["drive_vpp"]), self._control_level(X, p)))
+        self.headroom_vpp[p] = drive_headroom_vpp(self.setup.limits, np.abs(X), self.roles, float(row["drive_vpp"]))
         self.line.decay_prev = float(row["decay"])
         if not live:
             F = X[self.roles["force"][p]]
@@ -269,8 +279,7 @@ class SteppedSineRun:
         return {
             "excitation": "stepped_sine", "n_grid": int(len(self.grid)), "n_lines": int(frf.n_freq),
             "n_sub_lines": len(rows), "n_aborted": len(rows) - len(ok),
-            # kept, with the control level outside the tolerance (the record's reason says how far)
-            # (replayed rows hold the file's bytes, live ones str)
+            # kept with the control level outside the tolerance (a replayed row's reason is bytes)
             "n_level_off": sum(1 for r in ok if len(r.get("reason", ""))),
             "n_values_blanked": int(np.count_nonzero(~frf.valid_mask())),
             "test_time_s": self.test_time_s,

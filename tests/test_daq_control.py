@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from daq.control import RunControl, latching_interrupt_handler, raise_if_interrupted
-from daq.safety import limit_usage
+from daq.safety import drive_headroom_vpp, limit_usage
 from daq.setup import Limits, parse_setup
 from daq.simlab import build_world
 from ssid.io import read_frf
@@ -94,6 +94,17 @@ def test_limit_usage_is_peak_over_limit(peaks, used):
     roles = {"force": [0], "response": [1, 2], "reaction": []}
     got = limit_usage(lim, np.array(peaks), roles, drive_vpp=1.0)
     assert got == pytest.approx(used)  # no reaction channels, no infinite limit: left out
+
+
+def test_drive_headroom_is_the_drive_that_reaches_the_first_limit():
+    """Channels scale with the drive: measured at 1 Vpp, 2 N against 5 N and 4 m/s^2 against
+    10 m/s^2 reach their limits at 2.5 Vpp both; 5 m/s^2 reaches its limit first, at 2 Vpp.
+    Without a finite limit or a level there is no headroom to keep."""
+    lim = Limits(max_drive_vpp=8.0, max_force_n=5.0, max_accel_m_per_s2=10.0)
+    roles = {"force": [0], "response": [1, 2], "reaction": []}
+    assert drive_headroom_vpp(lim, np.array([2.0, 4.0, 1.0]), roles, 1.0) == pytest.approx(2.5)
+    assert drive_headroom_vpp(lim, np.array([2.0, 5.0, 1.0]), roles, 1.0) == pytest.approx(2.0)
+    assert drive_headroom_vpp(Limits(), np.array([2.0, 5.0, 1.0]), roles, 1.0) == np.inf
 
 
 class _InterruptInFinalizer:

@@ -164,6 +164,28 @@ def test_a_target_beyond_the_generators_range_aborts_the_line_not_the_run(tmp_pa
                for r, st in zip(reason, status) if st == 1)
 
 
+def test_the_level_control_does_not_step_past_a_limit(tmp_path):
+    """5 m/s^2 at 3+Z under a 20 N force limit. Every channel scales with the drive, so the
+    settled reading tells what the target would put on each: at 110 Hz it would take 30.6 N,
+    and the line is aborted before that drive is applied. Stepping towards the target, the
+    control was stopped only once the limit was exceeded: three lines aborted at 27-28.5 N
+    (42 % over), two of them lines whose target needs less than the limit. One line still
+    starts above it (by 4 %): its first drive, extrapolated from the lines before, is not
+    the level control's step."""
+    extra = 'control = "acc 3+Z"\ncontrol_target = 5.0'
+    setup = parse_setup(sine_setup(extra=extra, limits="max_force_n = 20"), str(tmp_path / "s.toml"))
+    summary, world = run_on_sim(setup, tmp_path / "run.h5")
+    assert summary["state"] == "complete" and all_safe(world)
+    with h5py.File(tmp_path / "run.h5") as f:
+        status = f["acq/records/status"][()]
+        reason = [r.decode() for r in f["acq/records/reason"][()]]
+    seen_n = [float(m.group(1)) for r in reason if (m := re.match(r"force ([0-9.]+) N on", r))]
+    predicted = [r for r in reason if r.startswith("limit: the target needs")]
+    assert predicted and all(r.endswith("above the limit 20 N") for r in predicted), reason
+    assert max(seen_n, default=0.0) < 21.0, reason
+    assert np.count_nonzero(status == 1) == len(seen_n) + len(predicted) < len(status) / 2
+
+
 def _payload_band(tmp_path, f_min: str, f_max: str, n_lines: str, noise: bool,
                   edits: tuple[tuple[str, str], ...] = ()):
     """Run the example setup (payload on its stand) over a band, with ``edits`` (text

@@ -42,7 +42,7 @@ class LineAborted(Exception):
     ``drive_vpp`` is the drive the line had when it was aborted (the record keeps it: the
     level control may have moved far from the line's first drive)."""
 
-    def __init__(self, reason: str, drive_vpp: float | None = None) -> None:
+    def __init__(self, reason: str, drive_vpp: float) -> None:
         super().__init__(reason)
         self.drive_vpp = drive_vpp
 

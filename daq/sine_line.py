@@ -12,9 +12,9 @@ is corrected (at most a factor ``compression`` per step, ramped, ``MAX_CORRECTIO
 line) and settling starts again. A first window holds the change's transient, so it is
 trusted only while the corrections it asks keep one direction (see ``measure``); a settled
 level needing more than the drive limit, or a drive that would take a channel past its
-limit (every channel scales with the drive), aborts the line before that drive is applied. The first guess comes from
-the previous lines (log-log extrapolation of force per volt), so corrections are rare
-except where the force drops out at resonances.
+limit (every channel scales with the drive), aborts the line before that drive is applied.
+The first guess comes from the previous lines (log-log extrapolation of force per volt), so
+corrections are rare except where the force drops out at resonances.
 """
 
 from __future__ import annotations

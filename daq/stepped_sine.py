@@ -140,13 +140,12 @@ class SteppedSineRun:
         except LineAborted as exc:
             self.rig.drive_off(p)  # the drive goes to zero before anything else
             dt = (self.rig.clock - t0) / self.rig.fs_hz
-            at_vpp = vpp if exc.drive_vpp is None else exc.drive_vpp
-            row = {"grid_index": k, "pattern": p, "freq_hz": f, "drive_vpp": at_vpp, "status": STATUS_ABORTED,
+            row = {"grid_index": k, "pattern": p, "freq_hz": f, "drive_vpp": exc.drive_vpp, "status": STATUS_ABORTED,
                    "settle_s": dt, "dwell_s": 0.0, "transient": 1.0, "decay": 0.0, "wall_time": time.time(),
                    "X": np.full(nch, np.nan + 0j), "X_var": np.zeros(nch), "thd": np.zeros(nch),
                    "X_transient": np.full(nch, np.nan), "reason": str(exc)}
             res = None
-            self.echo(f"  line {k} shaker {p} {f:.2f} Hz aborted at {at_vpp:.3g} Vpp: {exc}")
+            self.echo(f"  line {k} shaker {p} {f:.2f} Hz aborted at {exc.drive_vpp:.3g} Vpp: {exc}")
         self.rf.append_record(row)
         if res is not None and res.raw is not None:
             self.rf.append_raw(res.raw)

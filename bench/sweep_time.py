@@ -139,7 +139,7 @@ def fixed_run(setup, lines, settle_cycles: float, dwell_cycles: float, truth) ->
         n_s, n_d = int(np.ceil(settle_cycles * fs / f)), int(np.ceil(dwell_cycles * fs / f))
         if n_s:
             rig.acquire(n_s)
-        data, _ = rig.acquire(n_d)
+        data = rig.acquire(n_d)
         X = SineFit(f, fs, n_d).fit(data, start=n_s).X
         total += n_s + n_d
         errs.append(truth.error(X, p, f))
@@ -159,7 +159,7 @@ def physical_minimum(setup, rig: SnapRig, rec, truth, accuracy: float, our_err: 
         replay.sine(p, f, vpp)
         step = max(1, n_c // 4)
         horizon = int((rec["settle_s"][i] + rec["dwell_s"][i]) * fs * 1.5) + n_w
-        data, _ = replay.acquire(horizon)
+        data = replay.acquire(horizon)
         fit = SineFit(f, fs, n_w)
         starts = np.arange(0, horizon - n_w + 1, step)
         errs = np.array([truth.error(fit.fit(data[:, s:s + n_w], start=s).X, p, f) for s in starts])

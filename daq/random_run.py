@@ -106,7 +106,7 @@ class RandomRun:
     def _acquire(self, n: int) -> np.ndarray:
         self.rig.line_check()
         raise_if_interrupted()
-        data, _ = self.rig.acquire(n)
+        data = self.rig.acquire(n)
         self.test_time_s += n / self.rig.fs_hz
         peaks = np.max(np.abs(data), axis=1)
         self.peaks = peaks if self.peaks is None else np.maximum(self.peaks, peaks)

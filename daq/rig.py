@@ -75,8 +75,12 @@ class Rig:
         """Ramp the shaker's drive down and switch its output off."""
         raise NotImplementedError
 
-    def acquire(self, n: int) -> tuple[np.ndarray, tuple[str, ...]]:
-        """The next ``n`` scans (n_ch, n) in engineering units, and overloaded channel names."""
+    def acquire(self, n: int) -> np.ndarray:
+        """The next ``n`` scans (n_ch, n) in engineering units.
+
+        Raises :class:`~drivers.errors.SensorOverload` (naming the channels) when a channel
+        went over its input range: clipped samples are never returned as data. The clock
+        counts the scans either way."""
         raise NotImplementedError
 
     def check(self) -> None:
@@ -202,13 +206,15 @@ class InstrumentRig(Rig):
         gen, ch, _ = self._shaker(shaker)
         gen.output_off(ch)
 
-    def acquire(self, n: int) -> tuple[np.ndarray, tuple[str, ...]]:
+    def acquire(self, n: int) -> np.ndarray:
         self.check()
         self.daq.start(n)
-        blk = self.daq.read(n, timeout_s=n / self.fs_hz + 10.0)
-        self.clock += n
+        try:
+            blk = self.daq.read(n, timeout_s=n / self.fs_hz + 10.0)
+        finally:
+            self.clock += n  # an over-range raises after the scans were taken: they were test time
         self.check()
-        return blk.data, blk.overload
+        return blk.data
 
     def check(self) -> None:
         for amp in self.amps.values():

@@ -4,9 +4,12 @@ Two levels:
 
 * a **limit** (response acceleration, drive voltage, force, reaction load) aborts the
   current line: the drive is ramped to zero, the line is recorded as aborted with the
-  reason, and the run goes on with the next line (:class:`LineAborted`);
+  reason, and the run goes on with the next line (:class:`LineAborted`). So does a DAQ
+  over-range during a stepped-sine line (:class:`LineOverRange`): its samples are clipped,
+  so the line cannot be measured at that level, but the next line may well be;
 * an **instrument fault** (amplifier interlock or fault, lost heartbeat, an instrument that
-  stops answering, a DAQ overload, a CAN frame gap or bus-off) stops the run
+  stops answering, a CAN frame gap or bus-off, a DAQ overload during random excitation or
+  on several stepped-sine lines in a row) stops the run
   (:class:`RunStopped`). Every exit path - normal end, fault, Ctrl-C, any exception - then
   goes through :meth:`daq.rig.Rig.safe_state`: all generator outputs off, all amplifiers
   disabled, acquisition stopped.
@@ -33,7 +36,7 @@ from drivers.errors import (
 
 from .setup import Limits
 
-__all__ = ["LineAborted", "RunStopped", "check_limits", "describe_fault", "drive_headroom_vpp", "limit_usage"]
+__all__ = ["LineAborted", "LineOverRange", "RunStopped", "check_limits", "describe_fault", "drive_headroom_vpp", "limit_usage"]
 
 
 class LineAborted(Exception):
@@ -45,6 +48,15 @@ class LineAborted(Exception):
     def __init__(self, reason: str, drive_vpp: float) -> None:
         super().__init__(reason)
         self.drive_vpp = drive_vpp
+
+
+class LineOverRange(LineAborted):
+    """The DAQ flagged a channel over its input range during a line (``fault``: the
+    :class:`~drivers.errors.SensorOverload` it raised)."""
+
+    def __init__(self, fault: SensorOverload, drive_vpp: float) -> None:
+        super().__init__(f"{fault}: the line cannot be measured at this level", drive_vpp)
+        self.fault = fault
 
 
 class RunStopped(Exception):
@@ -84,8 +96,11 @@ _LIMITED = (("response", "max_accel_m_per_s2", "m/s^2", "acceleration"),
 
 
 def check_limits(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]], drive_vpp: float,
-                 names: list[str]) -> str | None:
-    """The first limit exceeded by a record (``peaks``: largest |sample| per channel), or None."""
+                 names: list[str], ranges: np.ndarray | None = None) -> str | None:
+    """The first limit exceeded by a record (``peaks``: largest |sample| per channel), or None.
+
+    With ``ranges`` (each channel's DAQ input range in its unit) a channel above its range
+    counts as over a limit too: for predicted peaks (the DAQ flags measured ones itself)."""
     if drive_vpp > limits.max_drive_vpp * (1 + 1e-9):
         return f"drive {drive_vpp:.4g} Vpp above the limit {limits.max_drive_vpp:g} Vpp"
     for role, attr, unit, what in _LIMITED:
@@ -97,15 +112,25 @@ def check_limits(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]],
         k = int(np.argmax(p))
         if p[k] > lim:
             return f"{what} {p[k]:.4g} {unit} on {names[idx[k]]!r} above the limit {lim:g} {unit}"
+    if ranges is not None:
+        k = int(np.argmax(peaks / ranges))
+        if peaks[k] > ranges[k]:
+            return f"{peaks[k]:.4g} on {names[k]!r}, over its DAQ input range {ranges[k]:.4g}"
     return None
 
 
 def drive_headroom_vpp(limits: Limits, amplitudes: np.ndarray, roles: dict[str, list[int]],
-                       drive_vpp: float) -> float:
-    """The drive (Vpp) at which the first limited channel would reach its limit, every channel
-    scaling with the drive from ``amplitudes`` (per channel) measured at ``drive_vpp``; inf
-    where no limited channel has a finite limit and a level."""
+                       drive_vpp: float, ranges: np.ndarray | None = None) -> float:
+    """The drive (Vpp) at which the first limited channel would reach its limit (or, with
+    ``ranges``, its DAQ input range), every channel scaling with the drive from
+    ``amplitudes`` (per channel) measured at ``drive_vpp``; inf where no limited channel
+    has a finite limit and a level."""
     cap = math.inf
+    if ranges is not None:
+        a = np.asarray(amplitudes, float)
+        live = a > 0
+        if np.any(live):
+            cap = drive_vpp * float(np.min(ranges[live] / a[live]))
     for role, attr, _unit, _what in _LIMITED:
         idx = roles.get(role, [])
         lim = getattr(limits, attr)

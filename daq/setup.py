@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ssid.errors import InputError
 
 __all__ = [
@@ -175,6 +177,11 @@ class TestSetup:
         generator's ``max_vpp``, whichever is smaller (the driver refuses more)."""
         gen = next(g for g in self.generators if g.name == self.shakers[shaker].generator)
         return min(self.limits.max_drive_vpp, gen.max_vpp)
+
+    def channel_ranges(self) -> np.ndarray:
+        """Each channel's DAQ input range in its own unit (m/s^2 or N): ``range_volt`` over
+        the sensitivity, ``(n_ch,)``."""
+        return np.array([c.range_volt * 1e3 / c.sensitivity_mv_per_unit for c in self.channels])
 
     def channel_index(self, name: str) -> int:
         return [c.name for c in self.channels].index(name)

@@ -33,6 +33,7 @@ import dataclasses
 
 import numpy as np
 
+from drivers.errors import SensorOverload
 from ssid.errors import InputError
 from ssid.io import Model
 
@@ -221,11 +222,13 @@ class WorldRig:
         with self.world.lock:
             self._ch(shaker).output_on = False
 
-    def acquire(self, n: int) -> tuple[np.ndarray, tuple[str, ...]]:
+    def acquire(self, n: int) -> np.ndarray:
         blk = self.world.advance(n)
         self.clock += n
-        data = blk.volts[self.rows] / self.sens
-        return data, tuple(self.names[i] for i, k in enumerate(self.rows) if blk.overload[k])
+        over = tuple(self.names[i] for i, k in enumerate(self.rows) if blk.overload[k])
+        if over:
+            raise SensorOverload(f"world: over range on {', '.join(over)} (samples clipped)", over)
+        return blk.volts[self.rows] / self.sens
 
     def check(self) -> None:
         pass

@@ -24,10 +24,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drivers.errors import SensorOverload
+
 from .estimate import SineEstimate, SineFit
 from .rig import Rig
 from .control import raise_if_interrupted
-from .safety import LineAborted, check_limits
+from .safety import LineAborted, LineOverRange, check_limits
 from .setup import Limits, SineSpec
 from .steady_state import WINDOW_STEPS, TransientMonitor
 
@@ -54,6 +56,15 @@ class LineResult:
     extra: dict = field(default_factory=dict)
 
 
+#: Drive corrections per line at most. Each changes the drive by ``compression`` at most, so
+#: a first line far from its target (the first drive is ``initial_vpp``) may need several:
+#: with 4, an acceleration-controlled first line of the 14-DOF example stopped at 27 % of
+#: its target.
+MAX_CORRECTIONS = 10
+#: The smallest drive a line is given (the generators' smallest amplitude).
+MIN_DRIVE_VPP = 0.002
+
+
 def initial_drive(history: list[tuple[float, float, float]], freq_hz: float, target: float,
                   spec: SineSpec, max_vpp: float) -> float:
     """First drive guess from ``history`` [(f, vpp, |control|), ...] of this shaker.
@@ -74,14 +85,8 @@ def initial_drive(history: list[tuple[float, float, float]], freq_hz: float, tar
             g = g * (freq_hz / f1) ** slope
     want = target / max(g, 1e-30)
     c = spec.compression
-    return float(min(max(want, v1 / c, 0.002), v1 * c, max_vpp))
+    return float(min(max(want, v1 / c, MIN_DRIVE_VPP), v1 * c, max_vpp))
 
-
-#: Drive corrections per line at most. Each changes the drive by ``compression`` at most, so
-#: a first line far from its target (the first drive is ``initial_vpp``) may need several:
-#: with 4, an acceleration-controlled first line of the 14-DOF example stopped at 27 % of
-#: its target.
-MAX_CORRECTIONS = 10
 
 class SineLine:
     """Measures sub-lines on a rig.
@@ -99,11 +104,16 @@ class SineLine:
         Channel index of the control accelerometer (None: control on the active force).
     keep_raw : bool
         Return the dwell window's samples.
+    ranges : (n_ch,) array, optional
+        Each channel's DAQ input range in its unit: a drive that would take a channel past it
+        is not applied, like one past a limit.
     """
 
     def __init__(self, rig: Rig, spec: SineSpec, limits: Limits, roles: dict[str, list[int]],
-                 drive_limits_vpp: list[float], control: int | None = None, keep_raw: bool = False) -> None:
+                 drive_limits_vpp: list[float], control: int | None = None, keep_raw: bool = False,
+                 ranges: np.ndarray | None = None) -> None:
         self.rig, self.spec, self.limits, self.roles = rig, spec, limits, roles
+        self.ranges = ranges
         self.control = control
         self.keep_raw = keep_raw
         self.drive_limits_vpp = drive_limits_vpp
@@ -255,18 +265,18 @@ class SineLine:
             or the first after a change) is outside the tolerance (settling then starts
             again); False if it is within it, no correction is left, or a first window's
             reading is not trusted."""
-            nonlocal vpp, corrections, level_checked, buf, buf0, mons, scales, first_windows_trusted, first_way
+            nonlocal first_windows_trusted, first_way
             level = abs(est.X[ctl])
             if abs(level / target - 1) <= spec.tolerance or corrections >= MAX_CORRECTIONS:
                 return False
             want = vpp * target / max(level, 1e-30)
-            new_vpp = float(min(max(want, vpp / spec.compression, 0.002), vpp * spec.compression, max_vpp))
+            new_vpp = float(min(max(want, vpp / spec.compression, MIN_DRIVE_VPP), vpp * spec.compression, max_vpp))
             # Every channel scales with the drive: the target's drive is not approached when
             # it would take a channel past its limit. Stepped into, it was caught only once
             # exceeded (a x2 step from 44 N put 88 N on a 50 N force limit), and its transient
             # clipped the DAQ, which stopped the run.
-            over = (check_limits(self.limits, est.peak * (want / vpp), self.roles, min(want, max_vpp), rig.names)
-                    if want > vpp else None)
+            over = (check_limits(self.limits, est.peak * (want / vpp), self.roles, min(want, max_vpp), rig.names,
+                                 self.ranges) if want > vpp else None)
             if not settled:
                 way = math.copysign(1.0, want - vpp)
                 # (a first window asking beyond a limit is read again once settled)
@@ -281,21 +291,33 @@ class SineLine:
                                       f"{max_vpp:g} Vpp (max_drive_vpp, or the generator's max_vpp)", vpp)
                 if over:
                     raise LineAborted(f"limit: the target needs {want:.4g} Vpp, which would put {over}", vpp)
+            set_drive(new_vpp)
+            return True
+
+        def set_drive(new_vpp: float) -> None:
+            """A corrected drive: settling (and the level's check) start again."""
+            nonlocal vpp, corrections, level_checked, buf, buf0, mons, scales
             vpp = new_vpp
             rig.sine(j, freq_hz, vpp)
             corrections += 1
             level_checked = False
             buf, buf0 = np.zeros((len(rig.names), 0)), rig.clock
             mons, scales = [new_monitor() for _ in groups], []
-            return True
 
         while True:
-            raise_if_interrupted()  # a Ctrl-C swallowed elsewhere (daq.control)
-            data, _ = rig.acquire(n_w if buf.shape[1] < n_w else n_c)
-            buf = np.hstack([buf, data])
-            reason = check_limits(self.limits, np.max(np.abs(data), axis=1), self.roles, vpp, rig.names)
-            if reason:
-                raise LineAborted(reason, vpp)
+            try:
+                buf = np.hstack([buf, self._acquire(n_w if buf.shape[1] < n_w else n_c, vpp)])
+            except LineOverRange:
+                # Clipped samples say only that the level was too high: the drive goes down
+                # and the line is read again. The first window of a line far above the last
+                # (a mode between two lines) clipped so, and so did the ringing a line aborted
+                # before it left (payload, 2 m/s^2 at 6+Z, 1361-1479 Hz): aborted at once, three
+                # such lines stopped the run. Only a line still clipping is aborted.
+                if corrections >= MAX_CORRECTIONS or vpp <= MIN_DRIVE_VPP:
+                    raise
+                first_windows_trusted = False
+                set_drive(max(vpp / spec.compression, MIN_DRIVE_VPP))
+                continue
             start = buf0 + buf.shape[1] - n_w
             est = fit.fit(buf[:, -n_w:], start=start - t_start, noise_var=self.noise_var)
             if not level_checked:
@@ -333,6 +355,20 @@ class SineLine:
             x_transient=self.transient_per_channel(mons, est, j, scales, [vy for _, vy in parts], excess / norm_y),
             raw=rec if self.keep_raw else None, corrections=corrections)
 
+    def _acquire(self, n: int, vpp: float) -> np.ndarray:
+        """The next ``n`` scans at drive ``vpp``; the line is aborted when they went over a
+        DAQ input range or a limit."""
+        raise_if_interrupted()  # a Ctrl-C swallowed elsewhere (daq.control)
+        try:
+            data = self.rig.acquire(n)
+        except SensorOverload as exc:
+            # Before the limits: clipped samples understate the peaks they are checked on.
+            raise LineOverRange(exc, vpp) from None
+        reason = check_limits(self.limits, np.max(np.abs(data), axis=1), self.roles, vpp, self.rig.names)
+        if reason:
+            raise LineAborted(reason, vpp)
+        return data
+
     def _dwell(self, fit: SineFit, est: SineEstimate, buf: np.ndarray, buf0: int, t_start: int, j: int,
                n_w: int, freq_hz: float, vpp: float) -> tuple[SineEstimate, np.ndarray]:
         """Lengthen the dwell when noise, not the transient, limits the accuracy."""
@@ -344,12 +380,7 @@ class SineLine:
         n_need = int(min(n_w * (rel / self.spec.accuracy) ** 2, self.spec.max_dwell_s * fs))
         if n_need <= n_w:
             return est, buf[:, -n_w:]
-        raise_if_interrupted()  # a Ctrl-C swallowed elsewhere (daq.control)
-        more, _ = self.rig.acquire(n_need - n_w)
-        peaks = np.max(np.abs(more), axis=1)
-        reason = check_limits(self.limits, peaks, self.roles, vpp, self.rig.names)
-        if reason:
-            raise LineAborted(reason, vpp)
+        more = self._acquire(n_need - n_w, vpp)
         rec = np.hstack([buf[:, -n_w:], more])
         start = buf0 + buf.shape[1] - n_w - t_start
         long_fit = SineFit(freq_hz, fs, rec.shape[1], band_hz=self.rig.passband_hz)

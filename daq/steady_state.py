@@ -63,7 +63,7 @@ def noise_floor(rig: Rig, channels: list[ChannelSpec], seconds: float = 0.25, ma
     var = None
     for _ in range(max(1, int(np.ceil(max_wait_s / seconds)))):
         raise_if_interrupted()  # a Ctrl-C swallowed elsewhere (daq.control)
-        data, _ = rig.acquire(n)
+        data = rig.acquire(n)
         v = np.maximum(np.var(data - data.mean(axis=1, keepdims=True), axis=1), q)
         if var is not None and np.all(v > 0.8 * var):
             return v

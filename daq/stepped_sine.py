@@ -22,20 +22,25 @@ from collections.abc import Callable
 
 import numpy as np
 
+from drivers.errors import SensorOverload
 from ssid.errors import InputError
 from ssid.frf import FRFData
 
 from .control import RunControl, RunEvents, frf_line_event, hold_if_paused
 from .estimate import multi_input_frf
 from .rig import Rig
-from .safety import LineAborted, drive_headroom_vpp, limit_usage
+from .safety import LineAborted, LineOverRange, drive_headroom_vpp, limit_usage
 from .schedule import frequency_grid, sweep_plan
 from .setup import TestSetup
-from .sine_line import LineResult, SineLine, initial_drive
+from .sine_line import MIN_DRIVE_VPP, LineResult, SineLine, initial_drive
 from .steady_state import record_noise_floor
 from .storage import STATUS_ABORTED, STATUS_OK, RunFile
 
-__all__ = ["SteppedSineRun", "sine_grid"]
+__all__ = ["MAX_OVER_RANGE_IN_ROW", "SteppedSineRun", "sine_grid"]
+
+#: A DAQ over-range aborts its sub-line (the next may be within range); this many in a row
+#: stop the run: a sensor or cable stuck at its rail would abort every line that follows.
+MAX_OVER_RANGE_IN_ROW = 3
 
 
 def sine_grid(setup: TestSetup) -> np.ndarray:
@@ -67,19 +72,22 @@ class SteppedSineRun:
         control = None if self.spec.control == "force" else setup.channel_index(self.spec.control)
         self.ctl_channel = control
         self.drive_limits_vpp = [setup.drive_limit_vpp(p) for p in range(len(setup.shakers))]
+        self.ranges = setup.channel_ranges()
         self.line = SineLine(rig, self.spec, setup.limits, self.roles, self.drive_limits_vpp, control,
-                             keep_raw=setup.raw_time)
+                             keep_raw=setup.raw_time, ranges=self.ranges)
         self.target = self.spec.force_n if control is None else self.spec.control_target
         self.n_pat = len(setup.shakers)
         self.rows: dict[tuple[int, int], dict] = {}
         self.history: dict[int, list[tuple[float, float, float]]] = {p: [] for p in range(self.n_pat)}
-        # Per shaker, the drive at which the last kept line's channels would reach their limits.
+        # Per shaker, the drive at which the last kept line's channels would reach their limits
+        # or DAQ ranges.
         self.headroom_vpp: dict[int, float] = {p: math.inf for p in range(self.n_pat)}
         self.replay = list(self._recorded_rows())
         self.replayed = 0
         self.n_done = runfile.n_done
         self.active: int | None = None
         self.test_time_s = float(sum(r["settle_s"] + r["dwell_s"] for r in self.replay))
+        self.over_range_in_row = 0  # live sub-lines aborted by a DAQ over-range, one after another
 
     def _recorded_rows(self):
         rec = self.rf.records()
@@ -131,7 +139,7 @@ class SteppedSineRun:
         # max_change. Past a point where the target needs more than a limit, the extrapolation
         # had every following line start at the drive limit: 8 Vpp put 80-88 N on a 50 N force
         # limit, line after line, until the DAQ clipped and the run stopped.
-        vpp = min(vpp, max(self.headroom_vpp[p] / (1 + self.spec.max_change), 0.002))
+        vpp = min(vpp, max(self.headroom_vpp[p] / (1 + self.spec.max_change), MIN_DRIVE_VPP))
         nch = len(self.rig.names)
         t0 = self.rig.clock
         try:
@@ -139,6 +147,7 @@ class SteppedSineRun:
             row = self._row(k, res, STATUS_OK, self._level_note(res))
         except LineAborted as exc:
             self.rig.drive_off(p)  # the drive goes to zero before anything else
+            over_range = exc.fault if isinstance(exc, LineOverRange) else None
             dt = (self.rig.clock - t0) / self.rig.fs_hz
             row = {"grid_index": k, "pattern": p, "freq_hz": f, "drive_vpp": exc.drive_vpp, "status": STATUS_ABORTED,
                    "settle_s": dt, "dwell_s": 0.0, "transient": 1.0, "decay": 0.0, "wall_time": time.time(),
@@ -146,6 +155,8 @@ class SteppedSineRun:
                    "X_transient": np.full(nch, np.nan), "reason": str(exc)}
             res = None
             self.echo(f"  line {k} shaker {p} {f:.2f} Hz aborted at {exc.drive_vpp:.3g} Vpp: {exc}")
+        else:
+            over_range = None
         self.rf.append_record(row)
         if res is not None and res.raw is not None:
             self.rf.append_raw(res.raw)
@@ -160,6 +171,10 @@ class SteppedSineRun:
                       + (f"  {row['reason']}" if row["reason"] else ""))
         if self.events:
             self._sub_line_event(row, res)
+        self.over_range_in_row = self.over_range_in_row + 1 if over_range else 0
+        if self.over_range_in_row >= MAX_OVER_RANGE_IN_ROW:
+            raise SensorOverload(f"{over_range}, on {self.over_range_in_row} sub-lines in a row (a sensor or "
+                                 "cable at its rail, or a range too small for the level)", over_range.channels)
         return y
 
     def _sub_line_event(self, row: dict, res: LineResult | None) -> None:
@@ -196,7 +211,8 @@ class SteppedSineRun:
             return None
         X = np.asarray(row["X"])
         self.history[p].append((float(row["freq_hz"]), float(row["drive_vpp"]), self._control_level(X, p)))
-        self.headroom_vpp[p] = drive_headroom_vpp(self.setup.limits, np.abs(X), self.roles, float(row["drive_vpp"]))
+        self.headroom_vpp[p] = drive_headroom_vpp(self.setup.limits, np.abs(X), self.roles, float(row["drive_vpp"]),
+                                                  self.ranges)
         self.line.decay_prev = float(row["decay"])
         if not live:
             F = X[self.roles["force"][p]]

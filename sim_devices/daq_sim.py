@@ -16,7 +16,7 @@ frames; ``speed=None`` runs as fast as the host thread can (no sleeping), ``spee
 paces it to real time. Faults for tests (:meth:`SimDaq.inject`): ``drop``, ``duplicate``,
 ``swap`` (reorder) of a given data frame, ``bus_off`` (error frame, then silence for a
 while; the frames of that time are lost), ``silent`` (no answers, no data), ``overload``
-(a spike beyond range on one input).
+(a spike beyond range on one input), ``rail`` (an input stuck beyond its range).
 """
 
 from __future__ import annotations
@@ -127,6 +127,7 @@ class SimDaq:
         self._bus_off_until = 0.0
         self._silent = False
         self._spike: set[int] = set()
+        self._rail: set[int] = set()
         self.frames_sent = 0
         self._swap_held: dict[int, can.Message] = {}
 
@@ -155,7 +156,9 @@ class SimDaq:
 
     def inject(self, kind: str, *, channel: int = 0, seq: int = 0, duration_s: float = 0.3, on: bool = True) -> None:
         """Switch on a fault: ``drop``/``duplicate``/``swap`` data frame ``seq`` of input
-        ``channel``; ``bus_off`` for ``duration_s``; ``silent`` (``on``); ``overload``."""
+        ``channel``; ``bus_off`` for ``duration_s``; ``silent`` (``on``); ``overload`` (one
+        sample of ``channel`` beyond its range); ``rail`` (``channel`` stuck beyond its range
+        while ``on``: a broken sensor or cable)."""
         with self._lock:
             if kind in ("drop", "duplicate", "swap"):
                 self._frame_faults[(channel, seq)] = kind
@@ -167,6 +170,8 @@ class SimDaq:
                 self._silent = on
             elif kind == "overload":
                 self._spike.add(channel)
+            elif kind == "rail":
+                (self._rail.add if on else self._rail.discard)(channel)
             else:
                 raise ValueError(f"unknown DAQ fault {kind!r}")
 
@@ -305,6 +310,8 @@ class SimDaq:
             self._spike.discard(k)
             v = v.copy()
             v[len(v) // 2] = 2 * inp.range_volt
+        if k in self._rail:
+            v = np.full_like(v, 1.5 * inp.range_volt)
         over = sensor_over or bool(np.any(np.abs(v) > inp.range_volt))
         fs = 2**23 - 1
         codes = np.clip(np.rint(v / inp.range_volt * 2**23), -fs - 1, fs).astype(np.int32)

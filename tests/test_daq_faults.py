@@ -4,11 +4,13 @@ and resumable; the simulated instruments end with all outputs off and amplifiers
 from __future__ import annotations
 
 import h5py
+import numpy as np
 import pytest
 
 from daq.run import run_test
 from daq.safety import RunStopped
 from daq.setup import parse_setup
+from daq.stepped_sine import MAX_OVER_RANGE_IN_ROW
 from daq.simlab import start_sim_lab
 from ssid.io import read_frf
 
@@ -18,7 +20,8 @@ FAULTS = {
     "interlock": (lambda lab: lab.amplifiers[0].set_interlock(False), "interlock open"),
     "over_temperature": (lambda lab: lab.amplifiers[0].inject_over_temperature(), "amplifier fault"),
     "heartbeat": (lambda lab: lab.amplifiers[0].inject("heartbeat_stall"), "heartbeat lost"),
-    "overload": (lambda lab: lab.daq.inject("overload", channel=1), "DAQ overload"),
+    # a sensor stuck beyond its range (one clipped sample only re-reads a sine line, below)
+    "overload": (lambda lab: lab.daq.inject("rail", channel=1), "DAQ overload"),
     "frame_gap": (lambda lab: lab.daq.inject("drop", channel=2, seq=1), "frame"),
     "bus_off": (lambda lab: lab.daq.inject("bus_off", duration_s=2.5), "bus-off"),
     "generator_lost": (lambda lab: lab.generators[0].inject("silent", count=2), "instrument lost"),
@@ -54,11 +57,37 @@ def test_fault_mid_run_ends_in_the_safe_state(tmp_path, fault):
     msg, safe = stopped_run(tmp_path, inject, n_lines=16 if fault == "heartbeat" else 6)
     assert safe, f"not safe after {fault}"
     assert words in msg and msg.startswith("run stopped safely") and "\n" not in msg
+    if fault == "overload":  # each line's drive halved ten times, then aborted; three stop the run
+        assert f"on {MAX_OVER_RANGE_IN_ROW} sub-lines in a row" in msg
     with h5py.File(tmp_path / "run.h5") as f:
         state = f["acq"].attrs["state"]
         assert state.startswith("stopped:") and words in state
         assert f["acq/n_done"][0] >= 2
     assert read_frf(tmp_path / "run.h5").n_freq > 0  # every completed line is on file
+
+
+def test_a_clipped_sample_costs_a_sine_line_a_reading_not_the_run(tmp_path):
+    """One sample over range on the force gauge mid-run: the line's drive goes down by
+    ``compression`` and the line is read again, at its level in the end. It stopped the run
+    (a resume met the same clip again when the level, not a spike, caused it)."""
+    setup = parse_setup(sine_setup(n_lines=6, refine=2), str(tmp_path / "s.toml"))
+    handle, inst = start_sim_lab(setup)
+    seen = []
+
+    def echo(msg):
+        seen.append(msg)
+        if len(seen) == 3:
+            handle.lab.daq.inject("overload", channel=0)
+
+    try:
+        summary = run_test(inst, out=str(tmp_path / "run.h5"), echo=echo)
+        safe = all_safe(handle.world)
+    finally:
+        handle.stop()
+    assert safe and summary["state"] == "complete" and summary["n_aborted"] == 0
+    assert summary["n_level_off"] == 0  # every line at its level, the re-read one too
+    with h5py.File(tmp_path / "run.h5") as f:
+        assert np.all(f["acq/records/status"][()] == 0)
 
 
 def test_an_amplifier_gone_silent_is_not_called_safe(tmp_path):

@@ -186,6 +186,28 @@ def test_the_level_control_does_not_step_past_a_limit(tmp_path):
     assert np.count_nonzero(status == 1) == len(seen_n) + len(predicted) < len(status) / 2
 
 
+def test_a_level_beyond_a_daq_range_is_not_applied(tmp_path):
+    """5 m/s^2 at 3+Z with acc 7+Z on a 0.1 V range (10 m/s^2; it sees up to 13 m/s^2 at
+    that target). Every channel scales with the drive, so a settled reading tells whether
+    the target would clip one: such a line is aborted before that drive, like one past a
+    limit, and the run goes on. The DAQ's over-range stopped the run at the first line."""
+    extra = 'control = "acc 3+Z"\ncontrol_target = 5.0'
+    text = sine_setup(extra=extra)
+    i = text.index('name = "acc 7+Z"')
+    j = text.index("sensitivity_mv_per_unit = 10.0", i) + len("sensitivity_mv_per_unit = 10.0")
+    setup = parse_setup(text[:j] + "\nrange_volt = 0.1" + text[j:], str(tmp_path / "s.toml"))
+    assert setup.channel_ranges()[setup.channel_index("acc 7+Z")] == pytest.approx(10.0)
+    summary, world = run_on_sim(setup, tmp_path / "run.h5")
+    assert summary["state"] == "complete" and all_safe(world)
+    with h5py.File(tmp_path / "run.h5") as f:
+        status = f["acq/records/status"][()]
+        reason = [r.decode() for r in f["acq/records/reason"][()]]
+        x7 = np.abs(f["acq/records/X"][:, setup.channel_index("acc 7+Z")])
+    assert 0 < np.count_nonzero(status == 1) < len(status) / 2
+    assert all("over its DAQ input range 10" in r for r, st in zip(reason, status) if st == 1), reason
+    assert np.all(x7[status == 0] < 10.0)
+
+
 def _payload_band(tmp_path, f_min: str, f_max: str, n_lines: str, noise: bool,
                   edits: tuple[tuple[str, str], ...] = ()):
     """Run the example setup (payload on its stand) over a band, with ``edits`` (text

@@ -2,11 +2,12 @@
 
 Two levels:
 
-* a **limit** (response acceleration, drive voltage, force, reaction load) aborts the
-  current line: the drive is ramped to zero, the line is recorded as aborted with the
+* a **limit** (response acceleration, drive voltage, force, reaction load) exceeded aborts
+  the current line: the drive is ramped to zero, the line is recorded as aborted with the
   reason, and the run goes on with the next line (:class:`LineAborted`). So does a DAQ
-  over-range during a stepped-sine line (:class:`LineOverRange`): its samples are clipped,
-  so the line cannot be measured at that level, but the next line may well be;
+  over-range that persists through a stepped-sine line's corrections
+  (:class:`LineOverRange`). (A target that would exceed a limit is not applied: the level
+  control holds the line below it, :mod:`daq.sine_line`);
 * an **instrument fault** (amplifier interlock or fault, lost heartbeat, an instrument that
   stops answering, a CAN frame gap or bus-off, a DAQ overload during random excitation or
   on several stepped-sine lines in a row) stops the run

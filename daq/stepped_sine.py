@@ -105,10 +105,13 @@ class SteppedSineRun:
 
     def _level_note(self, res: LineResult) -> str:
         """What a kept line's control level was when the level control could not bring it
-        within the tolerance (corrections or settling time used up); '' when it did."""
+        within the tolerance (held below a limit, corrections or settling time used up);
+        '' when it did."""
         ratio = self._control_level(res.est.X, res.pattern) / self.target
         if abs(ratio - 1) <= self.spec.tolerance:
             return ""
+        if res.limited:
+            return f"level {ratio:.2f} of the target, held below a limit: {res.limited}"
         return f"level {ratio:.2f} of the target (tolerance {self.spec.tolerance:g})"
 
     def measure(self, p: int, k: int) -> np.ndarray | None:

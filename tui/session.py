@@ -319,7 +319,9 @@ class LiveRun:
         if ev["event"] == "spectrum":
             head = f"average {ev['n_avg']}/{ev['averages']}"
         else:
-            state = "ok" if ev.get("ok") else f"ABORTED: {ev.get('reason', '')}"
+            # a kept line's reason: its level off the target (held below a limit, or unsettled)
+            note = ev.get("reason", "")
+            state = ("ok" + (f": {note}" if note else "")) if ev.get("ok") else f"ABORTED: {note}"
             head = (f"shaker {ev['shaker']} {ev['freq_hz']:.2f} Hz, drive {ev['drive_vpp']:.3f} Vpp"
                     + (f", |F| {ev['force_n']:.3g} N, THD {100 * ev['thd_max']:.2f} %" if ev.get("ok") else "")
                     + f" ({state})")

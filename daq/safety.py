@@ -37,7 +37,8 @@ from drivers.errors import (
 
 from .setup import Limits
 
-__all__ = ["LineAborted", "LineOverRange", "RunStopped", "check_limits", "describe_fault", "drive_headroom_vpp", "limit_usage"]
+__all__ = ["LineAborted", "LineOverRange", "RunStopped", "check_limits", "describe_fault", "drive_headroom_vpp",
+           "limit_usage"]
 
 
 class LineAborted(Exception):

@@ -285,17 +285,17 @@ class SineLine:
             # only once exceeded (a x2 step from 44 N put 88 N on a 50 N force limit), and its
             # transient clipped the DAQ, which stopped the run.
             headroom = drive_headroom_vpp(self.limits, est.peak, self.roles, vpp, self.ranges)
-            beyond = want > min(headroom, max_vpp) * (1 + 1e-9)
             if not settled:
                 way = math.copysign(1.0, want - vpp)
-                # (a first window asking beyond a limit is read again once settled)
-                first_windows_trusted &= way * first_way >= 0 and new_vpp != vpp and not beyond
+                # (a first window asking beyond a channel's limit is read again once settled;
+                # new_vpp stops at the drive limit)
+                first_windows_trusted &= way * first_way >= 0 and new_vpp != vpp and want <= headroom
                 if not first_windows_trusted:
                     return False
                 first_way = way
             else:
                 first_windows_trusted = False
-                if beyond:
+                if want > min(headroom, max_vpp) * (1 + 1e-9):
                     # The target cannot be held: the line is measured below it, at the drive
                     # that keeps every channel within NOTCH_MARGIN of its limit and range
                     # (notching, as a vibration controller's limit channels do). Aborted
@@ -303,7 +303,7 @@ class SineLine:
                     # under 2 m/s^2 at 6+Z lost 42 sub-lines, and the FRFs 1345 values.
                     if headroom < max_vpp:
                         over = check_limits(self.limits, est.peak * (want / vpp), self.roles, max_vpp, rig.names,
-                                            self.ranges)
+                                            self.ranges) or "a channel past its limit"
                         limited = f"the target needs {want:.4g} Vpp, which would put {over}"
                     else:
                         limited = (f"the target needs {want:.4g} Vpp, more than {max_vpp:g} Vpp "

@@ -22,7 +22,10 @@ Every average adds to the spectral sums (``Gxx``, ``Gyx``, ``Gyy``), which are w
 the run file and committed with the FRF view; resume continues the averaging (periodic and
 burst realisations are seeded by their index, so a resumed run uses the same signals).
 A limit exceeded during random excitation stops the run (the drive is ramped to zero): the
-drive level of a random test is fixed, so the next average would exceed it again.
+drive level of a random test is fixed, so the next average would exceed it again. A DAQ
+over-range rejects the average it fell in (a clipped sample is not data), which is
+measured again (periodic and burst: the same realisation; continuous: a new record, the
+blocks before the clip kept); ``MAX_OVER_RANGE_IN_ROW`` in a row stop the run.
 """
 
 from __future__ import annotations
@@ -31,12 +34,13 @@ from collections.abc import Callable
 
 import numpy as np
 
+from drivers.errors import SensorOverload
 from ssid.frf import FRFData
 
 from .estimate import SpectralSums, frf_from_spectra, spectra_of_blocks
 from .rig import Rig
 from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
-from .safety import RunStopped, check_limits, limit_usage
+from .safety import MAX_OVER_RANGE_IN_ROW, RunStopped, check_limits, limit_usage, over_range_in_row
 from .setup import TestSetup
 from .steady_state import periodic_transient, record_noise_floor
 from .storage import RunFile
@@ -93,6 +97,7 @@ class RandomRun:
         # Periodic or burst averages in the sums analysed before their transient had died
         # out; stored with the sums, so a resumed run's summary counts the whole run.
         self.unsettled = 0
+        self.over_range_in_row = 0  # averages rejected for a DAQ over-range, one after another
         if saved and int(saved["n_avg"]) == runfile.n_done and runfile.n_done > 0:
             self.S = SpectralSums(saved["Gxx"], saved["Gyx"], saved["Gyy"], None, int(saved["n_avg"]))
             self.unsettled = int(saved.get("unsettled_averages", 0))
@@ -106,8 +111,10 @@ class RandomRun:
     def _acquire(self, n: int) -> np.ndarray:
         self.rig.line_check()
         raise_if_interrupted()
-        data = self.rig.acquire(n)
-        self.test_time_s += n / self.rig.fs_hz
+        try:
+            data = self.rig.acquire(n)
+        finally:
+            self.test_time_s += n / self.rig.fs_hz  # clipped scans were test time too
         peaks = np.max(np.abs(data), axis=1)
         self.peaks = peaks if self.peaks is None else np.maximum(self.peaks, peaks)
         reason = check_limits(self.setup.limits, peaks, self.roles, self.spec.drive_vpp, self.rig.names)
@@ -146,6 +153,13 @@ class RandomRun:
                 self.echo(f"  average {self.S.n_avg + 1}: not in steady state after {r.max_settle_s:g} s "
                           f"(transient {left:.3g} times what the accuracy allows; raise max_settle_s)")
                 return data
+
+    def _reject(self, fault: SensorOverload) -> None:
+        """An average met a DAQ over-range: it is measured again, unless too many in a row."""
+        self.over_range_in_row += 1
+        if self.over_range_in_row >= MAX_OVER_RANGE_IN_ROW:
+            raise over_range_in_row(fault, self.over_range_in_row, "averages")
+        self.echo(f"  average {self.S.n_avg + 1}: {fault}: rejected, measured again")
 
     def _add(self, blocks: list[np.ndarray], window: str) -> None:
         X = spectra_of_blocks(blocks, window)[:, :, self.mask]
@@ -191,18 +205,32 @@ class RandomRun:
             hop = max(1, int(round(n * (1 - r.overlap))))
 
             def start() -> tuple[np.ndarray, list[np.ndarray]]:
-                # Drive on, settle, first block: at the start and after a pause (the
-                # overlapped blocks must come from one unbroken record).
-                for j in range(n_sh):
-                    self.rig.noise(j, r.drive_vpp, noise_bandwidth_hz(self.setup))
-                self._acquire(r.settle_blocks * n) if r.settle_blocks else None
-                first = self._acquire(n)
-                return first, [first]
+                # Drive on, settle, first block: at the start, after a pause and after an
+                # over-range (the overlapped blocks must come from one unbroken record).
+                while True:
+                    for j in range(n_sh):
+                        self.rig.noise(j, r.drive_vpp, noise_bandwidth_hz(self.setup))
+                    try:
+                        self._acquire(r.settle_blocks * n) if r.settle_blocks else None
+                        first = self._acquire(n)
+                    except SensorOverload as exc:
+                        self._reject(exc)
+                        continue
+                    self.over_range_in_row = 0
+                    return first, [first]
 
             self._hold()
             buf, blocks = start()
             while self.S.n_avg + len(blocks) < r.averages:
-                buf = np.hstack([buf, self._acquire(hop)])[:, -n:]
+                try:
+                    buf = np.hstack([buf, self._acquire(hop)])[:, -n:]
+                except SensorOverload as exc:
+                    self._reject(exc)
+                    if blocks:  # from before the clip
+                        self._add(blocks, r.window)
+                    buf, blocks = start()
+                    continue
+                self.over_range_in_row = 0
                 blocks.append(buf)
                 if len(blocks) >= 4:  # commit in small groups: few flushes, little at risk
                     self._add(blocks, r.window)
@@ -228,7 +256,13 @@ class RandomRun:
                         nb = int(r.burst_fraction * n)
                         x[:nb] = rng.standard_normal(nb)
                     self.rig.arb(j, x, r.drive_vpp)
-                self._add([self._settle_periodic(n)], "rect")
+                try:
+                    period = self._settle_periodic(n)
+                except SensorOverload as exc:
+                    self._reject(exc)
+                    continue
+                self.over_range_in_row = 0
+                self._add([period], "rect")
         for j in range(n_sh):
             self.rig.drive_off(j)
         return self.summary()

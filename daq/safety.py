@@ -37,8 +37,8 @@ from drivers.errors import (
 
 from .setup import Limits
 
-__all__ = ["LineAborted", "LineOverRange", "RunStopped", "check_limits", "describe_fault", "drive_headroom_vpp",
-           "limit_usage"]
+__all__ = ["MAX_OVER_RANGE_IN_ROW", "LineAborted", "LineOverRange", "RunStopped", "check_limits", "describe_fault",
+           "drive_headroom_vpp", "limit_usage", "over_range_in_row"]
 
 
 class LineAborted(Exception):
@@ -59,6 +59,19 @@ class LineOverRange(LineAborted):
     def __init__(self, fault: SensorOverload, drive_vpp: float) -> None:
         super().__init__(f"{fault}: the line cannot be measured at this level", drive_vpp)
         self.fault = fault
+
+
+#: A DAQ over-range costs a stepped-sine line a re-read (or its abort) and a random run an
+#: average, measured again; this many sub-lines or averages in a row stop the run: a sensor
+#: or cable stuck at its rail would otherwise abort every line or reject every average.
+MAX_OVER_RANGE_IN_ROW = 3
+
+
+def over_range_in_row(fault: SensorOverload, n: int, what: str) -> SensorOverload:
+    """The fault that stops a run after ``n`` ``what`` (sub-lines, averages) in a row met
+    ``fault``."""
+    return SensorOverload(f"{fault}, on {n} {what} in a row (a sensor or cable at its rail, or a range too "
+                          "small for the level)", fault.channels)
 
 
 class RunStopped(Exception):

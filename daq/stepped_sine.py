@@ -22,25 +22,21 @@ from collections.abc import Callable
 
 import numpy as np
 
-from drivers.errors import SensorOverload
 from ssid.errors import InputError
 from ssid.frf import FRFData
 
 from .control import RunControl, RunEvents, frf_line_event, hold_if_paused
 from .estimate import multi_input_frf
 from .rig import Rig
-from .safety import LineAborted, LineOverRange, drive_headroom_vpp, limit_usage
+from .safety import (MAX_OVER_RANGE_IN_ROW, LineAborted, LineOverRange, drive_headroom_vpp, limit_usage,
+                     over_range_in_row)
 from .schedule import frequency_grid, sweep_plan
 from .setup import TestSetup
 from .sine_line import MIN_DRIVE_VPP, LineResult, SineLine, initial_drive
 from .steady_state import record_noise_floor
 from .storage import STATUS_ABORTED, STATUS_OK, RunFile
 
-__all__ = ["MAX_OVER_RANGE_IN_ROW", "SteppedSineRun", "sine_grid"]
-
-#: A DAQ over-range aborts its sub-line (the next may be within range); this many in a row
-#: stop the run: a sensor or cable stuck at its rail would abort every line that follows.
-MAX_OVER_RANGE_IN_ROW = 3
+__all__ = ["SteppedSineRun", "sine_grid"]
 
 
 def sine_grid(setup: TestSetup) -> np.ndarray:
@@ -176,8 +172,7 @@ class SteppedSineRun:
             self._sub_line_event(row, res)
         self.over_range_in_row = self.over_range_in_row + 1 if over_range else 0
         if self.over_range_in_row >= MAX_OVER_RANGE_IN_ROW:
-            raise SensorOverload(f"{over_range}, on {self.over_range_in_row} sub-lines in a row (a sensor or "
-                                 "cable at its rail, or a range too small for the level)", over_range.channels)
+            raise over_range_in_row(over_range, self.over_range_in_row, "sub-lines")
         return y
 
     def _sub_line_event(self, row: dict, res: LineResult | None) -> None:

@@ -379,11 +379,20 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
     sim = doc.get("sim", {})
     if not isinstance(sim, dict):
         raise InputError(f"{src}: [sim]: must be a table")
-    return TestSetup(
+    setup = TestSetup(
         source=src, text=text, sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(), name=name,
         output_file=output_file, uff_file=uff_file, raw_time=raw_time, daq=daq,
         generators=generators, amplifiers=amplifiers, shakers=shakers, channels=channels,
         excitation=excitation, sine=sine, random=rnd, limits=limits, min_coherence=min_coh, sim=sim)
+    if excitation == "random":
+        # The random level is fixed: one the generator refuses would stop every run of
+        # this setup at its start, as an instrument error.
+        for p, sh in enumerate(shakers):
+            if rnd.drive_vpp > setup.drive_limit_vpp(p):
+                raise InputError(
+                    f"{src}: [random] drive_vpp: {rnd.drive_vpp:g} Vpp is more than shaker {sh.dof!r} may get, "
+                    f"{setup.drive_limit_vpp(p):g} Vpp ([limits] max_drive_vpp, or the max_vpp of generator {sh.generator!r})")
+    return setup
 
 
 def _unique(src: str, table: str, key: str, values: list) -> None:

@@ -91,6 +91,19 @@ def test_band_beyond_the_daq_passband_is_refused(tmp_path):
         load_setup(p)
 
 
+def test_a_random_level_beyond_a_drive_limit_is_refused(tmp_path):
+    """A random run's level is fixed: one above what the generator takes (4 Vpp here) is a
+    setup error, named before any file is made; it stopped every run at its start as an
+    instrument error ("amplitude 6.0 Vpp outside [0.002, 4]")."""
+    p = tmp_path / "s.toml"
+    p.write_text(random_setup().replace("drive_vpp = 0.5", "drive_vpp = 6.0"))
+    with pytest.raises(InputError) as e:
+        load_setup(p)
+    assert "[random] drive_vpp: 6 Vpp is more than shaker '1+Z' may get, 4 Vpp" in str(e.value)
+    p.write_text(random_setup().replace("drive_vpp = 0.5", "drive_vpp = 4.0"))
+    assert load_setup(p).random.drive_vpp == 4.0
+
+
 def test_the_steady_state_check_is_refused_for_continuous_random(tmp_path):
     """``accuracy`` and ``max_settle_s`` set the steady-state check of periodic and burst
     random; set for continuous random they would do nothing, so they are refused, not

@@ -125,7 +125,8 @@ class RandomRun:
         return data
 
     def _settle_periodic(self, n: int) -> np.ndarray:
-        """Periods of the new multisine until the last one is in steady state; returns it.
+        """Periods of the new multisine until the last one is in steady state; returns its
+        spectrum (n_ch, n_band_bins), rect window.
 
         At least ``settle_blocks`` periods before it; then, with ``accuracy`` > 0, periods
         until :func:`periodic_transient` finds the transient below the accuracy asked (or
@@ -135,24 +136,23 @@ class RandomRun:
         """
         r = self.spec
         if r.accuracy <= 0:
-            return self._acquire((r.settle_blocks + 1) * n)[:, -n:]
+            return self._spectra([self._acquire((r.settle_blocks + 1) * n)[:, -n:]], "rect")[0]
         if r.settle_blocks > 2:
             self._acquire((r.settle_blocks - 2) * n)
         groups = [g for g in (self.fi, self.roles["response"], self.roles["reaction"]) if g]
         spectra, t_start = [], self.test_time_s
         while True:
-            data = self._acquire(n)
-            spectra = [*spectra[-3:], spectra_of_blocks([data], "rect")[0][:, self.mask]]
+            spectra = [*spectra[-3:], self._spectra([self._acquire(n)], "rect")[0]]
             # Half the accuracy to each group: a line's FRF is a ratio of response to force
             # and carries both their errors.
             left = periodic_transient(spectra, n, self.noise_var, groups, r.accuracy / 2)
             if left <= 1.0:
-                return data
+                return spectra[-1]
             if self.test_time_s - t_start >= r.max_settle_s:
                 self.unsettled += 1
                 self.echo(f"  average {self.S.n_avg + 1}: not in steady state after {r.max_settle_s:g} s "
                           f"(transient {left:.3g} times what the accuracy allows; raise max_settle_s)")
-                return data
+                return spectra[-1]
 
     def _reject(self, fault: SensorOverload) -> None:
         """An average met a DAQ over-range: it is measured again, unless too many in a row."""
@@ -161,8 +161,12 @@ class RandomRun:
             raise over_range_in_row(fault, self.over_range_in_row, "averages")
         self.echo(f"  average {self.S.n_avg + 1}: {fault}: rejected, measured again")
 
-    def _add(self, blocks: list[np.ndarray], window: str) -> None:
-        X = spectra_of_blocks(blocks, window)[:, :, self.mask]
+    def _spectra(self, blocks: list[np.ndarray], window: str) -> np.ndarray:
+        """Spectra of ``blocks`` at the band's bins, (n_blocks, n_ch, n_band_bins)."""
+        return spectra_of_blocks(blocks, window)[:, :, self.mask]
+
+    def _add(self, X: np.ndarray) -> None:
+        """Add spectra (n_blocks, n_ch, n_band_bins) to the sums and commit."""
         self.S.add(X[:, self.fi], X[:, self.yi])
         self._commit()
 
@@ -227,18 +231,18 @@ class RandomRun:
                 except SensorOverload as exc:
                     self._reject(exc)
                     if blocks:  # from before the clip
-                        self._add(blocks, r.window)
+                        self._add(self._spectra(blocks, r.window))
                     buf, blocks = start()
                     continue
                 self.over_range_in_row = 0
                 blocks.append(buf)
                 if len(blocks) >= 4:  # commit in small groups: few flushes, little at risk
-                    self._add(blocks, r.window)
+                    self._add(self._spectra(blocks, r.window))
                     blocks = []
                     if self.S.n_avg < r.averages and self._hold():
                         buf, blocks = start()
             if blocks:
-                self._add(blocks, r.window)
+                self._add(self._spectra(blocks, r.window))
         else:
             if r.accuracy > 0:
                 # What a period's difference may hold without being transient.
@@ -257,12 +261,12 @@ class RandomRun:
                         x[:nb] = rng.standard_normal(nb)
                     self.rig.arb(j, x, r.drive_vpp)
                 try:
-                    period = self._settle_periodic(n)
+                    X = self._settle_periodic(n)
                 except SensorOverload as exc:
                     self._reject(exc)
                     continue
                 self.over_range_in_row = 0
-                self._add([period], "rect")
+                self._add(X[None])
         for j in range(n_sh):
             self.rig.drive_off(j)
         return self.summary()

@@ -39,6 +39,10 @@ from .storage import STATUS_ABORTED, STATUS_OK, RunFile
 __all__ = ["SteppedSineRun", "sine_grid"]
 
 
+#: The words of a kept sub-line's reason when its level was held below its target.
+HELD = "held below a limit"
+
+
 def sine_grid(setup: TestSetup) -> np.ndarray:
     s = setup.sine
     return frequency_grid(s.f_min_hz, s.f_max_hz, s.n_lines, s.spacing, s.refine)
@@ -107,7 +111,7 @@ class SteppedSineRun:
         if abs(ratio - 1) <= self.spec.tolerance:
             return ""
         if res.limited:
-            return f"level {ratio:.2f} of the target, held below a limit: {res.limited}"
+            return f"level {ratio:.2f} of the target, {HELD}: {res.limited}"
         return f"level {ratio:.2f} of the target (tolerance {self.spec.tolerance:g})"
 
     def measure(self, p: int, k: int) -> np.ndarray | None:
@@ -288,12 +292,16 @@ class SteppedSineRun:
     def summary(self) -> dict:
         rows = list(self.rows.values())
         ok = [r for r in rows if int(r["status"]) == STATUS_OK]
+        # A kept row's reason says why its level is off the target (a replayed row's is bytes).
+        notes = [str(n.decode() if isinstance(n, bytes) else n) for n in (r.get("reason", "") for r in ok)]
         frf = self.frf()
         return {
             "excitation": "stepped_sine", "n_grid": int(len(self.grid)), "n_lines": int(frf.n_freq),
             "n_sub_lines": len(rows), "n_aborted": len(rows) - len(ok),
-            # kept with the control level outside the tolerance (a replayed row's reason is bytes)
-            "n_level_off": sum(1 for r in ok if len(r.get("reason", ""))),
+            # held below a target a limit would not let them reach (notching: expected)
+            "n_held": sum(1 for n in notes if HELD in n),
+            # kept with the control level outside the tolerance for want of corrections or time
+            "n_level_off": sum(1 for n in notes if n and HELD not in n),
             "n_values_blanked": int(np.count_nonzero(~frf.valid_mask())),
             "test_time_s": self.test_time_s,
             "settle_time_s": float(sum(r["settle_s"] for r in rows)),

@@ -162,7 +162,8 @@ def _caveats(summary: dict) -> str:
     """What the engineer should know before using the FRFs, from the run's summary: the
     per-line and per-average messages have scrolled away by the end of a long run."""
     said = [f"; {n} {what.format('' if n == 1 else 's')}" for key, what in (
-        ("n_aborted", "sub-line{} aborted"), ("n_level_off", "sub-line{} kept off the target level"),
+        ("n_aborted", "sub-line{} aborted"), ("n_held", "sub-line{} held below a limit"),
+        ("n_level_off", "sub-line{} kept off the target level"),
         ("unsettled_averages", "average{} not in steady state"), ("n_values_blanked", "FRF value{} blanked"))
         if (n := int(summary.get(key, 0)))]
     return "".join(said)

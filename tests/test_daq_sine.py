@@ -165,7 +165,7 @@ def test_a_target_beyond_the_generators_range_is_held_at_it(tmp_path):
     with h5py.File(tmp_path / "run.h5") as f:
         freq = f["acq/records/freq_hz"][()]
     held = np.array(["held below a limit" in r for r in reason])
-    assert np.all(status == 0) and drive.max() <= 4.0 and 0 < held.sum() == summary["n_level_off"]
+    assert np.all(status == 0) and drive.max() <= 4.0 and 0 < held.sum() == summary["n_held"]
     assert all("more than 4 Vpp (max_drive_vpp, or the generator's max_vpp)" in r for r, h in zip(reason, held) if h)
     assert np.all(drive[held] >= 4.0 / (1 + setup.sine.tolerance))  # held at the range, not short of it
     assert reason[int(np.argmin(abs(freq - 187.146)))] == ""

@@ -295,6 +295,7 @@ class SineLine:
                 first_way = way
             else:
                 first_windows_trusted = False
+                limited = ""  # the last settled reading says whether the target is out of reach
                 if want > min(headroom, max_vpp) * (1 + 1e-9):
                     # The target cannot be held: the line is measured below it, at the drive
                     # that keeps every channel within NOTCH_MARGIN of its limit and range
@@ -331,9 +332,9 @@ class SineLine:
             except LineOverRange:
                 # Clipped samples say only that the level was too high: the drive goes down
                 # and the line is read again. The first window of a line far above the last
-                # (a mode between two lines) clipped so, and so did the ringing a line aborted
-                # before it left (payload, 2 m/s^2 at 6+Z, 1361-1479 Hz): aborted at once, three
-                # such lines stopped the run. Only a line still clipping is aborted.
+                # (a mode between two lines) clipped so, and so did the ringing an aborted line
+                # left (payload, 2 m/s^2 at 6+Z, 1361-1479 Hz): aborting such lines at once, as
+                # tried, three in a row stopped the run. Only a line still clipping is aborted.
                 if corrections >= MAX_CORRECTIONS or vpp <= MIN_DRIVE_VPP:
                     raise
                 first_windows_trusted = False

@@ -9,8 +9,8 @@ Two levels:
   (:class:`LineOverRange`). (A target that would exceed a limit is not applied: the level
   control holds the line below it, :mod:`daq.sine_line`);
 * an **instrument fault** (amplifier interlock or fault, lost heartbeat, an instrument that
-  stops answering, a CAN frame gap or bus-off, a DAQ overload during random excitation or
-  on several stepped-sine lines in a row) stops the run
+  stops answering, a CAN frame gap or bus-off, a DAQ overload on several stepped-sine lines
+  or random averages in a row, or with the drives off) stops the run
   (:class:`RunStopped`). Every exit path - normal end, fault, Ctrl-C, any exception - then
   goes through :meth:`daq.rig.Rig.safe_state`: all generator outputs off, all amplifiers
   disabled, acquisition stopped.

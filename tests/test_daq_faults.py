@@ -13,7 +13,7 @@ from daq.setup import parse_setup
 from daq.simlab import start_sim_lab
 from ssid.io import read_frf
 
-from test_daq_helpers import all_safe, random_setup, sine_setup
+from test_daq_helpers import all_safe, frf_error, random_setup, sine_setup
 
 FAULTS = {
     "interlock": (lambda lab: lab.amplifiers[0].set_interlock(False), "interlock open"),
@@ -81,10 +81,13 @@ def test_a_clipped_sample_costs_a_sine_line_a_reading_not_the_run(tmp_path):
     try:
         summary = run_test(inst, out=str(tmp_path / "run.h5"), echo=echo)
         safe = all_safe(handle.world)
+        # noise-free: each line within the accuracy asked (2e-3; a clean run's worst is 8.7e-4)
+        worst = float(np.nanmax(frf_error(read_frf(tmp_path / "run.h5"), handle.world)))
     finally:
         handle.stop()
     assert safe and summary["state"] == "complete" and summary["n_aborted"] == 0
     assert summary["n_level_off"] == 0  # every line at its level, the re-read one too
+    assert worst < setup.sine.accuracy, worst
     with h5py.File(tmp_path / "run.h5") as f:
         assert np.all(f["acq/records/status"][()] == 0)
 
@@ -124,8 +127,6 @@ def test_a_clipped_sample_costs_a_random_run_an_average_not_the_run(tmp_path, ki
     and measured again (periodic: the same realisation; continuous: a new record, the
     blocks before the clip kept), so the run ends with every average it asked for and FRFs
     as good as a clean run's. It stopped the run."""
-    from test_daq_helpers import frf_error
-
     errors = {}
     for spike in (False, True):
         setup = parse_setup(random_setup(kind=kind, averages=8), str(tmp_path / f"s{spike}.toml"))

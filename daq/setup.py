@@ -391,7 +391,8 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
             if rnd.drive_vpp > setup.drive_limit_vpp(p):
                 raise InputError(
                     f"{src}: [random] drive_vpp: {rnd.drive_vpp:g} Vpp is more than shaker {sh.dof!r} may get, "
-                    f"{setup.drive_limit_vpp(p):g} Vpp ([limits] max_drive_vpp, or the max_vpp of generator {sh.generator!r})")
+                    f"{setup.drive_limit_vpp(p):g} Vpp ([limits] max_drive_vpp, or the max_vpp of generator "
+                    f"{sh.generator!r})")
     return setup
 
 

@@ -93,7 +93,10 @@ class SteppedSineRun:
         rec = self.rf.records()
         n = len(rec.get("grid_index", []))
         for i in range(n):
-            yield {k: v[i] for k, v in rec.items()}
+            row = {k: v[i] for k, v in rec.items()}
+            # the file holds the reason as bytes; a live row as str
+            row["reason"] = bytes(row.get("reason", b"")).decode("utf-8", "replace")
+            yield row
 
     # ------------------------------------------------------------------ per sub-line
     def _y(self, X: np.ndarray, p: int) -> np.ndarray:
@@ -145,12 +148,14 @@ class SteppedSineRun:
         vpp = min(vpp, max(self.headroom_vpp[p] / (1 + self.spec.max_change), MIN_DRIVE_VPP))
         nch = len(self.rig.names)
         t0 = self.rig.clock
+        over_range = None  # the DAQ fault that aborted the line, if one did
         try:
             res = self.line.measure(p, f, vpp, self.target)
             row = self._row(k, res, STATUS_OK, self._level_note(res))
         except LineAborted as exc:
             self.rig.drive_off(p)  # the drive goes to zero before anything else
-            over_range = exc.fault if isinstance(exc, LineOverRange) else None
+            if isinstance(exc, LineOverRange):
+                over_range = exc.fault
             dt = (self.rig.clock - t0) / self.rig.fs_hz
             row = {"grid_index": k, "pattern": p, "freq_hz": f, "drive_vpp": exc.drive_vpp, "status": STATUS_ABORTED,
                    "settle_s": dt, "dwell_s": 0.0, "transient": 1.0, "decay": 0.0, "wall_time": time.time(),
@@ -158,8 +163,6 @@ class SteppedSineRun:
                    "X_transient": np.full(nch, np.nan), "reason": str(exc)}
             res = None
             self.echo(f"  line {k} shaker {p} {f:.2f} Hz aborted at {exc.drive_vpp:.3g} Vpp: {exc}")
-        else:
-            over_range = None
         self.rf.append_record(row)
         if res is not None and res.raw is not None:
             self.rf.append_raw(res.raw)
@@ -292,8 +295,7 @@ class SteppedSineRun:
     def summary(self) -> dict:
         rows = list(self.rows.values())
         ok = [r for r in rows if int(r["status"]) == STATUS_OK]
-        # A kept row's reason says why its level is off the target (a replayed row's is bytes).
-        notes = [str(n.decode() if isinstance(n, bytes) else n) for n in (r.get("reason", "") for r in ok)]
+        notes = [r["reason"] for r in ok]  # a kept row's reason: why its level is off the target
         frf = self.frf()
         return {
             "excitation": "stepped_sine", "n_grid": int(len(self.grid)), "n_lines": int(frf.n_freq),

@@ -21,6 +21,7 @@ import platform
 import signal
 import threading
 import time
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -35,7 +36,7 @@ from .safety import RunStopped, describe_fault
 from .setup import TestSetup, load_setup, parse_setup
 from .storage import RunFile
 
-__all__ = ["load_resume_setup", "run_test"]
+__all__ = ["load_resume_setup", "range_changes_on_resume", "run_test"]
 
 log = logging.getLogger(__name__)
 
@@ -49,22 +50,73 @@ def _version() -> str:
         return "unknown"
 
 
+#: What a resumed session may change in the setup: the channels' DAQ input ranges. A range
+#: too small for the level stops a run (over-range three times in a row); the lines already
+#: measured are good, since a range is no part of a channel's calibration, and a resume with
+#: the same setup would only meet the overload again.
+RESUMABLE_CHANNEL_KEYS = ("range_volt",)
+
+
+def _setup_in_effect(rf: RunFile) -> TestSetup:
+    """The setup the run's last session ran with: the one it was started with, or the one
+    recorded by a session resumed with changed DAQ ranges. Each is checked against its hash."""
+    for session in reversed(rf.meta.get("sessions", [])):
+        if "setup_toml" in session:
+            text, sha, where = session["setup_toml"], session.get("setup_sha256"), f"{rf.path}:/acq/meta_json"
+            break
+    else:
+        text, sha, where = rf.setup_text, rf.setup_sha256, f"{rf.path}:/acq/setup_toml"
+    setup = parse_setup(text, where)
+    if setup.sha256 != sha:
+        raise InputError(f"{where}: the stored setup does not match its SHA-256 (damaged run file)")
+    return setup
+
+
+def _without_resumable(doc: dict) -> dict:
+    channels = [{k: v for k, v in c.items() if k not in RESUMABLE_CHANNEL_KEYS} for c in doc.get("channels", [])]
+    return {**doc, "channels": channels}
+
+
+def range_changes_on_resume(stored: TestSetup, new: TestSetup, run: str | Path) -> dict[str, tuple[float, float]]:
+    """The DAQ input ranges ``new`` changes from ``stored`` (the setup of the run file ``run``):
+    ``{channel name: (old range_volt, new range_volt)}``, empty when only comments or layout
+    differ.
+
+    Raises
+    ------
+    InputError
+        ``new`` differs in anything else: the measured lines and the schedule's decisions
+        belong to the stored setup.
+    """
+    if new.sha256 == stored.sha256:
+        return {}
+    a, b = (_without_resumable(tomllib.loads(s.text)) for s in (stored, new))
+    if a != b:
+        where = next(k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k))
+        if where == "channels" and len(a[where]) == len(b[where]):
+            name = next(x.get("name", i) for i, (x, y) in enumerate(zip(a[where], b[where])) if x != y)
+            where = f"[[channels]] {name!r}"
+        else:
+            where = f"[[{where}]]" if isinstance(a.get(where, b.get(where)), list) else f"[{where}]"
+        raise InputError(f"{new.source}: differs from the setup of the run {run} in {where}; "
+                         "a resume may change only the channels' range_volt (the DAQ input ranges)")
+    return {n.name: (o.range_volt, n.range_volt) for o, n in zip(stored.channels, new.channels)
+            if o.range_volt != n.range_volt}
+
+
 def load_resume_setup(path: str | Path, setup_path: str | None = None) -> TestSetup:
-    """The setup of an unfinished run file, checked against ``setup_path`` when given."""
+    """The setup to resume the unfinished run file ``path`` with: ``setup_path`` when given
+    (it may change only the DAQ input ranges, :func:`range_changes_on_resume`), else the
+    setup the run's last session ran with."""
     rf = RunFile.open(path)
     try:
-        text, sha = rf.setup_text, rf.setup_sha256
+        stored = _setup_in_effect(rf)
     finally:
         rf.close()
-    if setup_path is not None:
-        setup = load_setup(setup_path)
-        if setup.sha256 != sha:
-            raise InputError(f"{setup_path}: differs from the setup the run {path} was started with "
-                             f"(SHA-256 {setup.sha256[:12]}... vs {sha[:12]}...); resume needs the same file")
-        return setup
-    setup = parse_setup(text, f"{path}:/acq/setup_toml")
-    if setup.sha256 != sha:
-        raise InputError(f"{path}: the stored setup does not match its SHA-256 (damaged run file)")
+    if setup_path is None:
+        return stored
+    setup = load_setup(setup_path)
+    range_changes_on_resume(stored, setup, path)
     return setup
 
 
@@ -167,16 +219,23 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
     path = Path(out or setup.output_file)
     if resume:
         rf = RunFile.open(path)
-        if rf.setup_sha256 != setup.sha256:
+        try:
+            stored = _setup_in_effect(rf)
+            range_changes = range_changes_on_resume(stored, setup, path)
+        except BaseException:
             rf.close()
-            raise InputError(f"{path}: was started with another setup (SHA-256 differs)")
+            raise
         if rf.state == "complete":
             rf.close()
             echo(f"{path}: the run is complete; nothing to resume")
             return {"state": "complete", "file": str(path), "resumed": False}
         echo(f"{path}: resuming ({rf.n_done} records, state was {rf.state!r})")
+        if range_changes:
+            echo("DAQ input ranges changed for this session: "
+                 + ", ".join(f"{name!r} {a:g} -> {b:g} V" for name, (a, b) in range_changes.items()))
         rf.set_state("running")
     else:
+        stored, range_changes = setup, {}
         if not path.parent.is_dir():
             raise InputError(f"{path}: directory {str(path.parent)!r} does not exist")
         rf = _create_runfile(setup, path)
@@ -198,6 +257,11 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         meta.setdefault("sessions", []).append({
             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "instruments": rig.identities(),
             "simulated": bool(sim), "resumed_at_record": rf.n_done})
+        if setup.sha256 != stored.sha256:
+            # The setup this session runs with, for the next resume and for the record: which
+            # lines were measured with which ranges.
+            meta["sessions"][-1].update(setup_toml=setup.text, setup_sha256=setup.sha256,
+                                        range_volt_changed={k: list(v) for k, v in range_changes.items()})
         rf.set_meta(meta)
         ev.emit("instruments", identities=rig.identities(), simulated=bool(sim))
         rig.prepare()

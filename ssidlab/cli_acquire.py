@@ -5,9 +5,9 @@
     ... [--events] [--control-stdin]     (for a controlling program such as ``ssidlab tui``)
 
 ``--sim`` starts the simulated lab (``daq.simlab``) and runs against it through the real
-drivers. ``--resume`` continues an interrupted run from its first incomplete line; with a
-setup file given, its SHA-256 must equal the one stored in the run file (without one, the
-stored setup is used).
+drivers. ``--resume`` continues an interrupted run from its first incomplete line; a setup
+file given may differ from the run's only in the channels' ``range_volt`` (a range too small
+for the level stops a run; without a file, the setup the run last ran with is used).
 
 ``--events`` adds one line per run event to stdout, ``@event {json}`` (``daq.control``:
 instrument identities, each sub-line's level, distortion, limit use and amplifier state,
@@ -19,7 +19,8 @@ program dies, however it dies, the run stops safely instead of driving on unatte
 Exit status: 0 the run is complete; 2 bad input (setup file, run file, options; one line
 ``ssidlab acquire: error: ...``); 3 the run was stopped safely by a fault (a line
 ``ssidlab acquire: stopped: <why>``); 130 interrupted (Ctrl-C or SIGTERM). After 3 or 130
-the run file is resumable, and a second line names it with the command that continues it.
+the run file is resumable, and a second line names it with the command that continues it
+(after a DAQ overload, a third says how to continue with a larger input range).
 In every case all generator outputs are off and all amplifiers disabled when the command
 ends.
 """
@@ -87,13 +88,15 @@ def _read_control(control, stream) -> None:
     os.kill(os.getpid(), signal.SIGINT)
 
 
-def _say_how_to_continue(run_path: Path, sim: bool) -> None:
+def _say_how_to_continue(run_path: Path, sim: bool, overload: bool = False, setup_arg: str | None = None) -> None:
     """The line an engineer needs after a stop: where the measured lines are, and the
-    command that continues the run from its first incomplete line."""
+    command that continues the run from its first incomplete line. After a DAQ overload,
+    also how to continue with a larger input range (a resume meets the same overload)."""
     from daq.storage import peek_run_file
 
     if run_path.is_file():
-        cmd = f"ssidlab acquire --resume {shlex.quote(str(run_path))}" + (" --sim" if sim else "")
+        sim_flag = " --sim" if sim else ""
+        cmd = f"ssidlab acquire --resume {shlex.quote(str(run_path))}{sim_flag}"
         # A fault before the first line (an instrument that never answered) leaves a file with
         # the setup only: say so rather than claim measured lines were kept.
         peek = peek_run_file(run_path)
@@ -101,6 +104,11 @@ def _say_how_to_continue(run_path: Path, sim: bool) -> None:
         kept = (f"{n} measurement records are kept in {run_path}" if n
                 else f"nothing was measured yet; the setup is kept in {run_path}")
         print(f"ssidlab acquire: {kept}; continue with: {cmd}", file=sys.stderr, flush=True)
+        if overload:
+            setup = shlex.quote(setup_arg) if setup_arg else "SETUP.toml"
+            print(f"ssidlab acquire: if a DAQ input range is too small for the level, raise that channel's "
+                  f"range_volt in the setup and continue with it: ssidlab acquire --resume "
+                  f"{shlex.quote(str(run_path))} {setup}{sim_flag}", file=sys.stderr, flush=True)
 
 
 class _Terminated(KeyboardInterrupt):
@@ -112,6 +120,7 @@ def run_acquire(args: argparse.Namespace) -> int:
     from daq.run import load_resume_setup, run_test
     from daq.safety import RunStopped
     from daq.setup import load_setup
+    from drivers.errors import SensorOverload
 
     if args.resume and args.out:
         raise InputError("--out and --resume exclude each other (the resumed file is written in place)")
@@ -139,7 +148,7 @@ def run_acquire(args: argparse.Namespace) -> int:
                            events=_print_event if args.events else None)
     except RunStopped as exc:
         print(f"ssidlab acquire: stopped: {' '.join(str(exc).splitlines())}", file=sys.stderr)
-        _say_how_to_continue(run_path, args.sim)
+        _say_how_to_continue(run_path, args.sim, overload=isinstance(exc.cause, SensorOverload), setup_arg=args.setup)
         return EXIT_STOPPED
     except KeyboardInterrupt:
         print("ssidlab acquire: interrupted (outputs off, amplifiers disabled)", file=sys.stderr)

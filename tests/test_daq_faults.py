@@ -3,17 +3,19 @@ and resumable; the simulated instruments end with all outputs off and amplifiers
 
 from __future__ import annotations
 
+import json
+
 import h5py
 import numpy as np
 import pytest
 
-from daq.run import run_test
+from daq.run import load_resume_setup, run_test
 from daq.safety import MAX_OVER_RANGE_IN_ROW, RunStopped
 from daq.setup import parse_setup
-from daq.simlab import start_sim_lab
+from daq.simlab import build_world, start_sim_lab
 from ssid.io import read_frf
 
-from test_daq_helpers import all_safe, frf_error, random_setup, sine_setup
+from test_daq_helpers import all_safe, cli, frf_error, random_setup, sine_setup
 
 FAULTS = {
     "interlock": (lambda lab: lab.amplifiers[0].set_interlock(False), "interlock open"),
@@ -148,3 +150,46 @@ def test_a_clipped_sample_costs_a_random_run_an_average_not_the_run(tmp_path, ki
         assert safe and summary["state"] == "complete" and summary["n_avg"] == 8
         assert any("rejected, measured again" in m for m in seen) == spike, seen
     assert errors[True] < 1.5 * errors[False], errors
+
+
+def test_a_range_too_small_stops_the_run_and_a_resume_with_a_larger_one_completes_it(tmp_path, capsys):
+    """Periodic random at 4 Vpp with acc 3+Z on a 0.1 V range (10 m/s^2): every average
+    clips, so the run stops after three (exit 3) and stderr says how to continue with a larger
+    range. A setup changing anything else is refused. Resumed with that channel at 1 V the run
+    completes, its FRFs as close to the truth as a run started at 1 V, and the run file says
+    which session ran with which range; a later resume without a setup file takes it."""
+    acc3 = 'name = "acc 3+Z"\ninput = 2\ndof = "3+Z"\nquantity = "acceleration"\nsensitivity_mv_per_unit = 10.0\n'
+
+    def text(range_volt: float, drive_vpp: float = 4.0) -> str:
+        t = random_setup(averages=6).replace("drive_vpp = 0.5", f"drive_vpp = {drive_vpp}")
+        assert acc3 in t and f"drive_vpp = {drive_vpp}" in t
+        return t.replace(acc3, acc3 + f"range_volt = {range_volt}\n")
+
+    s, run = tmp_path / "s.toml", tmp_path / "run.h5"
+    s.write_text(text(0.1))
+    status, _ = cli([str(s), "--sim", "--out", str(run), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 3 and "DAQ overload" in err[0] and "acc 3+Z" in err[0], err
+    assert err[-1].endswith(f"range_volt in the setup and continue with it: ssidlab acquire --resume {run} {s} --sim")
+
+    other = tmp_path / "other.toml"
+    other.write_text(text(1.0, drive_vpp=3.0))
+    status, msg = cli(["--resume", str(run), str(other), "--sim"])
+    assert status == 2 and "[random]" in msg and "only the channels' range_volt" in msg, msg
+    with h5py.File(run) as f:
+        assert f["acq"].attrs["state"].startswith("stopped: DAQ overload")
+
+    s.write_text(text(1.0))
+    status, _ = cli(["--resume", str(run), str(s), "--sim"])
+    out = capsys.readouterr().out
+    assert status == 0 and "DAQ input ranges changed for this session: 'acc 3+Z' 0.1 -> 1 V" in out, out
+    clean = tmp_path / "clean.h5"
+    assert cli([str(s), "--sim", "--out", str(clean), "--quiet"])[0] == 0
+    world = build_world(parse_setup(text(1.0), str(s)))
+    resumed, started = (float(np.median(frf_error(read_frf(p), world))) for p in (run, clean))
+    assert read_frf(run).n_avg == 6 and resumed < 1.5 * started, (resumed, started)
+    with h5py.File(run) as f:
+        sessions = json.loads(f["acq/meta_json"][()])["sessions"]
+    assert "range_volt_changed" not in sessions[0]
+    assert sessions[1]["range_volt_changed"] == {"acc 3+Z": [0.1, 1.0]}
+    assert load_resume_setup(run).channels[2].range_volt == 1.0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -137,3 +138,26 @@ def test_missing_required_and_cross_checks():
         parse_setup(sine_setup().replace('dof = "1+Z"\nquantity = "acceleration"', 'dof = "2+Z"\nquantity = "acceleration"'), "s.toml")
     with pytest.raises(InputError, match=r"\[stepped_sine\] control"):
         parse_setup(sine_setup(extra='control = "force 1+Z"'), "s.toml")
+
+
+def test_a_resume_may_change_only_the_daq_ranges(tmp_path):
+    """range_changes_on_resume: a changed range_volt is named with its old and new value, a
+    changed comment is no change, and anything else is refused naming where it differs."""
+    from daq.run import range_changes_on_resume
+
+    base = sine_setup()
+    stored = parse_setup(base, "s.toml")
+    acc3 = 'name = "acc 3+Z"\ninput = 2\ndof = "3+Z"\nquantity = "acceleration"\nsensitivity_mv_per_unit = 10.0\n'
+    assert acc3 in base
+
+    def changed(old: str, new: str) -> dict:
+        assert old in base
+        return range_changes_on_resume(stored, parse_setup(base.replace(old, new), "new.toml"), "run.h5")
+
+    assert changed(acc3, acc3 + "range_volt = 2.5\n") == {"acc 3+Z": (10.0, 2.5)}
+    assert changed(acc3, acc3 + "range_volt = 10.0  # the default, written out\n") == {}
+    for old, new, where in [(acc3, acc3.replace("10.0", "10.2"), "[[channels]] 'acc 3+Z'"),
+                            ("force_n = 1.0", "force_n = 2.0", "[stepped_sine]"),
+                            ("[limits]\n", "[limits]\nmax_force_n = 40\n", "[limits]")]:
+        with pytest.raises(InputError, match=re.escape(f"new.toml: differs from the setup of the run run.h5 in {where}")):
+            changed(old, new)

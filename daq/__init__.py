@@ -7,6 +7,7 @@
 module                      what
 ==========================  ====================================================================
 ``daq.setup``               the TOML test setup: parsing, validation (errors name the key)
+``daq.toml_table``          one TOML table read with types and ranges checked (setup, ``[sim]``)
 ``daq.rig``                 ``Rig``: the instruments behind one interface; ``InstrumentRig``
                             opens the drivers (generator, amplifiers, CAN FD DAQ)
 ``daq.estimate``            harmonic least-squares fit, multi-input solve ``H = X_A X_F^-1``,
@@ -22,7 +23,8 @@ module                      what
 ``daq.storage``             the run file: contract FRF view + ``/acq`` records, flushed per
                             line, finalised atomically
 ``daq.safety``              limits (abort the line), faults (stop the run), messages
-``daq.run``                 a whole run: every exit path ends in the safe state
+``daq.run``                 a whole run: every exit path ends in the safe state; what a
+                            resume may change (the DAQ input ranges)
 ``daq.control``             pause / resume between lines; the run's events for a UI
 ``daq.check``               connection check: every instrument opened, identified, released
 UFF 58 export               by ``daq.run`` through ``ssid.exchange.write_uff_frf``

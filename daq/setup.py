@@ -13,11 +13,12 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from ssid.errors import InputError
+
+from .toml_table import TomlTable
 
 __all__ = [
     "AmplifierSpec", "ChannelSpec", "DaqSpec", "GeneratorSpec", "Limits", "RandomSpec",
@@ -195,77 +196,11 @@ class TestSetup:
         }
 
 
-class _Table:
-    """Typed access to one TOML table; every failure names the file, table and key."""
-
-    def __init__(self, src: str, where: str, data: Any) -> None:
-        self.src, self.where = src, where
-        if not isinstance(data, dict):
-            raise self.error(None, "must be a table")
-        self.data = data
-        self.used: set[str] = set()
-
-    def error(self, key: str | None, problem: str) -> InputError:
-        loc = f"{self.where} {key}" if key else self.where
-        return InputError(f"{self.src}: {loc}: {problem}")
-
-    def _get(self, key: str, default: Any, required: bool) -> Any:
-        self.used.add(key)
-        if key not in self.data:
-            if required:
-                raise self.error(key, "missing (required)")
-            return default
-        return self.data[key]
-
-    def str(self, key: str, default: str | None = None, *, required: bool = False,
-            choices: tuple[str, ...] | None = None) -> str | None:
-        v = self._get(key, default, required)
-        if v is None:
-            return None
-        if not isinstance(v, str) or not v.strip():
-            raise self.error(key, f"must be a non-empty string, got {v!r}")
-        if choices and v not in choices:
-            raise self.error(key, f"must be one of {', '.join(choices)}, got {v!r}")
-        return v
-
-    def num(self, key: str, default: float | None = None, *, required: bool = False,
-            lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
-        v = self._get(key, default, required)
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.error(key, f"must be a number, got {v!r}")
-        v = float(v)
-        if math.isnan(v) or (v <= lo if lo_open else v < lo) or v > hi:
-            rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
-            raise self.error(key, f"must be in {rng}, got {v:g}")
-        return v
-
-    def int(self, key: str, default: int | None = None, *, required: bool = False,
-            lo: int = -2**62, hi: int = 2**62) -> int:
-        v = self._get(key, default, required)
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.error(key, f"must be a whole number, got {v!r}")
-        if not lo <= v <= hi:
-            raise self.error(key, f"must be in [{lo}, {hi}], got {v}")
-        return v
-
-    def bool(self, key: str, default: bool) -> bool:
-        v = self._get(key, default, False)
-        if not isinstance(v, bool):
-            raise self.error(key, f"must be true or false, got {v!r}")
-        return v
-
-    def done(self) -> None:
-        """Unknown keys are errors: a typo must not silently fall back to a default."""
-        extra = sorted(set(self.data) - self.used)
-        if extra:
-            raise self.error(extra[0], "unknown key")
-
-
-def _tables(src: str, doc: dict, key: str) -> list[_Table]:
+def _tables(src: str, doc: dict, key: str) -> list[TomlTable]:
     items = doc.get(key, [])
     if not isinstance(items, list) or not items:
         raise InputError(f"{src}: [[{key}]]: at least one entry is required")
-    return [_Table(src, f"[[{key}]] #{i + 1}", t) for i, t in enumerate(items)]
+    return [TomlTable(src, f"[[{key}]] #{i + 1}", t) for i, t in enumerate(items)]
 
 
 def load_setup(path: str | Path) -> TestSetup:
@@ -297,18 +232,18 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
     if extra:
         raise InputError(f"{src}: [{extra[0]}]: unknown table")
 
-    test = _Table(src, "[test]", doc.get("test", {}))
+    test = TomlTable(src, "[test]", doc.get("test", {}))
     name = test.str("name", "ssidlab test")
     test.str("operator", None)
     test.done()
 
-    out = _Table(src, "[output]", doc.get("output", {}))
+    out = TomlTable(src, "[output]", doc.get("output", {}))
     output_file = out.str("file", required=True)
     uff_file = out.str("uff", None)
     raw_time = out.bool("raw_time", False)
     out.done()
 
-    dq = _Table(src, "[daq]", doc.get("daq", {}))
+    dq = TomlTable(src, "[daq]", doc.get("daq", {}))
     daq = DaqSpec(
         interface=dq.str("interface", "virtual"), channel=dq.str("channel", "ssidlab-daq"),
         sample_rate_hz=dq.int("sample_rate_hz", 4096, lo=1, hi=102400),
@@ -354,7 +289,7 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
         t.done()
     _check_wiring(src, generators, amplifiers, shakers, channels)
 
-    ex = _Table(src, "[excitation]", doc.get("excitation", {}))
+    ex = TomlTable(src, "[excitation]", doc.get("excitation", {}))
     excitation = ex.str("type", required=True, choices=("stepped_sine", "random"))
     ex.done()
     sine = _parse_sine(src, doc, channels, daq) if excitation == "stepped_sine" else None
@@ -366,14 +301,14 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
     if excitation == "random" and "stepped_sine" in doc:
         raise InputError(f"{src}: [stepped_sine]: given but [excitation] type is random")
 
-    lim = _Table(src, "[limits]", doc.get("limits", {}))
+    lim = TomlTable(src, "[limits]", doc.get("limits", {}))
     limits = Limits(
         max_drive_vpp=lim.num("max_drive_vpp", 10.0, lo=0.002, hi=20.0),
         max_force_n=lim.num("max_force_n", math.inf, lo=0.0, lo_open=True),
         max_accel_m_per_s2=lim.num("max_accel_m_per_s2", math.inf, lo=0.0, lo_open=True),
         max_reaction_n=lim.num("max_reaction_n", math.inf, lo=0.0, lo_open=True))
     lim.done()
-    qual = _Table(src, "[quality]", doc.get("quality", {}))
+    qual = TomlTable(src, "[quality]", doc.get("quality", {}))
     min_coh = qual.num("min_coherence", 0.9, lo=0.0, hi=1.0)
     qual.done()
     sim = doc.get("sim", {})
@@ -445,7 +380,7 @@ def _check_wiring(src, generators, amplifiers, shakers, channels) -> None:
                              "acceleration channel at the same DOF")
 
 
-def _f_max_in_passband(t: _Table, daq: DaqSpec) -> float:
+def _f_max_in_passband(t: TomlTable, daq: DaqSpec) -> float:
     """``f_max_hz``, refused beyond the DAQ's alias-free band: above it the anti-alias filter
     takes the response away (or, without one, what is read is folded)."""
     f_max = t.num("f_max_hz", required=True, lo=0.0, lo_open=True)
@@ -457,7 +392,7 @@ def _f_max_in_passband(t: _Table, daq: DaqSpec) -> float:
 
 
 def _parse_sine(src: str, doc: dict, channels: list[ChannelSpec], daq: DaqSpec) -> SineSpec:
-    t = _Table(src, "[stepped_sine]", doc.get("stepped_sine", {}))
+    t = TomlTable(src, "[stepped_sine]", doc.get("stepped_sine", {}))
     f_min = t.num("f_min_hz", required=True, lo=0.0, lo_open=True, hi=1e5)
     f_max = _f_max_in_passband(t, daq)
     if f_max <= f_min:
@@ -491,7 +426,7 @@ def _parse_sine(src: str, doc: dict, channels: list[ChannelSpec], daq: DaqSpec) 
 
 
 def _parse_random(src: str, doc: dict, daq: DaqSpec) -> RandomSpec:
-    t = _Table(src, "[random]", doc.get("random", {}))
+    t = TomlTable(src, "[random]", doc.get("random", {}))
     f_min = t.num("f_min_hz", required=True, lo=0.0, lo_open=True, hi=1e5)
     f_max = _f_max_in_passband(t, daq)
     if f_max <= f_min:

@@ -37,7 +37,8 @@ from drivers.errors import SensorOverload
 from ssid.errors import InputError
 from ssid.io import Model
 
-from .setup import TestSetup, _Table
+from .setup import TestSetup
+from .toml_table import TomlTable
 
 __all__ = ["EXAMPLE_HIDDEN", "EXAMPLE_SHAKERS", "SimHandle", "WorldRig", "build_world", "example_setup_text",
            "payload_substructure", "start_sim_lab"]
@@ -76,7 +77,7 @@ def build_world(setup: TestSetup):
     sim = dict(setup.sim)
     stand_raw = sim.pop("stand", {})
     effects_raw = sim.pop("effects", [])
-    t = _Table(src, "[sim]", sim)
+    t = TomlTable(src, "[sim]", sim)
     structure = t.str("structure", "example", choices=("payload", "example"))
     zeta = t.num("damping_ratio", 0.02, lo=0.0, hi=0.5)
     noise = t.bool("noise", True)
@@ -86,7 +87,7 @@ def build_world(setup: TestSetup):
     t.str("generator_transport", "tcp", choices=("pty", "tcp"))
     oversample = t.int("oversample", 4, lo=1, hi=64)
     t.done()
-    st = _Table(src, "[sim.stand]", stand_raw)
+    st = TomlTable(src, "[sim.stand]", stand_raw)
     stand_kw = {k: st.num(k, getattr(StandSpec, k), lo=0.0)
                 for k in ("stand_mass_kg", "stand_k_n_per_m", "stand_c_n_s_per_m", "ground_k_n_per_m")}
     st.done()
@@ -94,7 +95,7 @@ def build_world(setup: TestSetup):
         raise InputError(f"{src}: [[sim.effects]]: must be an array of tables")
     effects = []
     for i, raw in enumerate(effects_raw):
-        e = _Table(src, f"[[sim.effects]] #{i + 1}", raw)
+        e = TomlTable(src, f"[[sim.effects]] #{i + 1}", raw)
         kind = e.str("type", required=True, choices=tuple(EFFECT_KEYS))
         cls_name, keys = EFFECT_KEYS[kind]
         args = [e.str(k, required=True) if k.startswith("dof") else e.num(k, required=True) for k in keys]

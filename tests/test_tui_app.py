@@ -371,3 +371,37 @@ def test_end_of_input_stops_a_controlled_run_safely(tmp_path):
     finally:
         lab.stop()
     assert run_file_state(out) == "interrupted"
+
+
+def test_a_range_too_small_stops_the_run_and_f5_resumes_with_the_edited_range(tmp_path):
+    """Periodic random at 4 Vpp with acc 3+Z on a 0.1 V range: the run stops on the DAQ
+    overload, and the status says to raise that range in the setup file before F5; with the
+    file edited, F5 resumes the run to the end."""
+    from test_daq_helpers import random_setup
+
+    acc3 = 'name = "acc 3+Z"\ninput = 2\ndof = "3+Z"\nquantity = "acceleration"\nsensitivity_mv_per_unit = 10.0\n'
+    text = random_setup(averages=4).replace("drive_vpp = 0.5", "drive_vpp = 4.0")
+    assert acc3 in text and "drive_vpp = 4.0" in text
+    setup = tmp_path / "random.toml"
+    setup.write_text(text.replace(acc3, acc3 + "range_volt = 0.1\n"), encoding="utf-8")
+    out = tmp_path / "random.h5"
+
+    async def go():
+        app = LabApp(str(setup), out=str(out), sim=True)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("f5")
+            await wait_for(pilot, lambda: app.outcome is not None, 60, "the run to stop")
+            assert app.outcome.returncode == 3 and "DAQ overload" in app.outcome.state, log_text(app)
+            status = str(app.query_one("#run-status", Static).render())
+            assert f"raise its range_volt in {setup}" in status, status
+            setup.write_text(text.replace(acc3, acc3 + "range_volt = 1.0\n"), encoding="utf-8")
+            await pilot.press("f5")
+            await wait_for(pilot, lambda: app.outcome is not None and app.outcome.returncode != 3, 120,
+                           "the resumed run")
+            assert app.outcome.complete, log_text(app)
+            assert "DAQ input ranges changed for this session: 'acc 3+Z' 0.1 -> 1 V" in log_text(app)
+        assert not app.acquisition.running
+
+    asyncio.run(go())
+    assert run_file_state(out) == "complete"
+    assert read_frf(out).n_avg == 4

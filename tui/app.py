@@ -331,10 +331,14 @@ class LabApp(SetupTabActions, App):
             self._progress(1.0)
         else:
             resumable = outcome.state and outcome.state != "complete"
-            self.query_one(ResultsPane).status(
-                f"no results: {text}" + ("; F5 resumes the run file" if resumable else ""))
+            how = "F5 resumes the run file"
+            if resumable and "DAQ overload" in outcome.state and self.setup is not None:
+                # The same range meets the same overload: F5 re-reads the setup file, and a
+                # resume may change the channels' range_volt (daq.run.range_changes_on_resume).
+                how += f" (a range too small for the level: raise its range_volt in {self.setup.source} first)"
+            self.query_one(ResultsPane).status(f"no results: {text}" + (f"; {how}" if resumable else ""))
             if resumable:
-                self._status(f"{text} - F5 resumes it")
+                self._status(f"{text} - {how}")
         self._refresh_controls()
 
     def _results_status(self, text: str) -> None:

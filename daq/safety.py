@@ -3,10 +3,12 @@
 Two levels:
 
 * a **limit** (response acceleration, drive voltage, force, reaction load) exceeded aborts
-  the current line: the drive is ramped to zero, the line is recorded as aborted with the
-  reason, and the run goes on with the next line (:class:`LineAborted`). So does a DAQ
-  over-range that persists through a stepped-sine line's corrections
-  (:class:`LineOverRange`). (A target that would exceed a limit is not applied: the level
+  the current line: the drive is ramped to zero, the line is measured once more from a
+  drive below what the exceeding record says reaches the limit, and if that too exceeds a
+  limit the line is recorded as aborted with the reason, and the run goes on with the next
+  line (:class:`LineAborted`, :mod:`daq.stepped_sine`). A DAQ over-range that persists
+  through a stepped-sine line's corrections aborts it too, without a second attempt
+  (:class:`LineOverRange`: the corrections already lowered its drive). (A target that would exceed a limit is not applied: the level
   control holds the line below it, :mod:`daq.sine_line`);
 * an **instrument fault** (amplifier interlock or fault, lost heartbeat, an instrument that
   stops answering, a CAN frame gap or bus-off, a DAQ overload on several stepped-sine lines
@@ -45,11 +47,14 @@ class LineAborted(Exception):
     """A limit was exceeded during a line; the drive has to go to zero for this line.
 
     ``drive_vpp`` is the drive the line had when it was aborted (the record keeps it: the
-    level control may have moved far from the line's first drive)."""
+    level control may have moved far from the line's first drive). ``headroom_vpp`` is the
+    drive at which the record that exceeded a limit would have reached it, every channel
+    scaling with the drive (:func:`drive_headroom_vpp`); inf when not known."""
 
-    def __init__(self, reason: str, drive_vpp: float) -> None:
+    def __init__(self, reason: str, drive_vpp: float, headroom_vpp: float = math.inf) -> None:
         super().__init__(reason)
         self.drive_vpp = drive_vpp
+        self.headroom_vpp = headroom_vpp
 
 
 class LineOverRange(LineAborted):

@@ -215,8 +215,13 @@ class SineLine:
         return math.exp(-sigma * n_c / self.rig.fs_hz)
 
     # ------------------------------------------------------------------ measurement
-    def measure(self, j: int, freq_hz: float, vpp: float, target: float) -> LineResult:
+    def measure(self, j: int, freq_hz: float, vpp: float, target: float, *, settled_steps: bool = False) -> LineResult:
         """Measure shaker ``j`` at ``freq_hz`` starting at drive ``vpp``.
+
+        With ``settled_steps`` every drive is settled before the level control changes it
+        (no first window is trusted): for a line measured again after a limit aborted it,
+        where a first window, read while the resonance builds up, understates what the
+        drive will bring.
 
         Raises :class:`LineAborted` when a limit is exceeded (the caller ramps the drive down).
         """
@@ -266,7 +271,7 @@ class SineLine:
         # windows are trusted while they keep asking the same way (a drive far off its target,
         # e.g. the smallest first drive, is ramped there without settling in between), until
         # one asks the other way or a settled reading has corrected the drive.
-        first_windows_trusted, first_way = True, 0.0
+        first_windows_trusted, first_way = not settled_steps, 0.0
         limited = ""  # why the line is held below its target, if it is
 
         def off_level(settled: bool) -> bool:
@@ -386,9 +391,10 @@ class SineLine:
         except SensorOverload as exc:
             # Before the limits: clipped samples understate the peaks they are checked on.
             raise LineOverRange(exc, vpp) from None
-        reason = check_limits(self.limits, np.max(np.abs(data), axis=1), self.roles, vpp, self.rig.names)
+        peaks = np.max(np.abs(data), axis=1)
+        reason = check_limits(self.limits, peaks, self.roles, vpp, self.rig.names)
         if reason:
-            raise LineAborted(reason, vpp)
+            raise LineAborted(reason, vpp, drive_headroom_vpp(self.limits, peaks, self.roles, vpp))
         return data
 
     def _dwell(self, fit: SineFit, est: SineEstimate, buf: np.ndarray, buf0: int, t_start: int, j: int,

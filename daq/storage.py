@@ -44,7 +44,7 @@ SINE_FIELDS = {
     "drive_vpp": ("f8", False), "status": ("i1", False), "settle_s": ("f8", False),
     "dwell_s": ("f8", False), "transient": ("f8", False), "decay": ("f8", False),
     "wall_time": ("f8", False),
-    "X": ("c16", True), "X_var": ("f8", True), "thd": ("f8", True), "reason": ("S160", False),
+    "X": ("c16", True), "X_var": ("f8", True), "thd": ("f8", True), "reason": ("S320", False),
     "X_transient": ("f8", True),
 }
 _STR = h5py.string_dtype()
@@ -199,7 +199,7 @@ class RunFile:
             ds.resize(n + 1, axis=0)
             v = row.get(name, np.nan if name == "X_transient" else 0)  # NaN: not known
             if name == "reason":
-                v = str(v or "").encode("utf-8")[:160]
+                v = str(v or "").encode("utf-8")[:ds.dtype.itemsize]  # files from before hold 160
             ds[n] = v
 
     def write_line(self, k: int, H: np.ndarray, H_var: np.ndarray, coherence: np.ndarray, valid: np.ndarray,

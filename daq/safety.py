@@ -8,8 +8,9 @@ Two levels:
   limit the line is recorded as aborted with the reason, and the run goes on with the next
   line (:class:`LineAborted`, :mod:`daq.stepped_sine`). A DAQ over-range that persists
   through a stepped-sine line's corrections aborts it too, without a second attempt
-  (:class:`LineOverRange`: the corrections already lowered its drive). (A target that would exceed a limit is not applied: the level
-  control holds the line below it, :mod:`daq.sine_line`);
+  (:class:`LineOverRange`: the corrections already lowered its drive). (A target that
+  would exceed a limit is not applied: the level control holds the line below it,
+  :mod:`daq.sine_line`);
 * an **instrument fault** (amplifier interlock or fault, lost heartbeat, an instrument that
   stops answering, a CAN frame gap or bus-off, a DAQ overload on several stepped-sine lines
   or random averages in a row, or with the drives off) stops the run

@@ -358,6 +358,20 @@ def test_a_line_over_a_limit_is_measured_again_below_it(tmp_path):
     assert on_retried and max(on_retried) < 2 * 2e-3, on_retried  # sine_setup's accuracy 2e-3
 
 
+def test_a_line_measured_again_at_its_target_level_is_not_counted_off_level(tmp_path):
+    """At 1.7 m/s^2 the lines beside the 119 and 140 Hz modes exceed the limit in their
+    first window but reach their 1 N target below it when measured again: their reason says
+    they were measured again, and the summary counts them neither off level nor held (it
+    counted every kept line with a reason as off level)."""
+    setup = parse_setup(sine_setup(limits="max_accel_m_per_s2 = 1.7"), str(tmp_path / "s.toml"))
+    summary, world = run_on_sim(setup, tmp_path / "run.h5")
+    with h5py.File(tmp_path / "run.h5") as f:
+        reason = [r.decode() for r in f["acq/records/reason"][()]]
+    again = [r for r in reason if r.startswith("measured again: its first attempt")]
+    assert again and summary["n_aborted"] == 0 and all_safe(world), reason
+    assert summary["n_level_off"] == 0 and summary["n_held"] == 0
+
+
 def test_a_line_still_over_a_limit_when_measured_again_is_aborted(tmp_path):
     """A limit no drive can keep (0.001 m/s^2: the smallest drive gives more): each line is
     aborted twice (the drive ramped to zero both times), recorded with both reasons, its

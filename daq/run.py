@@ -21,7 +21,6 @@ import platform
 import signal
 import threading
 import time
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -33,10 +32,11 @@ from ssid.errors import InputError
 from .control import RunControl, RunEvents, clear_interrupts, latching_interrupt_handler
 from .rig import InstrumentRig, Rig
 from .safety import RunStopped, describe_fault
-from .setup import TestSetup, load_setup, parse_setup
+from .resume import range_changes, setup_changes_on_resume, setup_in_effect
+from .setup import TestSetup
 from .storage import RunFile
 
-__all__ = ["load_resume_setup", "range_changes_on_resume", "run_test"]
+__all__ = ["run_test"]
 
 log = logging.getLogger(__name__)
 
@@ -48,76 +48,6 @@ def _version() -> str:
         return str(__version__)
     except Exception:  # pragma: no cover - version is informative only
         return "unknown"
-
-
-#: What a resumed session may change in the setup: the channels' DAQ input ranges. A range
-#: too small for the level stops a run (over-range three times in a row); the lines already
-#: measured are good, since a range is no part of a channel's calibration, and a resume with
-#: the same setup would only meet the overload again.
-RESUMABLE_CHANNEL_KEYS = ("range_volt",)
-
-
-def _setup_in_effect(rf: RunFile) -> TestSetup:
-    """The setup the run's last session ran with: the one it was started with, or the one
-    recorded by a session resumed with changed DAQ ranges. Each is checked against its hash."""
-    for session in reversed(rf.meta.get("sessions", [])):
-        if "setup_toml" in session:
-            text, sha, where = session["setup_toml"], session.get("setup_sha256"), f"{rf.path}:/acq/meta_json"
-            break
-    else:
-        text, sha, where = rf.setup_text, rf.setup_sha256, f"{rf.path}:/acq/setup_toml"
-    setup = parse_setup(text, where)
-    if setup.sha256 != sha:
-        raise InputError(f"{where}: the stored setup does not match its SHA-256 (damaged run file)")
-    return setup
-
-
-def _without_resumable(doc: dict) -> dict:
-    channels = [{k: v for k, v in c.items() if k not in RESUMABLE_CHANNEL_KEYS} for c in doc.get("channels", [])]
-    return {**doc, "channels": channels}
-
-
-def range_changes_on_resume(stored: TestSetup, new: TestSetup, run: str | Path) -> dict[str, tuple[float, float]]:
-    """The DAQ input ranges ``new`` changes from ``stored`` (the setup of the run file ``run``):
-    ``{channel name: (old range_volt, new range_volt)}``, empty when only comments or layout
-    differ.
-
-    Raises
-    ------
-    InputError
-        ``new`` differs in anything else: the measured lines and the schedule's decisions
-        belong to the stored setup.
-    """
-    if new.sha256 == stored.sha256:
-        return {}
-    a, b = (_without_resumable(tomllib.loads(s.text)) for s in (stored, new))
-    if a != b:
-        where = next(k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k))
-        if where == "channels" and len(a[where]) == len(b[where]):
-            name = next(x.get("name", i) for i, (x, y) in enumerate(zip(a[where], b[where])) if x != y)
-            where = f"[[channels]] {name!r}"
-        else:
-            where = f"[[{where}]]" if isinstance(a.get(where, b.get(where)), list) else f"[{where}]"
-        raise InputError(f"{new.source}: differs from the setup of the run {run} in {where}; "
-                         "a resume may change only the channels' range_volt (the DAQ input ranges)")
-    return {n.name: (o.range_volt, n.range_volt) for o, n in zip(stored.channels, new.channels)
-            if o.range_volt != n.range_volt}
-
-
-def load_resume_setup(path: str | Path, setup_path: str | None = None) -> TestSetup:
-    """The setup to resume the unfinished run file ``path`` with: ``setup_path`` when given
-    (it may change only the DAQ input ranges, :func:`range_changes_on_resume`), else the
-    setup the run's last session ran with."""
-    rf = RunFile.open(path)
-    try:
-        stored = _setup_in_effect(rf)
-    finally:
-        rf.close()
-    if setup_path is None:
-        return stored
-    setup = load_setup(setup_path)
-    range_changes_on_resume(stored, setup, path)
-    return setup
 
 
 @contextlib.contextmanager
@@ -220,8 +150,8 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
     if resume:
         rf = RunFile.open(path)
         try:
-            stored = _setup_in_effect(rf)
-            range_changes = range_changes_on_resume(stored, setup, path)
+            stored = setup_in_effect(rf)
+            changes = setup_changes_on_resume(stored, setup, path)
         except BaseException:
             rf.close()
             raise
@@ -230,12 +160,16 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
             echo(f"{path}: the run is complete; nothing to resume")
             return {"state": "complete", "file": str(path), "resumed": False}
         echo(f"{path}: resuming ({rf.n_done} records, state was {rf.state!r})")
-        if range_changes:
+        ranges = range_changes(changes)
+        if ranges:
             echo("DAQ input ranges changed for this session: "
-                 + ", ".join(f"{name!r} {a:g} -> {b:g} V" for name, (a, b) in range_changes.items()))
+                 + ", ".join(f"{name!r} {a:g} -> {b:g} V" for name, (a, b) in ranges.items()))
+        others = [str(c) for c in changes if c.key != "range_volt"]
+        if others:
+            echo("setup changed for this session: " + "; ".join(others))
         rf.set_state("running")
     else:
-        stored, range_changes = setup, {}
+        stored, changes = setup, []
         if not path.parent.is_dir():
             raise InputError(f"{path}: directory {str(path.parent)!r} does not exist")
         rf = _create_runfile(setup, path)
@@ -259,9 +193,12 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
             "simulated": bool(sim), "resumed_at_record": rf.n_done})
         if setup.sha256 != stored.sha256:
             # The setup this session runs with, for the next resume and for the record: which
-            # lines were measured with which ranges.
-            meta["sessions"][-1].update(setup_toml=setup.text, setup_sha256=setup.sha256,
-                                        range_volt_changed={k: list(v) for k, v in range_changes.items()})
+            # lines were measured with which ranges, through which instruments' addresses.
+            meta["sessions"][-1].update(
+                setup_toml=setup.text, setup_sha256=setup.sha256,
+                range_volt_changed={k: list(v) for k, v in range_changes(changes).items()},
+                setup_changed=[{"table": c.table, "item": c.item, "key": c.key, "old": c.old, "new": c.new}
+                               for c in changes])
         rf.set_meta(meta)
         ev.emit("instruments", identities=rig.identities(), simulated=bool(sim))
         rig.prepare()

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .errors import InstrumentError, ProtocolError, RangeError
+from .errors import ConnectionLost, InstrumentError, ProtocolError, RangeError
 from .scpi import ScpiProtocol
 from .serial_line import SerialLine
 
@@ -82,7 +82,10 @@ class SignalGenerator:
         self.ramp_time_s = float(ramp_time_s)
         self.ramp_step_s = float(ramp_step_s)
         self.channels = tuple(range(1, channels + 1))
-        self.line = SerialLine(url, baudrate=baudrate, timeout_s=timeout_s)
+        try:
+            self.line = SerialLine(url, baudrate=baudrate, timeout_s=timeout_s)
+        except ConnectionLost as exc:  # the port alone does not say which instrument is missing
+            raise ConnectionLost(f"{name}: {exc}") from exc
         self.scpi = ScpiProtocol(self.line, name)
         self._vpp = {ch: GeneratorLimits.vpp_min for ch in self.channels}
         self._on = {ch: False for ch in self.channels}

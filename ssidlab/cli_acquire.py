@@ -88,10 +88,13 @@ def _read_control(control, stream) -> None:
     os.kill(os.getpid(), signal.SIGINT)
 
 
-def _say_how_to_continue(run_path: Path, sim: bool, overload: bool = False, setup_arg: str | None = None) -> None:
+def _say_how_to_continue(run_path: Path, sim: bool, cause: BaseException | None = None,
+                         setup_arg: str | None = None) -> None:
     """The line an engineer needs after a stop: where the measured lines are, and the
     command that continues the run from its first incomplete line. After a DAQ overload,
-    also how to continue with a larger input range (a resume meets the same overload)."""
+    also how to continue with a larger input range (a resume meets the same overload); after
+    an instrument that could not be reached, how to continue with its new address."""
+    from drivers.errors import ConnectionLost, SensorOverload
     from daq.storage import peek_run_file
 
     if run_path.is_file():
@@ -104,11 +107,15 @@ def _say_how_to_continue(run_path: Path, sim: bool, overload: bool = False, setu
         kept = (f"{n} measurement records are kept in {run_path}" if n
                 else f"nothing was measured yet; the setup is kept in {run_path}")
         print(f"ssidlab acquire: {kept}; continue with: {cmd}", file=sys.stderr, flush=True)
-        if overload:
-            setup = shlex.quote(setup_arg) if setup_arg else "SETUP.toml"
+        setup = shlex.quote(setup_arg) if setup_arg else "SETUP.toml"
+        with_setup = f"continue with it: ssidlab acquire --resume {shlex.quote(str(run_path))} {setup}{sim_flag}"
+        if isinstance(cause, SensorOverload):
             print(f"ssidlab acquire: if a DAQ input range is too small for the level, raise that channel's "
-                  f"range_volt in the setup and continue with it: ssidlab acquire --resume "
-                  f"{shlex.quote(str(run_path))} {setup}{sim_flag}", file=sys.stderr, flush=True)
+                  f"range_volt in the setup and {with_setup}", file=sys.stderr, flush=True)
+        elif isinstance(cause, ConnectionLost) and not sim:  # the simulated lab's addresses are its own
+            print(f"ssidlab acquire: if the instrument answers at another address now (a serial port "
+                  f"renumbered, a new IP address), put that in the setup and {with_setup}",
+                  file=sys.stderr, flush=True)
 
 
 class _Terminated(KeyboardInterrupt):
@@ -117,10 +124,10 @@ class _Terminated(KeyboardInterrupt):
 
 def run_acquire(args: argparse.Namespace) -> int:
     from daq.control import RunControl, latching_interrupt_handler
-    from daq.run import load_resume_setup, run_test
+    from daq.resume import load_resume_setup
+    from daq.run import run_test
     from daq.safety import RunStopped
     from daq.setup import load_setup
-    from drivers.errors import SensorOverload
 
     if args.resume and args.out:
         raise InputError("--out and --resume exclude each other (the resumed file is written in place)")
@@ -148,7 +155,7 @@ def run_acquire(args: argparse.Namespace) -> int:
                            events=_print_event if args.events else None)
     except RunStopped as exc:
         print(f"ssidlab acquire: stopped: {' '.join(str(exc).splitlines())}", file=sys.stderr)
-        _say_how_to_continue(run_path, args.sim, overload=isinstance(exc.cause, SensorOverload), setup_arg=args.setup)
+        _say_how_to_continue(run_path, args.sim, exc.cause, setup_arg=args.setup)
         return EXIT_STOPPED
     except KeyboardInterrupt:
         print("ssidlab acquire: interrupted (outputs off, amplifiers disabled)", file=sys.stderr)

@@ -9,13 +9,14 @@ import h5py
 import numpy as np
 import pytest
 
-from daq.run import load_resume_setup, run_test
+from daq.resume import load_resume_setup
+from daq.run import run_test
 from daq.safety import MAX_OVER_RANGE_IN_ROW, RunStopped
-from daq.setup import parse_setup
+from daq.setup import load_setup, parse_setup
 from daq.simlab import build_world, start_sim_lab
 from ssid.io import read_frf
 
-from test_daq_helpers import all_safe, cli, frf_error, random_setup, sine_setup
+from test_daq_helpers import all_safe, cli, frf_error, pointed_at, random_setup, sine_setup
 
 FAULTS = {
     "interlock": (lambda lab: lab.amplifiers[0].set_interlock(False), "interlock open"),
@@ -193,3 +194,65 @@ def test_a_range_too_small_stops_the_run_and_a_resume_with_a_larger_one_complete
     assert "range_volt_changed" not in sessions[0]
     assert sessions[1]["range_volt_changed"] == {"acc 3+Z": [0.1, 1.0]}
     assert load_resume_setup(run).channels[2].range_volt == 1.0
+
+
+def test_a_resume_reaches_instruments_that_answer_at_new_addresses(tmp_path, capsys):
+    """A resume usually follows a restart, after which the instruments may answer elsewhere
+    (a serial port renumbered, an amplifier's address reassigned, the CAN adapter renamed).
+    A run on a simulated lab reached as real hardware (no sim switch) is interrupted after
+    three lines; the lab comes back on other ports and another CAN channel. Resumed with the
+    stored setup, the run cannot reach the generator: it stops, the file still resumable.
+    Resumed with a setup holding the new addresses (and the night shift's operator), it
+    completes with every line within the accuracy asked of it, and the run file says which
+    session ran through which addresses."""
+    text = sine_setup(n_lines=8)
+    setup = parse_setup(text, str(tmp_path / "s.toml"))
+    run, seen = tmp_path / "run.h5", []
+
+    def echo(msg):
+        seen.append(msg)
+        if sum(m.lstrip().startswith("shaker") for m in seen) == 3:
+            raise KeyboardInterrupt
+
+    first, inst = start_sim_lab(setup)
+    try:
+        old = tmp_path / "old.toml"
+        old.write_text(pointed_at(text, inst))
+        with pytest.raises(KeyboardInterrupt):
+            run_test(load_setup(old), out=str(run), echo=echo)
+        assert all_safe(first.world)
+        # The lab comes back before the old one has gone, so no port can be the same.
+        second, inst = start_sim_lab(setup)
+    finally:
+        first.stop()
+    try:
+        capsys.readouterr()
+        status, _ = cli(["--resume", str(run)])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert status == 3 and "instrument lost (link down): gen0: cannot open serial port" in err[0], err
+        assert err[-1].endswith("put that in the setup and continue with it: "
+                                f"ssidlab acquire --resume {run} SETUP.toml"), err
+        with h5py.File(run) as f:
+            assert f["acq"].attrs["state"].startswith("stopped:") and f["acq/n_done"][0] == 3
+        new = tmp_path / "new.toml"
+        new.write_text(pointed_at(text, inst).replace('name = "daq test"\n', 'name = "daq test"\noperator = "night shift"\n'))
+        status, _ = cli(["--resume", str(run), str(new), "--quiet"])
+        assert status == 0 and all_safe(second.world)
+        world = second.world
+    finally:
+        second.stop()
+    frf = read_frf(run)
+    assert np.all(frf.valid_mask())
+    # Noise-free lines settle to the setup's accuracy (2e-3) on either side of the restart.
+    err = frf_error(frf, world)
+    assert np.all(err < 2e-3), err
+    with h5py.File(run) as f:
+        sessions = json.loads(f["acq/meta_json"][()])["sessions"]
+    assert [s["resumed_at_record"] for s in sessions] == [0, 3]  # the failed resume reached no instrument
+    changed = {(c["table"], c["key"]): (c["old"], c["new"]) for c in sessions[1]["setup_changed"]}
+    old_inst = load_setup(old)
+    assert set(changed) == {("generators", "url"), ("amplifiers", "port"), ("daq", "channel"), ("test", "operator")}
+    assert changed[("generators", "url")] == (old_inst.generators[0].url, inst.generators[0].url)
+    assert changed[("test", "operator")] == (None, "night shift")
+    assert sessions[1]["range_volt_changed"] == {}
+    assert load_resume_setup(run).generators[0].url == inst.generators[0].url

@@ -139,6 +139,20 @@ sensor_noise_volt_rms = {noise_v}
 """)
 
 
+def pointed_at(text: str, inst) -> str:
+    """``text`` (a setup built on ``BASE``, one shaker) with the addresses of the instruments
+    of ``inst``, the setup :func:`daq.simlab.start_sim_lab` pointed at its lab: run without
+    the sim switch, the drivers reach the simulated instruments as they would real ones."""
+    g, a, d = inst.generators[0], inst.amplifiers[0], inst.daq
+    for old, new in [('url = "socket://127.0.0.1:1"', f'url = "{g.url}"'),
+                     ('name = "amp0"\nport = 1\n',
+                      f'name = "amp0"\nhost = "{a.host}"\nport = {a.port}\ndevice_id = {a.device_id}\n'),
+                     ("[daq]\n", f'[daq]\ninterface = "{d.interface}"\nchannel = "{d.channel}"\n')]:
+        assert old in text, old
+        text = text.replace(old, new)
+    return text
+
+
 def cli(argv: list[str]) -> tuple[int, str]:
     """Run ``ssidlab acquire`` as ``ssidlab.cli.main`` would: status and the error line."""
     from ssidlab.cli import _Parser, _UsageError

@@ -140,24 +140,52 @@ def test_missing_required_and_cross_checks():
         parse_setup(sine_setup(extra='control = "force 1+Z"'), "s.toml")
 
 
-def test_a_resume_may_change_only_the_daq_ranges(tmp_path):
-    """range_changes_on_resume: a changed range_volt is named with its old and new value, a
-    changed comment is no change, and anything else is refused naming where it differs."""
-    from daq.run import range_changes_on_resume
+def test_a_resume_may_change_ranges_addresses_operator_and_file_names_only(tmp_path):
+    """setup_changes_on_resume: a changed range_volt, instrument address, operator or output
+    file name is named with its old and new value in effect (defaults filled in), a changed
+    comment or a default written out is no change, and anything else is refused naming the
+    table where it differs."""
+    from daq.resume import range_changes, setup_changes_on_resume
 
     base = sine_setup()
     stored = parse_setup(base, "s.toml")
     acc3 = 'name = "acc 3+Z"\ninput = 2\ndof = "3+Z"\nquantity = "acceleration"\nsensitivity_mv_per_unit = 10.0\n'
     assert acc3 in base
 
-    def changed(old: str, new: str) -> dict:
-        assert old in base
-        return range_changes_on_resume(stored, parse_setup(base.replace(old, new), "new.toml"), "run.h5")
+    def changed(*edits: tuple[str, str]) -> list[tuple]:
+        text = base
+        for old, new in edits:
+            assert old in text
+            text = text.replace(old, new)
+        return [(c.where, c.key, c.old, c.new)
+                for c in setup_changes_on_resume(stored, parse_setup(text, "new.toml"), "run.h5")]
 
-    assert changed(acc3, acc3 + "range_volt = 2.5\n") == {"acc 3+Z": (10.0, 2.5)}
-    assert changed(acc3, acc3 + "range_volt = 10.0  # the default, written out\n") == {}
+    assert changed((acc3, acc3 + "range_volt = 2.5\n")) == [("[[channels]] 'acc 3+Z'", "range_volt", 10.0, 2.5)]
+    assert changed((acc3, acc3 + "range_volt = 10.0  # the default, written out\n")) == []
+    moved = changed(('url = "socket://127.0.0.1:1"', 'url = "/dev/ttyUSB1"\ntimeout_s = 3.0'),
+                    ('name = "amp0"\n', 'name = "amp0"\nhost = "10.0.0.7"\n'),
+                    ("[daq]\n", '[daq]\ninterface = "socketcan"\nchannel = "can1"\n'),
+                    ('name = "daq test"\n', 'name = "daq test"\noperator = "night shift"\n'),
+                    ('file = "run.h5"\n', 'file = "run2.h5"\nuff = "run2.uff"\n'))
+    assert moved == [("[[generators]] 'gen0'", "url", "socket://127.0.0.1:1", "/dev/ttyUSB1"),
+                     ("[[generators]] 'gen0'", "timeout_s", 1.0, 3.0),
+                     ("[[amplifiers]] 'amp0'", "host", "127.0.0.1", "10.0.0.7"),
+                     ("[daq]", "interface", "virtual", "socketcan"),
+                     ("[daq]", "channel", "ssidlab-daq", "can1"),
+                     ("[test]", "operator", None, "night shift"),
+                     ("[output]", "file", "run.h5", "run2.h5"),
+                     ("[output]", "uff", None, "run2.uff")], moved
+    new = parse_setup(base.replace(acc3, acc3 + "range_volt = 2.5\n").replace('port = 1\n', 'port = 5020\n'), "n.toml")
+    both = setup_changes_on_resume(stored, new, "run.h5")
+    assert [str(c) for c in both] == ["[[channels]] 'acc 3+Z' range_volt 10.0 -> 2.5",
+                                      "[[amplifiers]] 'amp0' port 1 -> 5020"]
+    assert range_changes(both) == {"acc 3+Z": (10.0, 2.5)}
     for old, new, where in [(acc3, acc3.replace("10.0", "10.2"), "[[channels]] 'acc 3+Z'"),
+                            ("max_vpp = 4.0", "max_vpp = 3.0", "[[generators]] 'gen0'"),
+                            ("gain_v_per_v = 2.0", "gain_v_per_v = 2.5", "[[amplifiers]] 'amp0'"),
+                            ("sample_rate_hz = 4096", "sample_rate_hz = 8192", "[daq]"),
+                            ('name = "daq test"', 'name = "another test"', "[test]"),
                             ("force_n = 1.0", "force_n = 2.0", "[stepped_sine]"),
                             ("[limits]\n", "[limits]\nmax_force_n = 40\n", "[limits]")]:
         with pytest.raises(InputError, match=re.escape(f"new.toml: differs from the setup of the run run.h5 in {where}")):
-            changed(old, new)
+            changed((old, new))

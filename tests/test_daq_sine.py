@@ -512,8 +512,9 @@ def test_sigint_stops_a_run_started_with_sigint_ignored(tmp_path):
 
 def test_a_run_stopped_by_a_fault_says_how_to_continue(tmp_path):
     """Without --sim the setup's generator is at a loopback port where nothing listens: the
-    run stops before its first line (exit 3), and stderr names the file and the command that
-    continues the run."""
+    run stops before its first line (exit 3), and stderr names the instrument, the file, the
+    command that continues the run, and how to continue it with the instrument's address
+    where it answers now."""
     text = sine_setup()
     assert 'url = "socket://127.0.0.1:1"' in text
     (tmp_path / "s.toml").write_text(text)
@@ -522,10 +523,12 @@ def test_a_run_stopped_by_a_fault_says_how_to_continue(tmp_path):
                        capture_output=True, text=True, cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)),
                        timeout=120)
     lines = p.stderr.strip().splitlines()
-    assert p.returncode == 3 and len(lines) == 2, p.stderr
-    assert lines[0].startswith("ssidlab acquire: stopped: run stopped safely: instrument lost"), lines[0]
+    assert p.returncode == 3 and len(lines) == 3, p.stderr
+    assert lines[0].startswith("ssidlab acquire: stopped: run stopped safely: instrument lost (link down): gen0:"), lines[0]
     assert lines[1].startswith("ssidlab acquire: nothing was measured yet; the setup is kept in"), lines[1]
     assert lines[1].endswith(f"continue with: ssidlab acquire --resume '{out}'")  # quoted for the shell
+    assert lines[2].startswith("ssidlab acquire: if the instrument answers at another address now"), lines[2]
+    assert lines[2].endswith(f"continue with it: ssidlab acquire --resume '{out}' {tmp_path / 's.toml'}"), lines[2]
     with h5py.File(out) as f:
         assert f["acq"].attrs["state"].startswith("stopped: instrument lost")
 

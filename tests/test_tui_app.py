@@ -405,3 +405,37 @@ def test_a_range_too_small_stops_the_run_and_f5_resumes_with_the_edited_range(tm
     asyncio.run(go())
     assert run_file_state(out) == "complete"
     assert read_frf(out).n_avg == 4
+
+
+def test_an_instrument_not_reached_stops_the_run_and_f5_resumes_at_its_new_address(tmp_path):
+    """Lab hardware (switch off) whose generator does not answer where the setup says: the
+    run stops, and the status says to put the instrument's new address in the setup file
+    before F5; with the lab answering elsewhere and the file edited, F5 resumes the run to
+    the end."""
+    lab, hw = lab_setup(tmp_path, n_lines=8)
+    lab.stop()  # nothing listens at the addresses in lab.toml any more
+    out = tmp_path / "moved.h5"
+
+    async def go():
+        app = LabApp(str(hw), out=str(out), sim=False)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("f5")
+            await wait_for(pilot, lambda: app.outcome is not None, 60, "the run to stop")
+            assert app.outcome.returncode == 3 and "(link down)" in app.outcome.state, log_text(app)
+            status = str(app.query_one("#run-status", Static).render())
+            assert f"if it answers at another address now, put that in {hw} first" in status, status
+            moved, again = lab_setup(tmp_path, n_lines=8)  # the lab back on other ports; lab.toml edited
+            assert again == hw
+            try:
+                await pilot.press("f5")
+                await wait_for(pilot, lambda: app.outcome is not None and app.outcome.returncode != 3, 120,
+                               "the resumed run")
+                assert app.outcome.complete, log_text(app)
+                assert "setup changed for this session: [[generators]] 'gen0' url" in log_text(app)
+            finally:
+                moved.stop()
+            assert all_safe(moved.world)
+        assert not app.acquisition.running
+
+    asyncio.run(go())
+    assert run_file_state(out) == "complete"

@@ -332,10 +332,14 @@ class LabApp(SetupTabActions, App):
         else:
             resumable = outcome.state and outcome.state != "complete"
             how = "F5 resumes the run file"
+            # F5 re-reads the setup file, and a resume may change the channels' range_volt and
+            # the instruments' addresses (daq.resume): the same setup would meet the same fault.
             if resumable and "DAQ overload" in outcome.state and self.setup is not None:
-                # The same range meets the same overload: F5 re-reads the setup file, and a
-                # resume may change the channels' range_volt (daq.run.range_changes_on_resume).
                 how += f" (a range too small for the level: raise its range_volt in {self.setup.source} first)"
+            elif (resumable and "(link down)" in outcome.state and self.setup is not None
+                  and self.acquisition is not None and not self.acquisition.sim):
+                how += (f" (an instrument not reached: if it answers at another address now, "
+                        f"put that in {self.setup.source} first)")
             self.query_one(ResultsPane).status(f"no results: {text}" + (f"; {how}" if resumable else ""))
             if resumable:
                 self._status(f"{text} - {how}")

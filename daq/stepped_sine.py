@@ -42,6 +42,8 @@ __all__ = ["SteppedSineRun", "sine_grid"]
 
 #: The words of a kept sub-line's reason when its level was held below its target.
 HELD = "held below a limit"
+#: Marks in a kept line's ``reason`` that a limit aborted its first attempt.
+MEASURED_AGAIN = "measured again: its first attempt"
 #: Length of each read while an aborted line's ringing decays (s).
 RING_DOWN_READ_S = 0.05
 
@@ -173,7 +175,7 @@ class SteppedSineRun:
                     # 1.38 m/s^2 in the first window at 0.125 Vpp, where the settled response
                     # is 1.79), hence a further compression^2 of room. The level control
                     # then holds the line below the limit if its target needs more.
-                    first_try = f"measured again: its first attempt, at {exc.drive_vpp:.3g} Vpp, was aborted: {exc}"
+                    first_try = f"{MEASURED_AGAIN}, at {exc.drive_vpp:.3g} Vpp, was aborted: {exc}"
                     vpp = max(MIN_DRIVE_VPP, min(NOTCH_MARGIN * exc.headroom_vpp, exc.drive_vpp)
                               / self.spec.compression ** 2)
                     self.echo(f"  line {k} shaker {p} {f:.2f} Hz: {exc} at {exc.drive_vpp:.3g} Vpp; "
@@ -354,6 +356,8 @@ class SteppedSineRun:
             "n_held": sum(1 for r in off if HELD in r["reason"]),
             # kept with the control level outside the tolerance for want of corrections or time
             "n_level_off": sum(1 for r in off if HELD not in r["reason"]),
+            # kept after a limit aborted their first attempt (retried below it)
+            "n_measured_again": sum(1 for r in ok if MEASURED_AGAIN in r["reason"]),
             "n_values_blanked": int(np.count_nonzero(~frf.valid_mask())),
             "test_time_s": self.test_time_s,
             "settle_time_s": float(sum(r["settle_s"] for r in rows)),

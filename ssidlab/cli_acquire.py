@@ -180,6 +180,7 @@ def _caveats(summary: dict) -> str:
     said = [f"; {n} {what.format('' if n == 1 else 's')}" for key, what in (
         ("n_aborted", "sub-line{} aborted"), ("n_held", "sub-line{} held below a limit"),
         ("n_level_off", "sub-line{} kept off the target level"),
+        ("n_measured_again", "sub-line{} measured again below a limit"),
         ("unsettled_averages", "average{} not in steady state"), ("n_values_blanked", "FRF value{} blanked"))
         if (n := int(summary.get(key, 0)))]
     return "".join(said)

@@ -140,25 +140,27 @@ def check_limits(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]],
     return None
 
 
+def _channel_limits(limits: Limits, roles: dict[str, list[int]], n_ch: int) -> np.ndarray:
+    """Each channel's limit in its own unit (m/s^2 or N) from ``[limits]``, ``(n_ch,)``; inf
+    for a channel no limit applies to."""
+    out = np.full(n_ch, math.inf)
+    for role, attr, _unit, _what in _LIMITED:
+        out[roles.get(role, [])] = getattr(limits, attr)
+    return out
+
+
 def drive_headroom_vpp(limits: Limits, amplitudes: np.ndarray, roles: dict[str, list[int]],
                        drive_vpp: float, ranges: np.ndarray | None = None) -> float:
     """The drive (Vpp) at which the first limited channel would reach its limit (or, with
     ``ranges``, its DAQ input range), every channel scaling with the drive from
     ``amplitudes`` (per channel) measured at ``drive_vpp``; inf where no limited channel
     has a finite limit and a level."""
-    cap = math.inf
+    a = np.asarray(amplitudes, float)
+    caps = _channel_limits(limits, roles, a.size)
     if ranges is not None:
-        a = np.asarray(amplitudes, float)
-        live = a > 0
-        if np.any(live):
-            cap = drive_vpp * float(np.min(ranges[live] / a[live]))
-    for role, attr, _unit, _what in _LIMITED:
-        idx = roles.get(role, [])
-        lim = getattr(limits, attr)
-        a = float(np.max(np.asarray(amplitudes)[idx])) if idx else 0.0
-        if np.isfinite(lim) and a > 0:
-            cap = min(cap, drive_vpp * lim / a)
-    return cap
+        caps = np.minimum(caps, ranges)
+    live = (a > 0) & np.isfinite(caps)
+    return drive_vpp * float(np.min(caps[live] / a[live])) if np.any(live) else math.inf
 
 
 def limit_usage(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]], drive_vpp: float) -> dict[str, float]:

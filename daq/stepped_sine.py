@@ -111,12 +111,18 @@ class SteppedSineRun:
         ch = self.ctl_channel if self.ctl_channel is not None else self.roles["force"][p]
         return float(abs(X[ch]))
 
+    def _level_off(self, X: np.ndarray, p: int) -> float | None:
+        """A line's control level over the target when outside the level control's
+        tolerance, else None (the one test both the record's reason and the summary use)."""
+        ratio = self._control_level(X, p) / self.target
+        return ratio if abs(ratio - 1) > self.spec.tolerance else None
+
     def _level_note(self, res: LineResult) -> str:
         """What a kept line's control level was when the level control could not bring it
         within the tolerance (held below a limit, corrections or settling time used up);
         '' when it did."""
-        ratio = self._control_level(res.est.X, res.pattern) / self.target
-        if abs(ratio - 1) <= self.spec.tolerance:
+        ratio = self._level_off(res.est.X, res.pattern)
+        if ratio is None:
             return ""
         if res.limited:
             return f"level {ratio:.2f} of the target, {HELD}: {res.limited}"
@@ -346,8 +352,7 @@ class SteppedSineRun:
         ok = [r for r in rows if int(r["status"]) == STATUS_OK]
         # From the level itself, not from the reason: a line measured again after a limit
         # says so in its reason whatever its level.
-        off = [r for r in ok if abs(self._control_level(np.asarray(r["X"]), int(r["pattern"])) / self.target - 1)
-               > self.spec.tolerance]
+        off = [r for r in ok if self._level_off(np.asarray(r["X"]), int(r["pattern"])) is not None]
         frf = self.frf()
         return {
             "excitation": "stepped_sine", "n_grid": int(len(self.grid)), "n_lines": int(frf.n_freq),

@@ -13,6 +13,11 @@ resume is often the very moment they have to change:
   a channel's calibration, so the lines measured before stay good;
 * the operator (a shift change) and where the files go (``[output]`` ``file``, ``uff``).
 
+Addresses may change, but the instruments may not: after a restart two generators' serial
+ports can swap, and the setup unchanged then drives one shaker with the other's signal.
+:func:`instruments_not_the_same` compares who answers with who answered in the run's last
+session.
+
 Anything else - a calibration, the wiring, the excitation, the limits, the simulated world -
 is refused: the lines on file and the schedule's decisions belong to the stored setup.
 """
@@ -28,7 +33,8 @@ from ssid.errors import InputError
 from .setup import TestSetup, load_setup, parse_setup
 from .storage import RunFile
 
-__all__ = ["RESUMABLE_KEYS", "SetupChange", "load_resume_setup", "setup_changes_on_resume", "setup_in_effect"]
+__all__ = ["RESUMABLE_KEYS", "SetupChange", "instruments_not_the_same", "load_resume_setup",
+           "setup_changes_on_resume", "setup_in_effect"]
 
 #: The keys a resumed session may change, by table (see the module docstring).
 RESUMABLE_KEYS: dict[str, tuple[str, ...]] = {
@@ -157,3 +163,28 @@ def load_resume_setup(path: str | Path, setup_path: str | None = None) -> TestSe
     setup = load_setup(setup_path)
     setup_changes_on_resume(stored, setup, path)
     return setup
+
+
+def _maker_model_serial(idn: str) -> str:
+    # *IDN? is "maker,model,serial,firmware": a firmware update is the same instrument.
+    return ",".join(part.strip() for part in str(idn).split(",")[:3])
+
+
+def instruments_not_the_same(before: dict, now: dict) -> list[str]:
+    """The instruments that answer as others than in the run's last session, one line each.
+
+    ``before`` / ``now``: identities as :meth:`daq.rig.Rig.identities` gives them (what
+    ``meta_json`` records per session). Compared: each generator's maker, model and serial
+    (``*IDN?``) and the DAQ front end's serial. The amplifiers report a model id only, so
+    a swapped amplifier cannot be told from its identity.
+    """
+    out = []
+    old_gens = before.get("generators") or {}
+    for name, idn in (now.get("generators") or {}).items():
+        old = old_gens.get(name)
+        if old is not None and _maker_model_serial(old) != _maker_model_serial(idn):
+            out.append(f"{name} answers as {idn!r}, in the last session as {old!r}")
+    old_sn, new_sn = ((d.get("daq") or {}).get("serial") for d in (before, now))
+    if old_sn is not None and new_sn is not None and old_sn != new_sn:
+        out.append(f"the DAQ answers with serial {new_sn}, in the last session with {old_sn}")
+    return out

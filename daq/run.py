@@ -32,7 +32,7 @@ from ssid.errors import InputError
 from .control import RunControl, RunEvents, clear_interrupts, latching_interrupt_handler
 from .rig import InstrumentRig, Rig
 from .safety import RunStopped, describe_fault
-from .resume import range_changes, setup_changes_on_resume, setup_in_effect
+from .resume import instruments_not_the_same, range_changes, setup_changes_on_resume, setup_in_effect
 from .setup import TestSetup
 from .storage import RunFile
 
@@ -116,7 +116,8 @@ def _ctrl_c_latched(fn: Callable) -> Callable:
 @_ctrl_c_latched
 def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, sim: bool = False,
              echo: Callable[[str], None] = print, rig_factory: Callable[[TestSetup], Rig] | None = None,
-             control: RunControl | None = None, events: Callable[[dict], None] | None = None) -> dict:
+             control: RunControl | None = None, events: Callable[[dict], None] | None = None,
+             new_instruments: bool = False) -> dict:
     """Run (or resume) the test of ``setup``; returns a summary dict.
 
     Parameters
@@ -125,7 +126,11 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
     out : str, optional
         Run file (default: the setup's ``[output] file``). With ``resume``, the file to continue.
     resume : bool
-        Continue an unfinished run file (its setup hash must match).
+        Continue an unfinished run file. ``setup`` may differ from the run's only in
+        :data:`daq.resume.RESUMABLE_KEYS`; the instruments must answer as in the run's last
+        session (:func:`daq.resume.instruments_not_the_same`) unless ``new_instruments``.
+    new_instruments : bool
+        With ``resume``: an instrument was replaced; continue with it and record so.
     sim : bool
         Start the simulated lab (:mod:`daq.simlab`) and run against it.
     rig_factory : callable, optional
@@ -188,9 +193,22 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
             echo("simulated lab started (generators, amplifiers, CAN FD DAQ on their real transports)")
         rig = (rig_factory or InstrumentRig)(inst_setup)
         meta = rf.meta
+        replaced = []
+        if resume and meta.get("sessions"):
+            replaced = instruments_not_the_same(meta["sessions"][-1].get("instruments", {}), rig.identities())
+            if replaced and not new_instruments:
+                # Nothing has been driven yet: a swapped port would drive one shaker with
+                # another's signal, and a simulated lab's lines are not the hardware's.
+                raise RunStopped("not the instruments of the run's last session: " + "; ".join(replaced)
+                                 + ". Check the setup's addresses; if an instrument was replaced, "
+                                 "resume with --new-instruments")
+            if replaced:
+                echo("instruments replaced since the last session: " + "; ".join(replaced))
         meta.setdefault("sessions", []).append({
             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "instruments": rig.identities(),
             "simulated": bool(sim), "resumed_at_record": rf.n_done})
+        if replaced:
+            meta["sessions"][-1]["instruments_replaced"] = replaced
         if setup.sha256 != stored.sha256:
             # The setup this session runs with, for the next resume and for the record: which
             # lines were measured with which ranges, through which instruments' addresses.

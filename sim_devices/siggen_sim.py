@@ -79,11 +79,13 @@ class SimSignalGenerator:
     Use as a context manager, or call :meth:`start` and :meth:`stop`.
     """
 
-    def __init__(self, world: World, index: int = 0, transport: str = "pty", seed: int = 0) -> None:
+    def __init__(self, world: World, index: int = 0, transport: str = "pty", seed: int = 0,
+                 serial: str | None = None) -> None:
         if transport not in ("pty", "tcp"):
             raise ValueError("transport must be 'pty' or 'tcp'")
         self.world = world
         self.index = index
+        self.serial = serial or f"SN{index:05d}"  # in *IDN?; tests set another for a replaced unit
         self.model = world.generators[index]
         self.transport = transport
         self.url = ""
@@ -304,7 +306,7 @@ class SimSignalGenerator:
 
     def _common(self, up: str, query: bool) -> str | None:
         if up == "*IDN" and query:
-            return f"ssidlab,SIM-33522,SN{self.index:05d},1.0"
+            return f"ssidlab,SIM-33522,{self.serial},1.0"
         if up == "*OPC" and query:
             return "1"
         if up == "*RST" and not query:

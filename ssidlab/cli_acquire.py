@@ -1,13 +1,17 @@
 """``ssidlab acquire``: run a vibration test described by a setup file.
 
     ssidlab acquire SETUP.toml [--sim] [--out RUN.h5] [--quiet]
-    ssidlab acquire --resume RUN.h5 [SETUP.toml] [--sim] [--quiet]
+    ssidlab acquire --resume RUN.h5 [SETUP.toml] [--sim] [--new-instruments] [--quiet]
     ... [--events] [--control-stdin]     (for a controlling program such as ``ssidlab tui``)
 
 ``--sim`` starts the simulated lab (``daq.simlab``) and runs against it through the real
 drivers. ``--resume`` continues an interrupted run from its first incomplete line; a setup
 file given may differ from the run's only in the channels' ``range_volt`` (a range too small
-for the level stops a run; without a file, the setup the run last ran with is used).
+for the level stops a run), the instruments' addresses, the operator and the output file
+names (``daq.resume``); without a file, the setup the run last ran with is used. The
+instruments must answer as in the run's last session (generators' ``*IDN?``, the DAQ's
+serial), or the resume stops before driving: ``--new-instruments`` continues with a replaced
+one.
 
 ``--events`` adds one line per run event to stdout, ``@event {json}`` (``daq.control``:
 instrument identities, each sub-line's level, distortion, limit use and amplifier state,
@@ -54,6 +58,9 @@ def add_acquire_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--sim", action="store_true", help="start the simulated lab and run against it")
     p.add_argument("--out", metavar="RUN.h5", help="run file (default: the setup's [output] file)")
     p.add_argument("--resume", metavar="RUN.h5", help="continue this unfinished run file")
+    p.add_argument("--new-instruments", action="store_true",
+                   help="with --resume: an instrument answers as another than in the run's last session "
+                        "because it was replaced; continue with it (recorded in the run file)")
     p.add_argument("--json", metavar="SUMMARY.json", help="write the run summary as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument("--events", action="store_true", help="also print run events as '@event {json}' lines")
@@ -131,6 +138,8 @@ def run_acquire(args: argparse.Namespace) -> int:
 
     if args.resume and args.out:
         raise InputError("--out and --resume exclude each other (the resumed file is written in place)")
+    if args.new_instruments and not args.resume:
+        raise InputError("--new-instruments goes with --resume (a new run has no instruments to compare)")
     if args.resume:
         setup = load_resume_setup(args.resume, args.setup)
         out = args.resume
@@ -152,7 +161,7 @@ def run_acquire(args: argparse.Namespace) -> int:
     run_path = Path(out or setup.output_file)
     try:
         summary = run_test(setup, out=out, resume=bool(args.resume), sim=args.sim, echo=echo, control=control,
-                           events=_print_event if args.events else None)
+                           events=_print_event if args.events else None, new_instruments=args.new_instruments)
     except RunStopped as exc:
         print(f"ssidlab acquire: stopped: {' '.join(str(exc).splitlines())}", file=sys.stderr)
         _say_how_to_continue(run_path, args.sim, exc.cause, setup_arg=args.setup)

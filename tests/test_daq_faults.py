@@ -256,3 +256,53 @@ def test_a_resume_reaches_instruments_that_answer_at_new_addresses(tmp_path, cap
     assert changed[("test", "operator")] == (None, "night shift")
     assert sessions[1]["range_volt_changed"] == {}
     assert load_resume_setup(run).generators[0].url == inst.generators[0].url
+
+
+def test_a_resume_stops_before_driving_when_another_generator_answers(tmp_path, capsys):
+    """After a restart another generator (another serial in its *IDN?) answers at the
+    setup's address: a swapped port would drive one shaker with another's signal. The
+    resume stops before any output is switched on, naming both identities (exit 3, the file
+    still resumable). With --new-instruments (the generator was replaced) it completes, and
+    the run file records the replacement."""
+    text = sine_setup(n_lines=6)
+    setup = parse_setup(text, str(tmp_path / "s.toml"))
+    run, seen = tmp_path / "run.h5", []
+
+    def echo(msg):
+        seen.append(msg)
+        if sum(m.lstrip().startswith("shaker") for m in seen) == 2:
+            raise KeyboardInterrupt
+
+    first, inst = start_sim_lab(setup)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_test(parse_setup(pointed_at(text, inst), str(tmp_path / "a.toml")), out=str(run), echo=echo)
+        second, inst = start_sim_lab(setup)
+    finally:
+        first.stop()
+    try:
+        second.lab.generators[0].serial = "SN04711"
+        new = tmp_path / "new.toml"
+        new.write_text(pointed_at(text, inst))
+        capsys.readouterr()
+        status, _ = cli(["--resume", str(run), str(new), "--quiet"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert status == 3, err
+        assert ("not the instruments of the run's last session: gen0 answers as 'ssidlab,SIM-33522,SN04711,1.0', "
+                "in the last session as 'ssidlab,SIM-33522,SN00000,1.0'") in err[0], err
+        assert "resume with --new-instruments" in err[0]
+        assert not any(c.startswith("OUTP1 ON") or c.startswith("OUTP2 ON") for c in second.lab.generators[0].log)
+        assert all_safe(second.world)
+        with h5py.File(run) as f:
+            assert f["acq"].attrs["state"].startswith("stopped: not the instruments") and f["acq/n_done"][0] == 2
+        status, _ = cli(["--resume", str(run), str(new), "--new-instruments"])
+        out = capsys.readouterr().out
+        assert status == 0 and all_safe(second.world)
+        assert "instruments replaced since the last session: gen0 answers as 'ssidlab,SIM-33522,SN04711,1.0'" in out
+    finally:
+        second.stop()
+    with h5py.File(run) as f:
+        sessions = json.loads(f["acq/meta_json"][()])["sessions"]
+    assert len(sessions) == 2 and "instruments_replaced" not in sessions[0]
+    assert sessions[1]["instruments_replaced"][0].startswith("gen0 answers as 'ssidlab,SIM-33522,SN04711,1.0'")
+    assert cli(["run.h5", "--new-instruments"])[0] == 2  # only with --resume

@@ -196,22 +196,17 @@ def test_a_range_too_small_stops_the_run_and_a_resume_with_a_larger_one_complete
     assert load_resume_setup(run).channels[2].range_volt == 1.0
 
 
-def test_a_resume_reaches_instruments_that_answer_at_new_addresses(tmp_path, capsys):
-    """A resume usually follows a restart, after which the instruments may answer elsewhere
-    (a serial port renumbered, an amplifier's address reassigned, the CAN adapter renamed).
-    A run on a simulated lab reached as real hardware (no sim switch) is interrupted after
-    three lines; the lab comes back on other ports and another CAN channel. Resumed with the
-    stored setup, the run cannot reach the generator: it stops, the file still resumable.
-    Resumed with a setup holding the new addresses (and the night shift's operator), it
-    completes with every line within the accuracy asked of it, and the run file says which
-    session ran through which addresses."""
-    text = sine_setup(n_lines=8)
+def interrupted_then_lab_moved(tmp_path, text: str, n_sub_lines: int):
+    """A run of ``text`` on a simulated lab reached as real hardware (no sim switch),
+    interrupted after ``n_sub_lines``; then the lab comes back on other ports and another
+    CAN channel, as after a restart. Returns the run file, the setup file the run started
+    with, and the new lab's handle and addressed setup (the caller stops the handle)."""
     setup = parse_setup(text, str(tmp_path / "s.toml"))
     run, seen = tmp_path / "run.h5", []
 
     def echo(msg):
         seen.append(msg)
-        if sum(m.lstrip().startswith("shaker") for m in seen) == 3:
+        if sum(m.lstrip().startswith("shaker") for m in seen) == n_sub_lines:
             raise KeyboardInterrupt
 
     first, inst = start_sim_lab(setup)
@@ -225,6 +220,20 @@ def test_a_resume_reaches_instruments_that_answer_at_new_addresses(tmp_path, cap
         second, inst = start_sim_lab(setup)
     finally:
         first.stop()
+    return run, old, second, inst
+
+
+def test_a_resume_reaches_instruments_that_answer_at_new_addresses(tmp_path, capsys):
+    """A resume usually follows a restart, after which the instruments may answer elsewhere
+    (a serial port renumbered, an amplifier's address reassigned, the CAN adapter renamed).
+    A run on a simulated lab reached as real hardware (no sim switch) is interrupted after
+    three lines; the lab comes back on other ports and another CAN channel. Resumed with the
+    stored setup, the run cannot reach the generator: it stops, the file still resumable.
+    Resumed with a setup holding the new addresses (and the night shift's operator), it
+    completes with every line within the accuracy asked of it, and the run file says which
+    session ran through which addresses."""
+    text = sine_setup(n_lines=8)
+    run, old, second, inst = interrupted_then_lab_moved(tmp_path, text, 3)
     try:
         capsys.readouterr()
         status, _ = cli(["--resume", str(run)])
@@ -265,21 +274,7 @@ def test_a_resume_stops_before_driving_when_another_generator_answers(tmp_path, 
     still resumable). With --new-instruments (the generator was replaced) it completes, and
     the run file records the replacement."""
     text = sine_setup(n_lines=6)
-    setup = parse_setup(text, str(tmp_path / "s.toml"))
-    run, seen = tmp_path / "run.h5", []
-
-    def echo(msg):
-        seen.append(msg)
-        if sum(m.lstrip().startswith("shaker") for m in seen) == 2:
-            raise KeyboardInterrupt
-
-    first, inst = start_sim_lab(setup)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            run_test(parse_setup(pointed_at(text, inst), str(tmp_path / "a.toml")), out=str(run), echo=echo)
-        second, inst = start_sim_lab(setup)
-    finally:
-        first.stop()
+    run, _, second, inst = interrupted_then_lab_moved(tmp_path, text, 2)
     try:
         second.lab.generators[0].serial = "SN04711"
         new = tmp_path / "new.toml"

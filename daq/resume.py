@@ -33,7 +33,7 @@ from ssid.errors import InputError
 from .setup import TestSetup, load_setup, parse_setup
 from .storage import RunFile
 
-__all__ = ["RESUMABLE_KEYS", "SetupChange", "instruments_not_the_same", "load_resume_setup",
+__all__ = ["RESUMABLE_KEYS", "SetupChange", "instruments_not_the_same", "load_resume_setup", "range_changes",
            "setup_changes_on_resume", "setup_in_effect"]
 
 #: The keys a resumed session may change, by table (see the module docstring).
@@ -96,13 +96,11 @@ def _first_difference(a: dict, b: dict) -> str:
     """The table where two parsed setups first differ, as a reader would find it."""
     where = next(k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k))
     x, y = a.get(where), b.get(where)
-    if isinstance(x, list) and isinstance(y, list):
-        if len(x) == len(y):
-            i = next(i for i, (p, q) in enumerate(zip(x, y)) if p != q)
-            name = x[i].get("name", i) if isinstance(x[i], dict) else i
-            return f"[[{where}]] {name!r}"
-        return f"[[{where}]]"
-    return f"[{where}]"
+    if isinstance(x, list) and isinstance(y, list) and len(x) == len(y):
+        i = next(i for i, (p, q) in enumerate(zip(x, y)) if p != q)
+        name = x[i].get("name", i) if isinstance(x[i], dict) else i
+        return f"[[{where}]] {name!r}"
+    return f"[[{where}]]" if isinstance(x, list) or isinstance(y, list) else f"[{where}]"
 
 
 def _values(setup: TestSetup, doc: dict, table: str) -> list[tuple[str | None, Any]]:

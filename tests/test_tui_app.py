@@ -439,3 +439,48 @@ def test_an_instrument_not_reached_stops_the_run_and_f5_resumes_at_its_new_addre
 
     asyncio.run(go())
     assert run_file_state(out) == "complete"
+
+
+def test_a_replaced_generator_stops_f5_and_ctrl_r_resumes_with_it(tmp_path):
+    """An aborted lab-hardware run; the lab comes back with another generator serial (a
+    replaced unit). F5 stops before driving, and the status offers Ctrl+R, which resumes
+    with --new-instruments to the end. Ctrl+R on a new run file starts nothing."""
+    lab, hw = lab_setup(tmp_path, n_lines=8)
+    out = tmp_path / "replaced.h5"
+
+    async def go():
+        app = LabApp(str(hw), out=str(out), sim=False)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("ctrl+r")
+            assert app.acquisition is None  # nothing to resume yet
+            await pilot.press("f5")
+            await wait_for(pilot, lambda: sub_lines(app) >= 2, 60, "two sub-lines")
+            await pilot.press("f8")
+            await wait_for(pilot, lambda: app.outcome is not None, 60, "the abort")
+            lab.stop()
+            moved, again = lab_setup(tmp_path, n_lines=8)
+            assert again == hw
+            try:
+                moved.generators[0].serial = "SN04711"
+                await pilot.press("f5")
+                await wait_for(pilot, lambda: app.outcome is not None, 60, "the resume to stop")
+                assert app.outcome.returncode == 3, log_text(app)
+                assert app.outcome.state.startswith("stopped: not the instruments"), app.outcome.state
+                status = str(app.query_one("#run-status", Static).render())
+                assert "Ctrl+R resumes with the instruments that answer now" in status, status
+                assert all_safe(moved.world)
+                await pilot.press("ctrl+r")
+                await wait_for(pilot, lambda: app.outcome is not None and app.outcome.returncode != 3, 120,
+                               "the resumed run")
+                assert app.outcome.complete, log_text(app)
+                assert "--new-instruments" in log_text(app)
+                assert "instruments replaced since the last session: gen0" in log_text(app)
+            finally:
+                moved.stop()
+            assert all_safe(moved.world)
+
+    try:
+        asyncio.run(go())
+    finally:
+        lab.stop()
+    assert run_file_state(out) == "complete"

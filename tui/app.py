@@ -78,6 +78,8 @@ class LabApp(SetupTabActions, App):
         Binding("ctrl+n", "new", "New", priority=True),
         Binding("f4", "check", "Check", priority=True),
         Binding("f5", "start", "Start", priority=True),
+        # Only after a resume stopped on another instrument than the run's last session's.
+        Binding("ctrl+r", "start(True)", "Resume, replaced", priority=True, show=False),
         Binding("f6", "pause", "Pause", priority=True),
         Binding("f7", "resume", "Resume", priority=True),
         Binding("f8", "abort", "Abort", priority=True),
@@ -223,7 +225,9 @@ class LabApp(SetupTabActions, App):
     def _status(self, text: str) -> None:
         self.query_one("#run-status", Static).update(text)
 
-    def action_start(self) -> None:
+    def action_start(self, new_instruments: bool = False) -> None:
+        """F5: start the run, or resume its unfinished run file; Ctrl+R: resume it with an
+        instrument that answers as another than in the run's last session (replaced)."""
         if self.running:
             self.notify("a run is already in progress", severity="warning")
             return
@@ -238,6 +242,10 @@ class LabApp(SetupTabActions, App):
             self.query_one("#setup-error", Static).update(f"error: {refusal}")
             self.action_show_tab("setup")
             return
+        if new_instruments and not resume:
+            self.notify("Ctrl+R resumes an unfinished run file with replaced instruments; F5 starts a run",
+                        severity="warning")
+            return
         sim = self.query_one("#sim", Switch).value
         self.outcome = None
         self.results = None
@@ -247,11 +255,12 @@ class LabApp(SetupTabActions, App):
         self.query_one(ResultsPane).clear("run in progress...")
         self.query_one("#log", RichLog).clear()
         self.query_one("#progress", ProgressBar).update(total=1.0, progress=0.0)
-        self.acquisition = Acquisition(self.setup.source, Path(out).resolve(), sim=sim, resume=resume)
+        self.acquisition = Acquisition(self.setup.source, Path(out).resolve(), sim=sim, resume=resume,
+                                       new_instruments=new_instruments)
         parser = ProgressParser.for_setup(self.setup)
         self._status(f"{'resuming' if resume else 'running'}: {out} ({'simulated lab' if sim else 'lab hardware'})")
         self._log(f"$ ssidlab acquire {self.setup.source} {'--resume' if resume else '--out'} {out}"
-                  f"{' --sim' if sim else ''}")
+                  f"{' --sim' if sim else ''}{' --new-instruments' if new_instruments else ''}")
         self._watch(self.acquisition, parser, self.setup, sim, self.query_one("#model-path", Input).value.strip())
         self.action_show_tab("run")
         self._refresh_controls()
@@ -340,6 +349,8 @@ class LabApp(SetupTabActions, App):
                   and self.acquisition is not None and not self.acquisition.sim):
                 how += (f" (an instrument not reached: if it answers at another address now, "
                         f"put that in {self.setup.source} first)")
+            elif resumable and outcome.state.startswith("stopped: not the instruments"):
+                how += " after checking the addresses; Ctrl+R resumes with the instruments that answer now (replaced)"
             self.query_one(ResultsPane).status(f"no results: {text}" + (f"; {how}" if resumable else ""))
             if resumable:
                 self._status(f"{text} - {how}")

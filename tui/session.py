@@ -46,11 +46,13 @@ class Acquisition:
     """One ``ssidlab acquire SETUP [--sim] --out FILE --events --control-stdin`` subprocess,
     stdout and stderr merged."""
 
-    def __init__(self, setup_path: str | Path, out: str | Path, *, sim: bool = True, resume: bool = False) -> None:
+    def __init__(self, setup_path: str | Path, out: str | Path, *, sim: bool = True, resume: bool = False,
+                 new_instruments: bool = False) -> None:
         self.setup_path = str(setup_path)
         self.out = str(out)
         self.sim = sim
-        self.resume_file = resume  # continue the unfinished run file ``out`` (its setup must match)
+        self.resume_file = resume  # continue the unfinished run file ``out`` (daq.resume says what may differ)
+        self.new_instruments = new_instruments and resume  # take on a replaced instrument
         self.proc: subprocess.Popen[str] | None = None
         self.abort_requested = False
 
@@ -60,6 +62,8 @@ class Acquisition:
         argv = [sys.executable, "-m", "ssidlab", "acquire", self.setup_path, *where, "--events", "--control-stdin"]
         if self.sim:
             argv.append("--sim")
+        if self.new_instruments:
+            argv.append("--new-instruments")
         return argv
 
     def start(self) -> None:

@@ -154,12 +154,19 @@ class RandomRun:
                           f"(transient {left:.3g} times what the accuracy allows; raise max_settle_s)")
                 return spectra[-1]
 
-    def _reject(self, fault: SensorOverload) -> None:
-        """An average met a DAQ over-range: it is measured again, unless too many in a row."""
-        self.over_range_in_row += 1
-        if self.over_range_in_row >= MAX_OVER_RANGE_IN_ROW:
-            raise over_range_in_row(fault, self.over_range_in_row, "averages")
-        self.echo(f"  average {self.S.n_avg + 1}: {fault}: rejected, measured again")
+    def _unclipped(self, acquire: Callable[[], np.ndarray]) -> np.ndarray | None:
+        """``acquire()``'s data, or None when it met a DAQ over-range: the average is then
+        measured again, unless too many in a row (raised). The one place that counts them."""
+        try:
+            data = acquire()
+        except SensorOverload as fault:
+            self.over_range_in_row += 1
+            if self.over_range_in_row >= MAX_OVER_RANGE_IN_ROW:
+                raise over_range_in_row(fault, self.over_range_in_row, "averages")
+            self.echo(f"  average {self.S.n_avg + 1}: {fault}: rejected, measured again")
+            return None
+        self.over_range_in_row = 0
+        return data
 
     def _spectra(self, blocks: list[np.ndarray], window: str) -> np.ndarray:
         """Spectra of ``blocks`` at the band's bins, (n_blocks, n_ch, n_band_bins)."""
@@ -208,33 +215,31 @@ class RandomRun:
         if r.kind == "random":
             hop = max(1, int(round(n * (1 - r.overlap))))
 
+            def settled_first_block() -> np.ndarray:
+                if r.settle_blocks:
+                    self._acquire(r.settle_blocks * n)
+                return self._acquire(n)
+
             def start() -> tuple[np.ndarray, list[np.ndarray]]:
                 # Drive on, settle, first block: at the start, after a pause and after an
                 # over-range (the overlapped blocks must come from one unbroken record).
                 while True:
                     for j in range(n_sh):
                         self.rig.noise(j, r.drive_vpp, noise_bandwidth_hz(self.setup))
-                    try:
-                        self._acquire(r.settle_blocks * n) if r.settle_blocks else None
-                        first = self._acquire(n)
-                    except SensorOverload as exc:
-                        self._reject(exc)
-                        continue
-                    self.over_range_in_row = 0
-                    return first, [first]
+                    first = self._unclipped(settled_first_block)
+                    if first is not None:
+                        return first, [first]
 
             self._hold()
             buf, blocks = start()
             while self.S.n_avg + len(blocks) < r.averages:
-                try:
-                    buf = np.hstack([buf, self._acquire(hop)])[:, -n:]
-                except SensorOverload as exc:
-                    self._reject(exc)
+                new = self._unclipped(lambda: self._acquire(hop))
+                if new is None:
                     if blocks:  # from before the clip
                         self._add(self._spectra(blocks, r.window))
                     buf, blocks = start()
                     continue
-                self.over_range_in_row = 0
+                buf = np.hstack([buf, new])[:, -n:]
                 blocks.append(buf)
                 if len(blocks) >= 4:  # commit in small groups: few flushes, little at risk
                     self._add(self._spectra(blocks, r.window))
@@ -260,12 +265,9 @@ class RandomRun:
                         nb = int(r.burst_fraction * n)
                         x[:nb] = rng.standard_normal(nb)
                     self.rig.arb(j, x, r.drive_vpp)
-                try:
-                    X = self._settle_periodic(n)
-                except SensorOverload as exc:
-                    self._reject(exc)
+                X = self._unclipped(lambda: self._settle_periodic(n))
+                if X is None:
                     continue
-                self.over_range_in_row = 0
                 self._add(X[None])
         for j in range(n_sh):
             self.rig.drive_off(j)

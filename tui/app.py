@@ -197,7 +197,11 @@ class LabApp(SetupTabActions, App):
         self.refresh_bindings()
 
     def on_tabbed_content_tab_activated(self, event: TabbedContent.TabActivated) -> None:
-        self.refresh_bindings()
+        # A run's results switch to their tab when the analysis ends, which may be while the
+        # app is closing: the screens are gone by the time this message is handled, and
+        # refreshing the bindings then raised ScreenStackError on quit.
+        if self.screen_stack:
+            self.refresh_bindings()
 
     # ------------------------------------------------------------------ run
     @property
@@ -300,35 +304,50 @@ class LabApp(SetupTabActions, App):
         name = f"{self.setup.outputs[o]} / {self.setup.inputs[i]}" if o < len(self.setup.outputs) else ""
         self.query_one("#live-plot", FrfPlot).show_live(f"{name}: {len(f)} lines", f, h, c)
 
+    def _from_worker(self, update, *args) -> None:
+        """Run the UI update ``update(*args)`` from a worker thread, or drop it once the app is
+        closing. A worker outlives a quit (a run's analysis takes seconds), and by the time its
+        update runs the widgets it fills may be gone: filling the results pane then raised
+        NoMatches, and the tab switch after it ScreenStackError (both seen on a quit right
+        after a run)."""
+        def if_running() -> None:
+            if self.is_running:
+                update(*args)
+
+        try:
+            self.call_from_thread(if_running)
+        except RuntimeError:  # the app has stopped: no event loop to run it on
+            pass
+
     @work(thread=True, exclusive=True, group="acquire")
     def _watch(self, acq: Acquisition, parser: ProgressParser, setup, sim: bool, model_path: str) -> None:
         """Worker thread: owns the acquisition subprocess until it has ended."""
         try:
             acq.start()
         except OSError as exc:
-            self.call_from_thread(self._finished, RunOutcome(-1, False, acq.out, None), one_line(exc))
+            self._from_worker(self._finished, RunOutcome(-1, False, acq.out, None), one_line(exc))
             return
         for line in acq.lines():
             ev = parse_event(line)
             if ev is not None:
-                self.call_from_thread(self._event, ev)
+                self._from_worker(self._event, ev)
                 continue
-            self.call_from_thread(self._log, line)
+            self._from_worker(self._log, line)
             frac = parser.feed(line)
             if frac is not None:
-                self.call_from_thread(self._progress, frac)
+                self._from_worker(self._progress, frac)
         code = acq.wait()
         outcome = RunOutcome(code, acq.abort_requested, acq.out, run_file_state(acq.out))
-        self.call_from_thread(self._finished, outcome, None)
+        self._from_worker(self._finished, outcome, None)
         if outcome.complete:
-            self.call_from_thread(self._results_status, "identifying M, C, K (SSID), correlating, "
+            self._from_worker(self._results_status, "identifying M, C, K (SSID), correlating, "
                                                         "looking for the discrepancy...")
             try:
                 results = analyse_run(acq.out, setup, sim=sim, model_path=model_path or None)
             except Exception as exc:  # noqa: BLE001 -- any identification failure is one line; the file is fine
-                self.call_from_thread(self._show_results, None, f"identification failed: {one_line(exc)}")
+                self._from_worker(self._show_results, None, f"identification failed: {one_line(exc)}")
             else:
-                self.call_from_thread(self._show_results, results, results.description)
+                self._from_worker(self._show_results, results, results.description)
 
     def _finished(self, outcome: RunOutcome, error: str | None) -> None:
         self.outcome = outcome

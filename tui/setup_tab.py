@@ -115,11 +115,11 @@ class SetupTabActions:
         try:
             states = check_lab_instruments(setup, sim)
         except Exception as exc:  # noqa: BLE001 -- e.g. a setup the simulated lab cannot build
-            self.call_from_thread(self._show_line, "#setup-error", f"error: {one_line(exc)}")
+            self._from_worker(self._show_line, "#setup-error", f"error: {one_line(exc)}")
             return
         rows, msg = checked_instrument_rows(states, sim)
-        self.call_from_thread(self._fill_instruments, rows)
-        self.call_from_thread(self._show_line, "#check-status", msg)
+        self._from_worker(self._fill_instruments, rows)
+        self._from_worker(self._show_line, "#check-status", msg)
 
     def _show_line(self, selector: str, text: str) -> None:
         """Update a one-line Static (in the UI thread: workers never touch widgets)."""

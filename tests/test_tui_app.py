@@ -373,6 +373,22 @@ def test_end_of_input_stops_a_controlled_run_safely(tmp_path):
     assert run_file_state(out) == "interrupted"
 
 
+async def press_until_stopped(pilot, app: LabApp, key: str, fault: str) -> str:
+    """Press ``key`` (F5, Ctrl+R) and wait for the run to stop on ``fault`` (exit 3, the words
+    in its run file state); returns the status line."""
+    await pilot.press(key)
+    await wait_for(pilot, lambda: app.outcome is not None, 60, "the run to stop")
+    assert app.outcome.returncode == 3 and fault in app.outcome.state, log_text(app)
+    return str(app.query_one("#run-status", Static).render())
+
+
+async def press_until_complete(pilot, app: LabApp, key: str) -> None:
+    """Press ``key`` on a stopped run and wait for it to run to the end."""
+    await pilot.press(key)
+    await wait_for(pilot, lambda: app.outcome is not None and app.outcome.returncode != 3, 120, "the resumed run")
+    assert app.outcome.complete, log_text(app)
+
+
 def test_a_range_too_small_stops_the_run_and_f5_resumes_with_the_edited_range(tmp_path):
     """Periodic random at 4 Vpp with acc 3+Z on a 0.1 V range: the run stops on the DAQ
     overload, and the status says to raise that range in the setup file before F5; with the
@@ -389,16 +405,10 @@ def test_a_range_too_small_stops_the_run_and_f5_resumes_with_the_edited_range(tm
     async def go():
         app = LabApp(str(setup), out=str(out), sim=True)
         async with app.run_test(size=SIZE) as pilot:
-            await pilot.press("f5")
-            await wait_for(pilot, lambda: app.outcome is not None, 60, "the run to stop")
-            assert app.outcome.returncode == 3 and "DAQ overload" in app.outcome.state, log_text(app)
-            status = str(app.query_one("#run-status", Static).render())
+            status = await press_until_stopped(pilot, app, "f5", "DAQ overload")
             assert f"raise its range_volt in {setup}" in status, status
             setup.write_text(text.replace(acc3, acc3 + "range_volt = 1.0\n"), encoding="utf-8")
-            await pilot.press("f5")
-            await wait_for(pilot, lambda: app.outcome is not None and app.outcome.returncode != 3, 120,
-                           "the resumed run")
-            assert app.outcome.complete, log_text(app)
+            await press_until_complete(pilot, app, "f5")
             assert "DAQ input ranges changed for this session: 'acc 3+Z' 0.1 -> 1 V" in log_text(app)
         assert not app.acquisition.running
 
@@ -419,18 +429,12 @@ def test_an_instrument_not_reached_stops_the_run_and_f5_resumes_at_its_new_addre
     async def go():
         app = LabApp(str(hw), out=str(out), sim=False)
         async with app.run_test(size=SIZE) as pilot:
-            await pilot.press("f5")
-            await wait_for(pilot, lambda: app.outcome is not None, 60, "the run to stop")
-            assert app.outcome.returncode == 3 and "(link down)" in app.outcome.state, log_text(app)
-            status = str(app.query_one("#run-status", Static).render())
+            status = await press_until_stopped(pilot, app, "f5", "(link down)")
             assert f"if it answers at another address now, put that in {hw} first" in status, status
             moved, again = lab_setup(tmp_path, n_lines=8)  # the lab back on other ports; lab.toml edited
             assert again == hw
             try:
-                await pilot.press("f5")
-                await wait_for(pilot, lambda: app.outcome is not None and app.outcome.returncode != 3, 120,
-                               "the resumed run")
-                assert app.outcome.complete, log_text(app)
+                await press_until_complete(pilot, app, "f5")
                 assert "setup changed for this session: [[generators]] 'gen0' url" in log_text(app)
             finally:
                 moved.stop()
@@ -462,17 +466,10 @@ def test_a_replaced_generator_stops_f5_and_ctrl_r_resumes_with_it(tmp_path):
             assert again == hw
             try:
                 moved.generators[0].serial = "SN04711"
-                await pilot.press("f5")
-                await wait_for(pilot, lambda: app.outcome is not None, 60, "the resume to stop")
-                assert app.outcome.returncode == 3, log_text(app)
-                assert app.outcome.state.startswith("stopped: not the instruments"), app.outcome.state
-                status = str(app.query_one("#run-status", Static).render())
+                status = await press_until_stopped(pilot, app, "f5", "not the instruments of the run's last session")
                 assert "Ctrl+R resumes with the instruments that answer now" in status, status
                 assert all_safe(moved.world)
-                await pilot.press("ctrl+r")
-                await wait_for(pilot, lambda: app.outcome is not None and app.outcome.returncode != 3, 120,
-                               "the resumed run")
-                assert app.outcome.complete, log_text(app)
+                await press_until_complete(pilot, app, "ctrl+r")
                 assert "--new-instruments" in log_text(app)
                 assert "instruments replaced since the last session: gen0" in log_text(app)
             finally:

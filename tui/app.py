@@ -341,7 +341,7 @@ class LabApp(SetupTabActions, App):
         self._from_worker(self._finished, outcome, None)
         if outcome.complete:
             self._from_worker(self._results_status, "identifying M, C, K (SSID), correlating, "
-                                                        "looking for the discrepancy...")
+                                                    "looking for the discrepancy...")
             try:
                 results = analyse_run(acq.out, setup, sim=sim, model_path=model_path or None)
             except Exception as exc:  # noqa: BLE001 -- any identification failure is one line; the file is fine

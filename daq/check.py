@@ -48,7 +48,7 @@ def _amplifier(a, timeout_s: float) -> InstrumentState:
                   f"{'enabled' if st.enabled else 'disabled'}, "
                   f"{'fault: ' + st.fault_name if st.fault_latched else 'no fault'}")
         return InstrumentState(a.name, "amplifier", f"{a.host}:{a.port}", True,
-                               f"Modbus unit {a.device_id}", detail)
+                               f"Modbus unit {a.device_id}, serial {amp.amp.serial}", detail)
 
 
 def _daq(setup: TestSetup, timeout_s: float) -> InstrumentState:

@@ -14,8 +14,8 @@ resume is often the very moment they have to change:
 * the operator (a shift change) and where the files go (``[output]`` ``file``, ``uff``).
 
 Addresses may change, but the instruments may not: after a restart two generators' serial
-ports can swap, and the setup unchanged then drives one shaker with the other's signal.
-:func:`instruments_not_the_same` compares who answers with who answered in the run's last
+ports can swap, and the setup unchanged then drives one shaker with the other's signal (two
+amplifiers' addresses likewise). :func:`instruments_not_the_same` compares who answers with who answered in the run's last
 session.
 
 Anything else - a calibration, the wiring, the excitation, the limits, the simulated world -
@@ -24,6 +24,7 @@ is refused: the lines on file and the schedule's decisions belong to the stored 
 
 from __future__ import annotations
 
+import re
 import tomllib
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -168,13 +169,19 @@ def _maker_model_serial(idn: str) -> str:
     return ",".join(part.strip() for part in str(idn).split(",")[:3])
 
 
+def _amplifier_serial(identity: str) -> str | None:
+    # "model 0x5A01 serial 52001 at host:port"; the address may change, the serial not. Run
+    # files from before the amplifiers reported a serial hold none: nothing to compare.
+    found = re.search(r"\bserial (\S+)", str(identity))
+    return found.group(1) if found else None
+
+
 def instruments_not_the_same(before: dict, now: dict) -> list[str]:
     """The instruments that answer as others than in the run's last session, one line each.
 
     ``before`` / ``now``: identities as :meth:`daq.rig.Rig.identities` gives them (what
     ``meta_json`` records per session). Compared: each generator's maker, model and serial
-    (``*IDN?``) and the DAQ front end's serial. The amplifiers report a model id only, so
-    a swapped amplifier cannot be told from its identity.
+    (``*IDN?``), each amplifier's serial and the DAQ front end's serial.
     """
     out = []
     old_gens = before.get("generators") or {}
@@ -182,6 +189,11 @@ def instruments_not_the_same(before: dict, now: dict) -> list[str]:
         old = old_gens.get(name)
         if old is not None and _maker_model_serial(old) != _maker_model_serial(idn):
             out.append(f"{name} answers as {idn!r}, in the last session as {old!r}")
+    old_amps = before.get("amplifiers") or {}
+    for name, identity in (now.get("amplifiers") or {}).items():
+        old_sn, new_sn = _amplifier_serial(old_amps.get(name, "")), _amplifier_serial(identity)
+        if old_sn is not None and new_sn is not None and old_sn != new_sn:
+            out.append(f"{name} answers with serial {new_sn}, in the last session with {old_sn}")
     old_sn, new_sn = ((d.get("daq") or {}).get("serial") for d in (before, now))
     if old_sn is not None and new_sn is not None and old_sn != new_sn:
         out.append(f"the DAQ answers with serial {new_sn}, in the last session with {old_sn}")

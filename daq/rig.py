@@ -243,7 +243,8 @@ class InstrumentRig(Rig):
 
     def identities(self) -> dict:
         out = {"generators": {k: g.idn for k, g in self.gens.items()},
-               "amplifiers": {k: f"model 0x5A01 at {a.amp.host}:{a.amp.port}" for k, a in self.amps.items()},
+               "amplifiers": {k: f"model 0x5A01 serial {a.amp.serial} at {a.amp.host}:{a.amp.port}"
+                              for k, a in self.amps.items()},
                "daq": {k: (int(v) if isinstance(v, (int, np.integer)) else str(v))
                        for k, v in (self.daq.identity or {}).items()} if self.daq else {}}
         return out

@@ -42,6 +42,7 @@ REG = {
     "ENABLE": 0, "GAIN": 1, "FAULT_RESET": 2, "WATCHDOG_MS": 3,
     "STATUS": 16, "FAULT_CODE": 17, "CURRENT_MA": 18, "TRAVEL_UM": 19,
     "TEMPERATURE_DC": 20, "HEARTBEAT": 21, "INTERLOCK": 22, "MODEL_ID": 23,
+    "SERIAL_HI": 24, "SERIAL_LO": 25,
 }
 MODEL_ID = 0x5A01
 FAULT_NAMES = {
@@ -130,6 +131,7 @@ class ShakerAmplifier:
         self.gain_ramp_step_s = float(gain_ramp_step_s)
         self.watchdog_ms = int(watchdog_ms)
         self.client: AsyncModbusTcpClient | None = None
+        self.serial: int | None = None  # the unit's serial number, read on connect
         self.last_status: AmpStatus | None = None
         self._fault: InstrumentError | None = None
         self._monitor_task: asyncio.Task | None = None
@@ -138,7 +140,8 @@ class ShakerAmplifier:
 
     # ------------------------------------------------------------------ link
     async def connect(self) -> None:
-        """Open the connection, check the model id, set the watchdog, start the monitor."""
+        """Open the connection, check the model id, read the serial number, set the watchdog,
+        start the monitor."""
         self.client = AsyncModbusTcpClient(
             self.host, port=self.port, timeout=self.timeout_s, retries=self.retries,
             reconnect_delay=0.1, reconnect_delay_max=1.0,
@@ -150,10 +153,11 @@ class ShakerAmplifier:
         if not ok:
             self.client.close()
             raise ConnectionLost(f"{self.name}: cannot connect to {self.host}:{self.port}")
-        model = (await self._read(REG["MODEL_ID"], 1))[0]
+        model, serial_hi, serial_lo = await self._read(REG["MODEL_ID"], 3)
         if model != MODEL_ID:
             self.client.close()
             raise ProtocolError(f"{self.name}: unexpected model id 0x{model:04X} (want 0x{MODEL_ID:04X})")
+        self.serial = serial_hi << 16 | serial_lo
         await self._write(REG["WATCHDOG_MS"], self.watchdog_ms)
         self.last_status = await self.read_status()
         self._monitor_task = asyncio.get_running_loop().create_task(self._monitor())

@@ -20,6 +20,8 @@ same table is in ``docs/drivers.md`` and in ``drivers.amplifier``)::
     21    HEARTBEAT         r       counter, +1 every 100 ms while the controller runs
     22    INTERLOCK         r       1 closed, 0 open
     23    MODEL_ID          r       0x5A01
+    24    SERIAL_HI         r       serial number, high 16 bits
+    25    SERIAL_LO         r       serial number, low 16 bits
 
 The server runs on an asyncio loop in a thread owned by :class:`AmpServerThread` (one loop
 can host several amplifiers). Faults for tests: :meth:`SimAmplifier.inject` with
@@ -53,8 +55,9 @@ REG = {
     "ENABLE": 0, "GAIN": 1, "FAULT_RESET": 2, "WATCHDOG_MS": 3,
     "STATUS": 16, "FAULT_CODE": 17, "CURRENT_MA": 18, "TRAVEL_UM": 19,
     "TEMPERATURE_DC": 20, "HEARTBEAT": 21, "INTERLOCK": 22, "MODEL_ID": 23,
+    "SERIAL_HI": 24, "SERIAL_LO": 25,
 }
-N_CONTROL, N_STATUS = 4, 8
+N_CONTROL, N_STATUS = 4, 10
 MODEL_ID = 0x5A01
 GAIN_MAX_CENTI = 5000
 DEVICE_ID = 1
@@ -100,10 +103,16 @@ class SimAmplifier:
         Event loop that runs the server.
     port : int
         TCP port on 127.0.0.1 (0: an ephemeral port, see :attr:`port` after start).
+    serial : int
+        The unit's serial number (32 bits); tests set another for a replaced unit.
     """
 
-    def __init__(self, model: AmplifierModel, host_thread: AmpServerThread, port: int = 0, name: str = "amp") -> None:
+    def __init__(self, model: AmplifierModel, host_thread: AmpServerThread, port: int = 0, name: str = "amp",
+                 serial: int = 1) -> None:
+        if not 0 <= serial < 1 << 32:
+            raise ValueError(f"{name}: serial must fit in 32 bits, got {serial}")
         self.model = model
+        self.serial = serial
         self.host = "127.0.0.1"
         self.port = port
         self.name = name
@@ -209,6 +218,8 @@ class SimAmplifier:
                 self.heartbeat,
                 int(m.interlock_closed),
                 MODEL_ID,
+                self.serial >> 16,
+                self.serial & 0xFFFF,
             ]
 
     async def _action(self, func_code, start_address, address, count, registers, set_values):

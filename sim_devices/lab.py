@@ -98,7 +98,8 @@ class SimLab:
                 self.generators.append(SimSignalGenerator(self.world, g, self.generator_transport, seed=g).start())
             self._amp_host = AmpServerThread()
             for j, model in enumerate(self.world.amplifiers):
-                self.amplifiers.append(SimAmplifier(model, self._amp_host, self.amp_ports[j], name=f"amp{j}").start())
+                self.amplifiers.append(SimAmplifier(model, self._amp_host, self.amp_ports[j], name=f"amp{j}",
+                                                   serial=52001 + j).start())
             self.daq = SimDaq(self.world, self.can_channel, speed=self.speed).start()
             if self.want_gateway:
                 self.gateway = CanTcpGateway(self.can_channel, self.gateway_port).start()

@@ -301,3 +301,33 @@ def test_a_resume_stops_before_driving_when_another_generator_answers(tmp_path, 
     assert len(sessions) == 2 and "instruments_replaced" not in sessions[0]
     assert sessions[1]["instruments_replaced"][0].startswith("gen0 answers as 'ssidlab,SIM-33522,SN04711,1.0'")
     assert cli(["run.h5", "--new-instruments"])[0] == 2  # only with --resume
+
+
+def test_a_resume_stops_when_two_amplifiers_answer_at_each_others_address(tmp_path, capsys):
+    """Two amplifiers whose addresses swapped after a restart (their DHCP leases, say): the
+    setup would run each shaker's amplifier with the other's gain and read the other's trips.
+    Their serial numbers tell: the resume stops before any output is switched on, naming
+    both. With the addresses put right it completes."""
+    text = sine_setup(n_lines=4, two=True)
+    run, _, second, inst = interrupted_then_lab_moved(tmp_path, text, 2)
+    try:
+        a0, a1 = inst.amplifiers
+        good = tmp_path / "good.toml"
+        good.write_text(pointed_at(text, inst))
+        swapped = tmp_path / "swapped.toml"
+        marker = f"port = {a0.port}\n"
+        swapped.write_text(good.read_text().replace(marker, "PORT0").replace(f"port = {a1.port}\n", marker)
+                           .replace("PORT0", f"port = {a1.port}\n"))
+        capsys.readouterr()
+        status, _ = cli(["--resume", str(run), str(swapped), "--quiet"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert status == 3, err
+        assert ("not the instruments of the run's last session: amp0 answers with serial 52002, in the last "
+                "session with 52001; amp1 answers with serial 52001, in the last session with 52002") in err[0], err
+        assert not any(a.model.enabled for a in second.lab.amplifiers) and all_safe(second.world)
+        with h5py.File(run) as f:
+            assert f["acq"].attrs["state"].startswith("stopped: not the instruments") and f["acq/n_done"][0] == 2
+        status, _ = cli(["--resume", str(run), str(good), "--quiet"])
+        assert status == 0 and all_safe(second.world)
+    finally:
+        second.stop()

@@ -140,14 +140,17 @@ sensor_noise_volt_rms = {noise_v}
 
 
 def pointed_at(text: str, inst) -> str:
-    """``text`` (a setup built on ``BASE``, one shaker) with the addresses of the instruments
-    of ``inst``, the setup :func:`daq.simlab.start_sim_lab` pointed at its lab: run without
-    the sim switch, the drivers reach the simulated instruments as they would real ones."""
-    g, a, d = inst.generators[0], inst.amplifiers[0], inst.daq
-    for old, new in [('url = "socket://127.0.0.1:1"', f'url = "{g.url}"'),
-                     ('name = "amp0"\nport = 1\n',
-                      f'name = "amp0"\nhost = "{a.host}"\nport = {a.port}\ndevice_id = {a.device_id}\n'),
-                     ("[daq]\n", f'[daq]\ninterface = "{d.interface}"\nchannel = "{d.channel}"\n')]:
+    """``text`` (a setup built on ``BASE``, one shaker or two) with the addresses of the
+    instruments of ``inst``, the setup :func:`daq.simlab.start_sim_lab` pointed at its lab: run
+    without the sim switch, the drivers reach the simulated instruments as they would real
+    ones."""
+    g, d = inst.generators[0], inst.daq
+    swaps = [('url = "socket://127.0.0.1:1"', f'url = "{g.url}"'),
+             ("[daq]\n", f'[daq]\ninterface = "{d.interface}"\nchannel = "{d.channel}"\n')]
+    for j, a in enumerate(inst.amplifiers):
+        swaps.append((f'name = "amp{j}"\nport = {j + 1}\n',
+                      f'name = "amp{j}"\nhost = "{a.host}"\nport = {a.port}\ndevice_id = {a.device_id}\n'))
+    for old, new in swaps:
         assert old in text, old
         text = text.replace(old, new)
     return text

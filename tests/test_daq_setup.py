@@ -189,3 +189,25 @@ def test_a_resume_may_change_ranges_addresses_operator_and_file_names_only(tmp_p
                             ("[limits]\n", "[limits]\nmax_force_n = 40\n", "[limits]")]:
         with pytest.raises(InputError, match=re.escape(f"new.toml: differs from the setup of the run run.h5 in {where}")):
             changed((old, new))
+
+
+def test_a_resume_compares_the_serials_of_the_instruments_that_report_one():
+    """instruments_not_the_same: a generator is known by its *IDN? maker, model and serial (not
+    its firmware), an amplifier and the DAQ by their serials, and none by its address. A run
+    file written before the amplifiers reported a serial ("model 0x5A01 at ...") has nothing
+    to compare them with."""
+    from daq.resume import instruments_not_the_same
+
+    def ids(gen="ACME,SG2,SN1234,1.1", amp0="model 0x5A01 serial 52001 at 10.0.0.7:502", daq=7):
+        return {"generators": {"gen0": gen}, "amplifiers": {"amp0": amp0}, "daq": {"serial": daq}}
+
+    before = ids()
+    assert instruments_not_the_same(before, ids(gen="ACME,SG2,SN1234,1.2",
+                                                amp0="model 0x5A01 serial 52001 at 10.0.0.9:5020")) == []
+    assert instruments_not_the_same(before, ids(amp0="model 0x5A01 serial 52002 at 10.0.0.7:502", daq=8)) == [
+        "amp0 answers with serial 52002, in the last session with 52001",
+        "the DAQ answers with serial 8, in the last session with 7"]
+    assert instruments_not_the_same(before, ids(gen="ACME,SG2,SN1235,1.1")) == [
+        "gen0 answers as 'ACME,SG2,SN1235,1.1', in the last session as 'ACME,SG2,SN1234,1.1'"]
+    old_file = ids(amp0="model 0x5A01 at 10.0.0.7:502")
+    assert instruments_not_the_same(old_file, ids(amp0="model 0x5A01 serial 52002 at 10.0.0.7:502")) == []

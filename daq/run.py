@@ -31,7 +31,7 @@ from ssid.errors import InputError
 
 from .control import RunControl, RunEvents, clear_interrupts, latching_interrupt_handler
 from .rig import InstrumentRig, Rig
-from .safety import RunStopped, describe_fault
+from .safety import NOT_THE_SAME_INSTRUMENTS, RunStopped, describe_fault
 from .resume import instruments_not_the_same, range_changes, setup_changes_on_resume, setup_in_effect
 from .setup import TestSetup
 from .storage import RunFile
@@ -199,7 +199,7 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
             if replaced and not new_instruments:
                 # Nothing has been driven yet: a swapped port would drive one shaker with
                 # another's signal, and a simulated lab's lines are not the hardware's.
-                raise RunStopped("not the instruments of the run's last session: " + "; ".join(replaced)
+                raise RunStopped(f"{NOT_THE_SAME_INSTRUMENTS}: " + "; ".join(replaced)
                                  + ". Check the setup's addresses; if an instrument was replaced, "
                                  "resume with --new-instruments")
             if replaced:

@@ -40,8 +40,9 @@ from drivers.errors import (
 
 from .setup import Limits
 
-__all__ = ["MAX_OVER_RANGE_IN_ROW", "LineAborted", "LineOverRange", "RunStopped", "check_limits", "describe_fault",
-           "drive_headroom_vpp", "limit_usage", "over_range_in_row"]
+__all__ = ["MAX_OVER_RANGE_IN_ROW", "NOT_THE_SAME_INSTRUMENTS", "LineAborted", "LineOverRange", "RunStopped",
+           "check_limits", "describe_fault", "drive_headroom_vpp", "limit_usage", "over_range_in_row",
+           "resume_remedy"]
 
 
 class LineAborted(Exception):
@@ -91,24 +92,60 @@ class RunStopped(Exception):
         self.cause = cause
 
 
+#: The words a stop's state begins with, by the kind of fault (first match wins).
+_FAULT_WORDS = (
+    (InterlockOpen, "amplifier interlock open"),
+    (HeartbeatLost, "amplifier heartbeat lost"),
+    (AmplifierFault, "amplifier fault"),
+    (SensorOverload, "DAQ overload"),
+    (FramesLost, "CAN frame gap"),
+    (BusOff, "CAN bus-off or DAQ silent"),
+    (StreamError, "DAQ stream broken"),
+    (InstrumentTimeout, "instrument lost (no reply)"),
+    (ConnectionLost, "instrument lost (link down)"),
+    (InstrumentError, "instrument error"),
+)
+#: How a resume that met other instruments than the run's last session stops.
+NOT_THE_SAME_INSTRUMENTS = "not the instruments of the run's last session"
+
+
 def describe_fault(exc: BaseException) -> str:
     """One line naming the kind of fault and the instrument's own message."""
-    kinds = [
-        (InterlockOpen, "amplifier interlock open"),
-        (HeartbeatLost, "amplifier heartbeat lost"),
-        (AmplifierFault, "amplifier fault"),
-        (SensorOverload, "DAQ overload"),
-        (FramesLost, "CAN frame gap"),
-        (BusOff, "CAN bus-off or DAQ silent"),
-        (StreamError, "DAQ stream broken"),
-        (InstrumentTimeout, "instrument lost (no reply)"),
-        (ConnectionLost, "instrument lost (link down)"),
-        (InstrumentError, "instrument error"),
-    ]
-    for cls, words in kinds:
+    for cls, words in _FAULT_WORDS:
         if isinstance(exc, cls):
             return f"{words}: {exc}"
     return f"{type(exc).__name__}: {exc}"
+
+
+def _words(cls: type) -> str:
+    return next(words for c, words in _FAULT_WORDS if c is cls)
+
+
+def resume_remedy(state: str | None, sim: bool) -> str | None:
+    """What has to change before a resume of a run that stopped with ``state`` (its run file's
+    ``/acq`` state) can get further than the stop, or None.
+
+    ``"range_volt"``: a DAQ overload stopped it, and the same range would meet the same
+    overload (raise the channel's range in the setup); ``"address"``: an instrument could not
+    be reached, and it may answer at another address after a restart (not on a simulated
+    lab, whose addresses are its own); ``"new_instruments"``: other instruments answered than
+    in the run's last session (fix the addresses, or resume with ``--new-instruments`` if one
+    was replaced). None after any other stop, and when the safe state was not confirmed:
+    the instruments come first then.
+
+    Decided from the state text, so that a UI that has only the run file gives the same
+    advice as the command line that saw the fault.
+    """
+    if not state or not state.startswith("stopped: ") or "safe state not confirmed" in state:
+        return None
+    fault = state.removeprefix("stopped: ")
+    if fault.startswith(_words(SensorOverload)):
+        return "range_volt"
+    if fault.startswith(_words(ConnectionLost)) and not sim:
+        return "address"
+    if fault.startswith(NOT_THE_SAME_INSTRUMENTS):
+        return "new_instruments"
+    return None
 
 
 _LIMITED = (("response", "max_accel_m_per_s2", "m/s^2", "acceleration"),

@@ -95,34 +95,42 @@ def _read_control(control, stream) -> None:
     os.kill(os.getpid(), signal.SIGINT)
 
 
-def _say_how_to_continue(run_path: Path, sim: bool, cause: BaseException | None = None,
-                         setup_arg: str | None = None) -> None:
+def _say_how_to_continue(run_path: Path, sim: bool, setup_arg: str | None = None, resumed: bool = False) -> None:
     """The line an engineer needs after a stop: where the measured lines are, and the
-    command that continues the run from its first incomplete line. After a DAQ overload,
-    also how to continue with a larger input range (a resume meets the same overload); after
-    an instrument that could not be reached, how to continue with its new address."""
-    from drivers.errors import ConnectionLost, SensorOverload
+    command that continues the run from its first incomplete line. After a stop that a
+    plain resume would meet again (:func:`daq.safety.resume_remedy`: a DAQ overload, an
+    instrument not reached, other instruments answering), also what to change and the
+    command that continues with it."""
+    from daq.safety import resume_remedy
     from daq.storage import peek_run_file
 
-    if run_path.is_file():
-        sim_flag = " --sim" if sim else ""
-        cmd = f"ssidlab acquire --resume {shlex.quote(str(run_path))}{sim_flag}"
-        # A fault before the first line (an instrument that never answered) leaves a file with
-        # the setup only: say so rather than claim measured lines were kept.
-        peek = peek_run_file(run_path)
-        n = peek[1] if peek else 0
-        kept = (f"{n} measurement records are kept in {run_path}" if n
-                else f"nothing was measured yet; the setup is kept in {run_path}")
-        print(f"ssidlab acquire: {kept}; continue with: {cmd}", file=sys.stderr, flush=True)
-        setup = shlex.quote(setup_arg) if setup_arg else "SETUP.toml"
-        with_setup = f"continue with it: ssidlab acquire --resume {shlex.quote(str(run_path))} {setup}{sim_flag}"
-        if isinstance(cause, SensorOverload):
-            print(f"ssidlab acquire: if a DAQ input range is too small for the level, raise that channel's "
-                  f"range_volt in the setup and {with_setup}", file=sys.stderr, flush=True)
-        elif isinstance(cause, ConnectionLost) and not sim:  # the simulated lab's addresses are its own
-            print(f"ssidlab acquire: if the instrument answers at another address now (a serial port "
-                  f"renumbered, a new IP address), put that in the setup and {with_setup}",
-                  file=sys.stderr, flush=True)
+    if not run_path.is_file():
+        return
+    sim_flag = " --sim" if sim else ""
+    run_q = shlex.quote(str(run_path))
+    # A resume with a setup file that stopped before its session was recorded (an instrument
+    # not reached, other instruments answering) would go back to the stored setup without it.
+    again = f" {shlex.quote(setup_arg)}" if resumed and setup_arg else ""
+    cmd = f"ssidlab acquire --resume {run_q}{again}{sim_flag}"
+    # A fault before the first line (an instrument that never answered) leaves a file with
+    # the setup only: say so rather than claim measured lines were kept.
+    state, n = peek_run_file(run_path) or (None, 0)
+    kept = (f"{n} measurement records are kept in {run_path}" if n
+            else f"nothing was measured yet; the setup is kept in {run_path}")
+    print(f"ssidlab acquire: {kept}; continue with: {cmd}", file=sys.stderr, flush=True)
+    setup = shlex.quote(setup_arg) if setup_arg else "SETUP.toml"
+    with_setup = f"continue with it: ssidlab acquire --resume {run_q} {setup}{sim_flag}"
+    remedy = resume_remedy(state, sim)
+    if remedy == "range_volt":
+        print(f"ssidlab acquire: if a DAQ input range is too small for the level, raise that channel's "
+              f"range_volt in the setup and {with_setup}", file=sys.stderr, flush=True)
+    elif remedy == "address":
+        print(f"ssidlab acquire: if the instrument answers at another address now (a serial port "
+              f"renumbered, a new IP address), put that in the setup and {with_setup}",
+              file=sys.stderr, flush=True)
+    elif remedy == "new_instruments":
+        print(f"ssidlab acquire: if the setup's addresses are right and an instrument was replaced, "
+              f"continue with: {cmd} --new-instruments", file=sys.stderr, flush=True)
 
 
 class _Terminated(KeyboardInterrupt):
@@ -164,11 +172,11 @@ def run_acquire(args: argparse.Namespace) -> int:
                            events=_print_event if args.events else None, new_instruments=args.new_instruments)
     except RunStopped as exc:
         print(f"ssidlab acquire: stopped: {' '.join(str(exc).splitlines())}", file=sys.stderr)
-        _say_how_to_continue(run_path, args.sim, exc.cause, setup_arg=args.setup)
+        _say_how_to_continue(run_path, args.sim, args.setup, bool(args.resume))
         return EXIT_STOPPED
     except KeyboardInterrupt:
         print("ssidlab acquire: interrupted (outputs off, amplifiers disabled)", file=sys.stderr)
-        _say_how_to_continue(run_path, args.sim)
+        _say_how_to_continue(run_path, args.sim, args.setup, bool(args.resume))
         return EXIT_INTERRUPTED
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -286,6 +286,10 @@ def test_a_resume_stops_before_driving_when_another_generator_answers(tmp_path, 
         assert ("not the instruments of the run's last session: gen0 answers as 'ssidlab,SIM-33522,SN04711,1.0', "
                 "in the last session as 'ssidlab,SIM-33522,SN00000,1.0'") in err[0], err
         assert "resume with --new-instruments" in err[0]
+        # Not recorded, this session's setup: continuing without it would go back to the old addresses.
+        assert err[1].endswith(f"continue with: ssidlab acquire --resume {run} {new}"), err
+        assert err[2].endswith(f"an instrument was replaced, continue with: ssidlab acquire --resume {run} {new} "
+                               "--new-instruments"), err
         assert not any(c.startswith("OUTP1 ON") or c.startswith("OUTP2 ON") for c in second.lab.generators[0].log)
         assert all_safe(second.world)
         with h5py.File(run) as f:

@@ -211,3 +211,26 @@ def test_a_resume_compares_the_serials_of_the_instruments_that_report_one():
         "gen0 answers as 'ACME,SG2,SN1235,1.1', in the last session as 'ACME,SG2,SN1234,1.1'"]
     old_file = ids(amp0="model 0x5A01 at 10.0.0.7:502")
     assert instruments_not_the_same(old_file, ids(amp0="model 0x5A01 serial 52002 at 10.0.0.7:502")) == []
+
+
+def test_the_advice_after_a_stop_follows_the_fault_that_stopped_the_run():
+    """resume_remedy: from the run file's state alone (all the TUI has), what must change
+    before a resume gets past the stop; nothing when a plain resume is the way on, or when
+    the safe state was not confirmed (the instruments come first)."""
+    from daq.safety import NOT_THE_SAME_INSTRUMENTS, describe_fault, resume_remedy
+    from drivers.errors import ConnectionLost, InstrumentTimeout, InterlockOpen, SensorOverload
+
+    def stopped(exc: Exception) -> str:
+        return f"stopped: {describe_fault(exc)}"
+
+    overload = stopped(SensorOverload("daq: over range on acc 3+Z (samples clipped)", ["acc 3+Z"]))
+    link = stopped(ConnectionLost("gen0: cannot open serial port /dev/ttyUSB0"))
+    assert resume_remedy(overload, sim=False) == resume_remedy(overload, sim=True) == "range_volt"
+    assert resume_remedy(link, sim=False) == "address"
+    assert resume_remedy(link, sim=True) is None  # the simulated lab's addresses are its own
+    other = f"stopped: {NOT_THE_SAME_INSTRUMENTS}: gen0 answers as 'ACME,SG2,SN1235,1.1', in the last session as ..."
+    assert resume_remedy(other, sim=True) == "new_instruments"
+    for plain in [stopped(InterlockOpen("amp0: interlock open")), stopped(InstrumentTimeout("gen0: no reply")),
+                  "interrupted", "complete", "running", None,
+                  overload + "; safe state not confirmed: gen0: no reply"]:
+        assert resume_remedy(plain, sim=False) is None, plain

@@ -43,6 +43,8 @@ from textual.widgets import (
     TabPane,
 )
 
+from daq.safety import resume_remedy
+
 from .results import RunResults, analyse_run, export_results
 from .results_pane import ResultsPane
 from .session import (
@@ -362,13 +364,14 @@ class LabApp(SetupTabActions, App):
             how = "F5 resumes the run file"
             # F5 re-reads the setup file, and a resume may change the channels' range_volt and
             # the instruments' addresses (daq.resume): the same setup would meet the same fault.
-            if resumable and "DAQ overload" in outcome.state and self.setup is not None:
+            sim = self.acquisition is not None and self.acquisition.sim
+            remedy = resume_remedy(outcome.state, sim) if resumable else None
+            if remedy == "range_volt" and self.setup is not None:
                 how += f" (a range too small for the level: raise its range_volt in {self.setup.source} first)"
-            elif (resumable and "(link down)" in outcome.state and self.setup is not None
-                  and self.acquisition is not None and not self.acquisition.sim):
+            elif remedy == "address" and self.setup is not None:
                 how += (f" (an instrument not reached: if it answers at another address now, "
                         f"put that in {self.setup.source} first)")
-            elif resumable and outcome.state.startswith("stopped: not the instruments"):
+            elif remedy == "new_instruments":
                 how += " after checking the addresses; Ctrl+R resumes with the instruments that answer now (replaced)"
             self.query_one(ResultsPane).status(f"no results: {text}" + (f"; {how}" if resumable else ""))
             if resumable:

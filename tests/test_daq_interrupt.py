@@ -1,0 +1,171 @@
+"""Interrupted stepped-sine runs on the simulated lab: Ctrl-C, kill -9 and a SIGINT the
+shell would have ignored leave a readable file whose resume gives the uninterrupted run's
+FRFs; a stop by a fault says how to continue; older run files resume."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from daq.run import run_test
+from daq.setup import parse_setup
+from ssid.io import read_frf
+
+from test_daq_helpers import cli, run_on_sim, sine_setup
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _same_frf(a, b, rtol=2 * 2e-3):
+    """Lines measured in different sessions are independent estimates, each within the
+    setup's ``accuracy`` (2e-3, sine_setup) of the truth: they may differ by twice that."""
+    assert np.array_equal(a.freq_hz, b.freq_hz)
+    assert np.array_equal(a.valid_mask(), b.valid_mask())
+    ok = a.valid_mask()
+    assert np.max(np.abs(a.H[ok] - b.H[ok]) / np.abs(b.H[ok])) < rtol
+
+
+def test_ctrl_c_leaves_a_readable_file_and_resume_gives_the_same_frf(tmp_path):
+    setup = parse_setup(sine_setup(two=True), str(tmp_path / "s.toml"))
+    run_on_sim(setup, tmp_path / "full.h5")
+    count = {"n": 0}
+
+    def echo(msg):
+        count["n"] += 1
+        if count["n"] == 12:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_on_sim(setup, tmp_path / "cut.h5", echo=echo)
+    part = read_frf(tmp_path / "cut.h5")  # readable mid-run: every completed line, rest invalid
+    with h5py.File(tmp_path / "cut.h5") as f:
+        assert f["acq"].attrs["state"] == "interrupted" and 5 <= f["acq/n_done"][0] <= 12
+    assert part.valid_mask().sum() < read_frf(tmp_path / "full.h5").valid_mask().sum()
+    summary = run_test(setup, out=str(tmp_path / "cut.h5"), resume=True, sim=True, echo=lambda m: None)
+    assert summary["state"] == "complete"
+    _same_frf(read_frf(tmp_path / "cut.h5"), read_frf(tmp_path / "full.h5"))
+    # Resuming with a different setup file is refused (hash check).
+    other = tmp_path / "other.toml"
+    other.write_text(setup.text.replace("force_n = 1.0", "force_n = 1.5"))
+    status, err = cli(["--resume", str(tmp_path / "full.h5"), str(other), "--sim"])
+    assert status == 2 and "differs from the setup" in err
+
+
+def test_kill_9_mid_run_then_resume_gives_the_same_file(tmp_path):
+    """A separate process runs `ssidlab acquire --sim` and is killed with SIGKILL mid-run."""
+    text = sine_setup(two=True)
+    (tmp_path / "s.toml").write_text(text)
+    setup = parse_setup(text, str(tmp_path / "s.toml"))
+    code = ("import sys; sys.path.insert(0, %r); sys.path.insert(0, %r); from test_daq_helpers import cli; "
+            "sys.exit(cli(sys.argv[1:])[0])" % (str(ROOT), str(ROOT / "tests")))
+    proc = subprocess.Popen([sys.executable, "-u", "-c", code, str(tmp_path / "s.toml"), "--sim",
+                             "--out", str(tmp_path / "killed.h5")], stdout=subprocess.PIPE, text=True,
+                            cwd=tmp_path)
+    try:
+        n = 0
+        for line in proc.stdout:
+            n += line.startswith("  shaker")
+            if n == 9:
+                os.kill(proc.pid, signal.SIGKILL)
+                break
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL
+    part = read_frf(tmp_path / "killed.h5")  # the killed run's file opens and validates
+    with h5py.File(tmp_path / "killed.h5") as f:
+        assert f["acq"].attrs["state"] == "running" and f["acq/n_done"][0] >= 8
+    assert part.n_freq > 0
+    status, _ = cli(["--resume", str(tmp_path / "killed.h5"), "--sim", "--quiet"])
+    assert status == 0
+    run_on_sim(setup, tmp_path / "full.h5")
+    _same_frf(read_frf(tmp_path / "killed.h5"), read_frf(tmp_path / "full.h5"))
+
+
+def test_sigint_stops_a_run_started_with_sigint_ignored(tmp_path):
+    """A run started in the background by a non-interactive shell inherits SIGINT as ignored;
+    Ctrl-C (or the TUI's abort) must still stop it safely, not be lost while the drive runs."""
+    text = sine_setup(two=True)
+    (tmp_path / "s.toml").write_text(text)
+    proc = subprocess.Popen(
+        [sys.executable, "-u", "-m", "ssidlab", "acquire", str(tmp_path / "s.toml"), "--sim",
+         "--out", str(tmp_path / "run.h5")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)),
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        for line in proc.stdout:
+            if line.startswith("  shaker"):
+                proc.send_signal(signal.SIGINT)
+                break
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stdout.close()
+        err = proc.stderr.read()
+        proc.stderr.close()
+    assert proc.returncode == 130, err
+    with h5py.File(tmp_path / "run.h5") as f:
+        assert f["acq"].attrs["state"] == "interrupted"
+        n_done = int(f["acq/n_done"][0])
+    assert f"{n_done} measurement records are kept in" in err and n_done > 0, err
+    assert f"continue with: ssidlab acquire --resume {tmp_path / 'run.h5'} --sim" in err, err
+
+
+def test_a_run_stopped_by_a_fault_says_how_to_continue(tmp_path):
+    """Without --sim the setup's generator is at a loopback port where nothing listens: the
+    run stops before its first line (exit 3), and stderr names the instrument, the file, the
+    command that continues the run, and how to continue it with the instrument's address
+    where it answers now."""
+    text = sine_setup()
+    assert 'url = "socket://127.0.0.1:1"' in text
+    (tmp_path / "s.toml").write_text(text)
+    out = tmp_path / "run one.h5"
+    p = subprocess.run([sys.executable, "-m", "ssidlab", "acquire", str(tmp_path / "s.toml"), "--out", str(out)],
+                       capture_output=True, text=True, cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                       timeout=120)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 3 and len(lines) == 3, p.stderr
+    assert lines[0].startswith("ssidlab acquire: stopped: run stopped safely: instrument lost (link down): gen0:"), lines[0]
+    assert lines[1].startswith("ssidlab acquire: nothing was measured yet; the setup is kept in"), lines[1]
+    assert lines[1].endswith(f"continue with: ssidlab acquire --resume '{out}'")  # quoted for the shell
+    assert lines[2].startswith("ssidlab acquire: if the instrument answers at another address now"), lines[2]
+    assert lines[2].endswith(f"continue with it: ssidlab acquire --resume '{out}' {tmp_path / 's.toml'}"), lines[2]
+    with h5py.File(out) as f:
+        assert f["acq"].attrs["state"].startswith("stopped: instrument lost")
+
+
+def test_a_run_file_from_before_the_transient_shape_resumes(tmp_path):
+    """Run files written before ``X_transient`` was kept: resuming one adds the field with
+    NaN for the rows already there, and their variance falls back to the relative transient
+    times each amplitude (what those files' lines were measured with)."""
+    from daq.stepped_sine import _variance_with_transient
+    from daq.storage import RunFile
+
+    rf = RunFile.create(tmp_path / "r.h5", kind="stepped_sine", setup_text="", setup_sha256="",
+                        freq_hz=np.array([10.0]), outputs=["1+Z"], inputs=["1+Z"], reactions=[],
+                        channel_names=["force", "acc"], meta={}, attrs={})
+    old = {"grid_index": 0, "pattern": 0, "freq_hz": 10.0, "status": 0, "transient": 0.01,
+           "X": np.array([2.0, 3.0 + 4.0j]), "X_var": np.array([1e-6, 2e-6])}
+    rf.append_record(old)
+    rf.commit(1)
+    del rf.acq["records/X_transient"]  # as the older files were written
+    new = dict(old, X_transient=np.array([0.0, 0.2]))
+    rf.append_record(new)
+    rf.commit(2)
+    rec = rf.records()
+    assert np.isnan(rec["X_transient"][0]).all() and np.array_equal(rec["X_transient"][1], [0.0, 0.2])
+    row0 = {k: v[0] for k, v in rec.items()}
+    np.testing.assert_allclose(_variance_with_transient(row0), [1e-6 + 0.02**2, 2e-6 + 0.05**2])
+    np.testing.assert_allclose(_variance_with_transient(new), [1e-6, 2e-6 + 0.04])
+    rf.f.close()

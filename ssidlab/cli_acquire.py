@@ -9,9 +9,9 @@ drivers. ``--resume`` continues an interrupted run from its first incomplete lin
 file given may differ from the run's only in the channels' ``range_volt`` (a range too small
 for the level stops a run), the instruments' addresses, the operator and the output file
 names (``daq.resume``); without a file, the setup the run last ran with is used. The
-instruments must answer as in the run's last session (generators' ``*IDN?``, the DAQ's
-serial), or the resume stops before driving: ``--new-instruments`` continues with a replaced
-one.
+instruments must answer as in the run's last session (generators' ``*IDN?``, the
+amplifiers' and the DAQ's serials), or the resume stops before driving: ``--new-instruments``
+continues with a replaced one.
 
 ``--events`` adds one line per run event to stdout, ``@event {json}`` (``daq.control``:
 instrument identities, each sub-line's level, distortion, limit use and amplifier state,
@@ -24,7 +24,8 @@ Exit status: 0 the run is complete; 2 bad input (setup file, run file, options; 
 ``ssidlab acquire: error: ...``); 3 the run was stopped safely by a fault (a line
 ``ssidlab acquire: stopped: <why>``); 130 interrupted (Ctrl-C or SIGTERM). After 3 or 130
 the run file is resumable, and a second line names it with the command that continues it
-(after a DAQ overload, a third says how to continue with a larger input range).
+(after a DAQ overload, an instrument not reached or other instruments answering, a third
+says what to change: ``daq.safety.resume_remedy``).
 In every case all generator outputs are off and all amplifiers disabled when the command
 ends.
 """

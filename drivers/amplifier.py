@@ -365,6 +365,8 @@ class SyncShakerAmplifier:
         try:
             return fut.result(deadline)
         except TimeoutError:
+            if fut.done():
+                raise  # the call's own InstrumentTimeout (a TimeoutError too), with its own words
             fut.cancel()
             raise InstrumentTimeout(f"{self.amp.name}: call did not finish within {deadline:g} s") from None
 

@@ -206,6 +206,42 @@ def test_unreachable_amplifier():
     run(go())
 
 
+def test_something_else_at_the_amplifiers_address_is_no_modbus_reply():
+    """A web server (or a network's interceptor) at the setup's address accepts the
+    connection and answers every request with HTTP. The blocking facade says so - no valid
+    Modbus reply - rather than blaming its own deadline for a call that ended at once."""
+    import socket
+    import threading
+
+    srv = socket.create_server(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def serve() -> None:
+        srv.settimeout(0.1)
+        while not stop.is_set():
+            try:
+                conn, _ = srv.accept()
+            except TimeoutError:
+                continue
+            with conn:
+                conn.settimeout(2.0)
+                try:
+                    while conn.recv(256):
+                        conn.sendall(b"HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n\r\n")
+                except OSError:
+                    pass
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        with pytest.raises(InstrumentTimeout, match="no valid Modbus reply in 2 tries of 0.3 s"):
+            SyncShakerAmplifier("127.0.0.1", srv.getsockname()[1], **FAST)
+    finally:
+        stop.set()
+        thread.join(5)
+        srv.close()
+
+
 def test_sync_facade(sim):
     with SyncShakerAmplifier("127.0.0.1", sim.port, **FAST) as amp:
         amp.set_gain(3.0)

@@ -50,7 +50,7 @@ from .errors import (
     StreamError,
 )
 
-__all__ = ["CanFdDaq", "DaqChannel", "SampleBlock", "open_can_bus"]
+__all__ = ["CanFdDaq", "DaqChannel", "SampleBlock", "firmware_text", "open_can_bus"]
 
 log = logging.getLogger(__name__)
 CAN_ERR_BUSOFF = 0x40
@@ -110,6 +110,14 @@ def open_can_bus(interface: str, channel: str, nominal_bitrate: int, data_bitrat
         return TcpCanBus(u.hostname or "127.0.0.1", int(u.port or 0))
     return can.Bus(interface=interface, channel=channel, fd=True, bitrate=nominal_bitrate,
                    data_bitrate=data_bitrate, **kwargs)
+
+
+def firmware_text(fw_version) -> str:
+    """IDENTIFY's firmware version as ``major.minor`` (high byte, low byte); anything but an
+    integer as it is."""
+    if isinstance(fw_version, int):
+        return f"{fw_version >> 8}.{fw_version & 0xFF}"
+    return str(fw_version)
 
 
 class CanFdDaq:

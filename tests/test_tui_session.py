@@ -10,8 +10,9 @@ from pathlib import Path
 
 import h5py
 
+from daq.check import check_lab
 from daq.setup import load_setup
-from tui.session import RunOutcome, check_lab_instruments, run_file_choice
+from tui.session import RunOutcome, run_file_choice
 from tui.setup_view import checked_instrument_rows
 
 SETUP = Path(__file__).resolve().parents[1] / "examples" / "setup_sim.toml"
@@ -36,9 +37,9 @@ def test_run_file_choice_starts_resumes_or_refuses(tmp_path):
 
 
 def test_instrument_check_of_the_simulated_lab_all_answer():
-    states = check_lab_instruments(load_setup(SETUP), sim=True)
+    states = check_lab(load_setup(SETUP), sim=True)
     rows, verdict = checked_instrument_rows(states, sim=True)
-    assert verdict == "instruments: all 4 answered (simulated lab)"
+    assert verdict == "instruments: all 4 answered and ready (simulated lab)"
     assert [r[0] for r in rows] == ["gen0", "amp0", "amp1", "daq"]
     assert all(r[3].startswith("ok: ") and r[4] for r in rows)
 
@@ -51,8 +52,8 @@ def test_instrument_check_says_which_did_not_answer(tmp_path):
     setup.generators = [dataclasses.replace(g, url=str(tmp_path / "no-such-tty")) for g in setup.generators]
     setup.amplifiers = [dataclasses.replace(setup.amplifiers[0], host="127.0.0.1", port=closed_port)]
     setup.daq = dataclasses.replace(setup.daq, interface="virtual", channel="ssidlab-test-nobody")
-    rows, verdict = checked_instrument_rows(check_lab_instruments(setup, sim=False), sim=False)
-    assert verdict == "instruments: 3 of 3 did not answer"
+    rows, verdict = checked_instrument_rows(check_lab(setup, sim=False), sim=False)
+    assert verdict == "instruments: 3 of 3 did not answer (gen0, amp0, daq)"
     assert [r[:3] for r in rows] == [("gen0", "generator", str(tmp_path / "no-such-tty")),
                                      ("amp0", "amplifier", f"127.0.0.1:{closed_port}"),
                                      ("daq", "daq", "virtual:ssidlab-test-nobody")]

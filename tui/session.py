@@ -30,7 +30,7 @@ from pathlib import Path
 
 from daq.control import parse_event_line as parse_event  # the run's event lines (ssidlab acquire --events)
 
-__all__ = ["Acquisition", "LiveRun", "ProgressParser", "RunOutcome", "check_lab_instruments", "one_line",
+__all__ = ["Acquisition", "LiveRun", "ProgressParser", "RunOutcome", "one_line",
            "parse_event", "run_file_choice", "run_file_state"]
 
 #: Exit statuses of ``ssidlab acquire`` (docs/acquisition.md).
@@ -211,24 +211,6 @@ def run_file_state(path: str | Path) -> str | None:
 
     peek = peek_run_file(path)
     return peek[0] if peek else None
-
-
-def check_lab_instruments(setup, sim: bool) -> list:
-    """F4: ask each instrument of ``setup`` who it is (``daq.check.check_instruments``).
-
-    With ``sim`` the simulated lab is started on loopback for the check and stopped after it,
-    so a check never leaves devices running. Returns one state per instrument."""
-    from daq.check import check_instruments
-
-    if not sim:
-        return check_instruments(setup)
-    from daq.simlab import start_sim_lab
-
-    handle, inst = start_sim_lab(setup)
-    try:
-        return check_instruments(inst)
-    finally:
-        handle.stop()
 
 
 def run_file_choice(out: str | Path) -> tuple[str | None, bool]:

@@ -13,7 +13,9 @@ from pathlib import Path
 from textual import work
 from textual.widgets import DataTable, Input, Select, Static, Switch
 
-from .session import check_lab_instruments, one_line
+from daq.check import check_lab
+
+from .session import one_line
 from .setup_view import (
     channel_options,
     channel_rows,
@@ -113,7 +115,7 @@ class SetupTabActions:
     @work(thread=True, exclusive=True, group="check")
     def _check(self, setup, sim: bool) -> None:
         try:
-            states = check_lab_instruments(setup, sim)
+            states = check_lab(setup, sim)
         except Exception as exc:  # noqa: BLE001 -- e.g. a setup the simulated lab cannot build
             self._from_worker(self._show_line, "#setup-error", f"error: {one_line(exc)}")
             return

@@ -55,15 +55,14 @@ def configured_instrument_rows(setup) -> list[InstrumentRow]:
 
 
 def checked_instrument_rows(states, sim: bool) -> tuple[list[InstrumentRow], str]:
-    """Rows and a one-line verdict from ``daq.check.check_instruments`` (F4).
+    """Rows and a one-line verdict from ``daq.check.check_lab`` (F4).
 
-    ``states`` are its per-instrument results (name, kind, address, ok, detail, identity)."""
-    rows = [(s.name, s.kind, s.address, ("ok: " if s.ok else "NO ANSWER: ") + s.detail, s.identity)
-            for s in states]
-    n_bad = sum(not s.ok for s in states)
-    verdict = (f"instruments: all {len(states)} answered" if not n_bad else
-               f"instruments: {n_bad} of {len(states)} did not answer")
-    return rows, verdict + (" (simulated lab)" if sim else "")
+    ``states`` are its per-instrument results (name, kind, address, ok, detail, identity,
+    why not ready)."""
+    from daq.check import check_verdict
+
+    rows = [(s.name, s.kind, s.address, s.state, s.identity) for s in states]
+    return rows, check_verdict(states) + (" (simulated lab)" if sim else "")
 
 
 def instruments_in_use_rows(ev: dict, setup) -> list[InstrumentRow]:
@@ -75,7 +74,10 @@ def instruments_in_use_rows(ev: dict, setup) -> list[InstrumentRow]:
     rows: list[InstrumentRow] = []
     for group, items in ev.get("identities", {}).items():
         if group == "daq":
-            ident = ", ".join(f"{k} {v}" for k, v in items.items() if k in ("serial", "fw_version", "n_inputs"))
+            from drivers.daq import firmware_text
+
+            ident = ", ".join(f"{k} {firmware_text(v) if k == 'fw_version' else v}" for k, v in items.items()
+                              if k in ("serial", "fw_version", "n_inputs"))
             rows.append(("daq", "daq", addr.get("daq", "simulated" if sim else ""), "in use by the run", ident))
         else:
             rows += [(name, group.rstrip("s"), addr.get(name, "simulated" if sim else ""), "in use by the run",

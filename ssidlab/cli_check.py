@@ -1,0 +1,69 @@
+"""``ssidlab check``: is every instrument of a setup there, who is it, and is it ready?
+
+    ssidlab check SETUP.toml [--sim] [--timeout-s S] [--json CHECK.json]
+
+The check an engineer makes before a run (``daq.check``), without the TUI: each generator,
+amplifier and the DAQ is opened on its own, identified and released in the safe state;
+nothing is driven. One line per instrument, then a verdict. ``--sim`` checks the simulated
+lab, started on loopback for the check and stopped after it.
+
+Exit status: 0 every instrument answered and is ready for the run; 3 one did not answer, or
+answered in a state the run could not start from (an amplifier's interlock open or a fault
+latched, a DAQ with fewer inputs than the setup uses); 2 bad input (one line
+``ssidlab check: error: ...``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from typing import Any
+
+__all__ = ["add_check_subcommand"]
+
+HELP = "Check the instruments of a setup: connect, identify, release (nothing is driven)."
+EXIT_NOT_READY = 3  # as `ssidlab acquire` exits when an instrument stops a run
+
+
+def add_check_subcommand(sub: Any) -> argparse.ArgumentParser:
+    """Add the ``check`` subparser to ``sub`` (an argparse subparsers action); returns it."""
+    p = sub.add_parser("check", prog="ssidlab check", help=HELP, description=HELP, allow_abbrev=False)
+    p.add_argument("setup", metavar="SETUP.toml", help="test setup (TOML, see docs/acquisition.md)")
+    p.add_argument("--sim", action="store_true", help="check the simulated lab (started for the check)")
+    p.add_argument("--timeout-s", type=_positive_s, default=1.0, metavar="S",
+                   help="how long each instrument may take to answer (default 1 s)")
+    p.add_argument("--json", metavar="CHECK.json", help="write every instrument's state and the verdict as JSON")
+    p.set_defaults(run=run_check)
+    return p
+
+
+def _positive_s(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 < value <= 60:
+        raise argparse.ArgumentTypeError(f"must be in (0, 60] s, got {text}")
+    return value
+
+
+def run_check(args: argparse.Namespace) -> int:
+    from daq.check import check_lab, check_verdict
+    from daq.setup import load_setup
+
+    setup = load_setup(args.setup)
+    states = check_lab(setup, sim=args.sim, timeout_s=args.timeout_s)
+    verdict = check_verdict(states) + (" (simulated lab)" if args.sim else "")
+    rows = [(s.name, s.kind, s.address, s.identity or "-", s.state) for s in states]
+    widths = [max(len(r[k]) for r in rows) for k in range(4)]
+    for r in rows:
+        print("  ".join(f"{v:<{w}}" for v, w in zip(r[:4], widths)) + "  " + r[4])
+    print(verdict)
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump({"setup": args.setup, "simulated": bool(args.sim), "verdict": verdict,
+                       "ready": all(s.ready for s in states),
+                       "instruments": [dict(dataclasses.asdict(s), ready=s.ready) for s in states]}, f, indent=2)
+            f.write("\n")
+    return 0 if all(s.ready for s in states) else EXIT_NOT_READY

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from drivers.amplifier import SyncShakerAmplifier
 from drivers.daq import CanFdDaq, firmware_text
-from drivers.errors import InstrumentError
+from drivers.errors import AmplifierFault, InstrumentError
 from drivers.siggen import SignalGenerator
 
 from .safety import describe_fault
@@ -60,10 +60,20 @@ def _generator(g, timeout_s: float) -> InstrumentState:
         return InstrumentState(g.name, "generator", g.url, True, gen.idn, detail)
 
 
-def _amplifier(a, timeout_s: float) -> InstrumentState:
+def _amplifier(a, timeout_s: float, reset_faults: bool = False) -> InstrumentState:
     with SyncShakerAmplifier(a.host, a.port, device_id=a.device_id, name=a.name, timeout_s=timeout_s) as amp:
         st = amp.read_status()
-        detail = (f"interlock {'closed' if st.interlock_closed else 'OPEN'}, "
+        reset = refused = ""
+        if reset_faults and st.fault_latched:
+            # Clearing a latch switches nothing on (the output stays disabled); the amplifier
+            # itself refuses while the cause is present (interlock open, coil still hot).
+            try:
+                amp.reset_fault()
+                reset = f"latched fault ({st.fault_name}) reset, "
+            except AmplifierFault:
+                refused = f"latched fault ({st.fault_name}) not reset: its cause is still present"
+            st = amp.read_status()
+        detail = (f"{reset}interlock {'closed' if st.interlock_closed else 'OPEN'}, "
                   f"{'enabled' if st.enabled else 'disabled'}, "
                   f"{'fault: ' + st.fault_name if st.fault_latched else 'no fault'}")
         # What ShakerAmplifier.enable refuses: the run would stop before its first line. An
@@ -71,9 +81,10 @@ def _amplifier(a, timeout_s: float) -> InstrumentState:
         if not st.interlock_closed:
             why = "interlock open (door or E-stop)"
         elif st.fault_latched:
-            why = f"fault latched ({st.fault_name}): reset it at the amplifier"
+            why = f"fault latched since a trip ({st.fault_name}): reset it once its cause is gone"
         else:
             why = ""
+        why = "; ".join(w for w in (why, refused) if w)
         return InstrumentState(a.name, "amplifier", f"{a.host}:{a.port}", True,
                                f"Modbus unit {a.device_id}, serial {amp.amp.serial}", detail, why)
 
@@ -91,12 +102,14 @@ def _daq(setup: TestSetup, timeout_s: float) -> InstrumentState:
                                f"{ident.get('n_inputs', '?')} inputs", why)
 
 
-def check_instruments(setup: TestSetup, timeout_s: float = 1.0) -> list[InstrumentState]:
+def check_instruments(setup: TestSetup, timeout_s: float = 1.0, reset_faults: bool = False) -> list[InstrumentState]:
     """Open, identify and release every instrument of ``setup``, each on its own.
 
     Returns one :class:`InstrumentState` per generator, amplifier and the DAQ, in that
     order; an instrument that does not answer has ``ok`` False and ``detail`` saying why
-    (never raises for an instrument fault).
+    (never raises for an instrument fault). With ``reset_faults``, an amplifier's latched
+    fault is reset first (a deliberate act of the engineer: only once its cause is gone,
+    which the amplifier checks itself); the state is read after it.
     """
     # The result says what failed; the Modbus library's own error log lines would only be
     # noise on a terminal (and garble a full-screen UI), so they are held back meanwhile.
@@ -104,15 +117,15 @@ def check_instruments(setup: TestSetup, timeout_s: float = 1.0) -> list[Instrume
     level = quiet.level
     quiet.setLevel(logging.CRITICAL + 1)
     try:
-        return _check_each(setup, timeout_s)
+        return _check_each(setup, timeout_s, reset_faults)
     finally:
         quiet.setLevel(level)
 
 
-def _check_each(setup: TestSetup, timeout_s: float) -> list[InstrumentState]:
+def _check_each(setup: TestSetup, timeout_s: float, reset_faults: bool) -> list[InstrumentState]:
     out: list[InstrumentState] = []
     jobs = ([(g.name, "generator", g.url, lambda g=g: _generator(g, timeout_s)) for g in setup.generators]
-            + [(a.name, "amplifier", f"{a.host}:{a.port}", lambda a=a: _amplifier(a, timeout_s))
+            + [(a.name, "amplifier", f"{a.host}:{a.port}", lambda a=a: _amplifier(a, timeout_s, reset_faults))
                for a in setup.amplifiers]
             + [("daq", "daq", f"{setup.daq.interface}:{setup.daq.channel}", lambda: _daq(setup, timeout_s))])
     for name, kind, address, job in jobs:
@@ -127,17 +140,18 @@ def _check_each(setup: TestSetup, timeout_s: float) -> list[InstrumentState]:
     return out
 
 
-def check_lab(setup: TestSetup, sim: bool = False, timeout_s: float = 1.0) -> list[InstrumentState]:
+def check_lab(setup: TestSetup, sim: bool = False, timeout_s: float = 1.0,
+              reset_faults: bool = False) -> list[InstrumentState]:
     """:func:`check_instruments` on the lab of ``setup``; with ``sim``, on the simulated lab,
     started on loopback for the check and stopped after it (a check never leaves devices
     running)."""
     if not sim:
-        return check_instruments(setup, timeout_s)
+        return check_instruments(setup, timeout_s, reset_faults)
     from .simlab import start_sim_lab
 
     handle, inst = start_sim_lab(setup)
     try:
-        return check_instruments(inst, timeout_s)
+        return check_instruments(inst, timeout_s, reset_faults)
     finally:
         handle.stop()
 

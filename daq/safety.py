@@ -127,11 +127,14 @@ def resume_remedy(state: str | None, sim: bool) -> str | None:
 
     ``"range_volt"``: a DAQ overload stopped it, and the same range would meet the same
     overload (raise the channel's range in the setup); ``"address"``: an instrument could not
-    be reached, and it may answer at another address after a restart (not on a simulated
-    lab, whose addresses are its own); ``"new_instruments"``: other instruments answered than
-    in the run's last session (fix the addresses, or resume with ``--new-instruments`` if one
-    was replaced). None after any other stop, and when the safe state was not confirmed:
-    the instruments come first then.
+    be reached, and it may answer at another address after a restart; ``"reset_faults"``: an
+    amplifier tripped (interlock, fault, heartbeat), and its latched fault refuses the next
+    enable until it is reset once the cause is gone (``ssidlab check --reset-faults``);
+    ``"new_instruments"``: other instruments answered than in the run's last session (fix
+    the addresses, or resume with ``--new-instruments`` if one was replaced). None after any
+    other stop, and when the safe state was not confirmed: the instruments come first then.
+    On a simulated lab (``sim``), neither addresses nor latches outlive the run: a resume
+    starts the lab afresh.
 
     Decided from the state text, so that a UI that has only the run file gives the same
     advice as the command line that saw the fault.
@@ -143,6 +146,8 @@ def resume_remedy(state: str | None, sim: bool) -> str | None:
         return "range_volt"
     if fault.startswith(_words(ConnectionLost)) and not sim:
         return "address"
+    if fault.startswith(tuple(_words(c) for c in (InterlockOpen, HeartbeatLost, AmplifierFault))) and not sim:
+        return "reset_faults"
     if fault.startswith(NOT_THE_SAME_INSTRUMENTS):
         return "new_instruments"
     return None

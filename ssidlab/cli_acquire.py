@@ -24,8 +24,8 @@ Exit status: 0 the run is complete; 2 bad input (setup file, run file, options; 
 ``ssidlab acquire: error: ...``); 3 the run was stopped safely by a fault (a line
 ``ssidlab acquire: stopped: <why>``); 130 interrupted (Ctrl-C or SIGTERM). After 3 or 130
 the run file is resumable, and a second line names it with the command that continues it
-(after a DAQ overload, an instrument not reached or other instruments answering, a third
-says what to change: ``daq.safety.resume_remedy``).
+(after a DAQ overload, an instrument not reached, an amplifier trip or other instruments
+answering, a third says what to change: ``daq.safety.resume_remedy``).
 In every case all generator outputs are off and all amplifiers disabled when the command
 ends.
 """
@@ -100,8 +100,8 @@ def _say_how_to_continue(run_path: Path, sim: bool, setup_arg: str | None = None
     """The line an engineer needs after a stop: where the measured lines are, and the
     command that continues the run from its first incomplete line. After a stop that a
     plain resume would meet again (:func:`daq.safety.resume_remedy`: a DAQ overload, an
-    instrument not reached, other instruments answering), also what to change and the
-    command that continues with it."""
+    instrument not reached, an amplifier's latched fault, other instruments answering), also
+    what to change and the command that continues with it."""
     from daq.safety import resume_remedy
     from daq.storage import peek_run_file
 
@@ -129,6 +129,11 @@ def _say_how_to_continue(run_path: Path, sim: bool, setup_arg: str | None = None
         print(f"ssidlab acquire: if the instrument answers at another address now (a serial port "
               f"renumbered, a new IP address), put that in the setup and {with_setup}",
               file=sys.stderr, flush=True)
+    elif remedy == "reset_faults":
+        check = shlex.quote(setup_arg) if resumed and setup_arg else run_q
+        print(f"ssidlab acquire: once the cause is gone (door closed, E-stop released, amplifier cooled), "
+              f"reset the amplifier's latched fault: ssidlab check {check} --reset-faults; then continue with: "
+              f"{cmd}", file=sys.stderr, flush=True)
     elif remedy == "new_instruments":
         print(f"ssidlab acquire: if the setup's addresses are right and an instrument was replaced, "
               f"continue with: {cmd} --new-instruments", file=sys.stderr, flush=True)

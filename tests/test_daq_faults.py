@@ -335,3 +335,54 @@ def test_a_resume_stops_when_two_amplifiers_answer_at_each_others_address(tmp_pa
         assert status == 0 and all_safe(second.world)
     finally:
         second.stop()
+
+
+def test_after_an_interlock_trip_the_fault_is_reset_by_the_check_and_the_run_resumes(tmp_path, capsys):
+    """The door is opened mid-run on a lab reached as hardware: the amplifier trips and
+    latches its fault, and the run stops. With the door still open, a reset is refused.
+    Closed, a resume is still refused by the latch (exit 3), and stderr says to reset it;
+    the check says not ready and how. `ssidlab check RUN.h5 --reset-faults` clears the latch
+    without switching anything on, and the resume completes."""
+    from ssidlab.cli import main
+
+    text = sine_setup(n_lines=6)
+    handle, inst = start_sim_lab(parse_setup(text, str(tmp_path / "s.toml")))
+    try:
+        lab, run, amp = tmp_path / "lab.toml", tmp_path / "run.h5", handle.lab.amplifiers[0]
+        lab.write_text(pointed_at(text, inst))
+        seen = []
+
+        def echo(msg):
+            seen.append(msg)
+            if sum(m.lstrip().startswith("shaker") for m in seen) == 2:
+                amp.set_interlock(False)
+
+        with pytest.raises(RunStopped, match="amplifier interlock open"):
+            run_test(load_setup(lab), out=str(run), echo=echo)
+        assert all_safe(handle.world)
+        capsys.readouterr()
+
+        assert main(["check", str(run), "--reset-faults"]) == 3
+        out = capsys.readouterr().out.splitlines()
+        assert out[1].endswith("NOT READY: interlock open (door or E-stop); latched fault (interlock open) not reset: "
+                               "its cause is still present"), out
+
+        amp.set_interlock(True)
+        assert cli(["--resume", str(run)])[0] == 3
+        err = capsys.readouterr().err.strip().splitlines()
+        assert "amplifier fault: amp0: fault latched (interlock open)" in err[0], err
+        assert err[2].endswith(f"reset the amplifier's latched fault: ssidlab check {run} --reset-faults; "
+                               f"then continue with: ssidlab acquire --resume {run}"), err
+        assert main(["check", str(run)]) == 3
+        out = capsys.readouterr().out.splitlines()
+        assert "NOT READY: fault latched since a trip (interlock open)" in out[1], out
+        assert out[-1] == f"once a fault's cause is gone, reset it with: ssidlab check {run} --reset-faults", out
+
+        assert main(["check", str(run), "--reset-faults"]) == 0
+        out = capsys.readouterr().out.splitlines()
+        assert "ok: latched fault (interlock open) reset, interlock closed, disabled, no fault" in out[1], out
+        assert not amp.model.enabled
+        assert cli(["--resume", str(run), "--quiet"])[0] == 0 and all_safe(handle.world)
+    finally:
+        handle.stop()
+    assert np.all(read_frf(run).valid_mask())

@@ -215,10 +215,12 @@ def test_a_resume_compares_the_serials_of_the_instruments_that_report_one():
 
 def test_the_advice_after_a_stop_follows_the_fault_that_stopped_the_run():
     """resume_remedy: from the run file's state alone (all the TUI has), what must change
-    before a resume gets past the stop; nothing when a plain resume is the way on, or when
-    the safe state was not confirmed (the instruments come first)."""
+    before a resume gets past the stop (a range, an address, an amplifier's latched trip,
+    the instruments); nothing when a plain resume is the way on, or when the safe state was
+    not confirmed (the instruments come first)."""
     from daq.safety import NOT_THE_SAME_INSTRUMENTS, describe_fault, resume_remedy
-    from drivers.errors import ConnectionLost, InstrumentTimeout, InterlockOpen, SensorOverload
+    from drivers.errors import (AmplifierFault, ConnectionLost, FramesLost, HeartbeatLost, InstrumentTimeout,
+                                InterlockOpen, SensorOverload)
 
     def stopped(exc: Exception) -> str:
         return f"stopped: {describe_fault(exc)}"
@@ -230,7 +232,11 @@ def test_the_advice_after_a_stop_follows_the_fault_that_stopped_the_run():
     assert resume_remedy(link, sim=True) is None  # the simulated lab's addresses are its own
     other = f"stopped: {NOT_THE_SAME_INSTRUMENTS}: gen0 answers as 'ACME,SG2,SN1235,1.1', in the last session as ..."
     assert resume_remedy(other, sim=True) == "new_instruments"
-    for plain in [stopped(InterlockOpen("amp0: interlock open")), stopped(InstrumentTimeout("gen0: no reply")),
+    for trip in [InterlockOpen("amp0: interlock open"), HeartbeatLost("amp0: heartbeat stopped at 12 for 1.1 s"),
+                 AmplifierFault("amp0: amplifier tripped (over-temperature)", 2)]:
+        assert resume_remedy(stopped(trip), sim=False) == "reset_faults"
+        assert resume_remedy(stopped(trip), sim=True) is None  # a resume starts the simulated lab afresh
+    for plain in [stopped(InstrumentTimeout("gen0: no reply")), stopped(FramesLost("daq: frame gap on input 2")),
                   "interrupted", "complete", "running", None,
                   overload + "; safe state not confirmed: gen0: no reply"]:
         assert resume_remedy(plain, sim=False) is None, plain

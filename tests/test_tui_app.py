@@ -481,3 +481,39 @@ def test_a_replaced_generator_stops_f5_and_ctrl_r_resumes_with_it(tmp_path):
     finally:
         lab.stop()
     assert run_file_state(out) == "complete"
+
+
+def test_an_amplifier_trip_stops_the_run_and_ctrl_f_resets_it_for_f5(tmp_path):
+    """Lab hardware whose door is opened mid-run: amp0 trips and the run stops; the status
+    says to reset the latched fault once its cause is gone. With the door closed, Ctrl+F
+    resets it (from the Run tab; the Setup tab shows the check, nothing switched on) and F5
+    resumes the run to the end."""
+    lab, hw = lab_setup(tmp_path, n_lines=8)
+    out = tmp_path / "tripped.h5"
+    amp = lab.amplifiers[0]
+
+    async def go():
+        app = LabApp(str(hw), out=str(out), sim=False)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("f5")
+            await wait_for(pilot, lambda: sub_lines(app) >= 2, 60, "two sub-lines")
+            amp.set_interlock(False)
+            await wait_for(pilot, lambda: app.outcome is not None, 60, "the trip to stop the run")
+            assert app.outcome.returncode == 3 and "amplifier interlock open" in app.outcome.state
+            status = str(app.query_one("#run-status", Static).render())
+            assert "Ctrl+F resets it first" in status, status
+            amp.set_interlock(True)
+            await pilot.press("ctrl+f")
+            await wait_for(pilot, lambda: "answered" in str(app.query_one("#check-status", Static).render()), 30,
+                           "the check")
+            assert app.query_one(TabbedContent).active == "setup"
+            assert str(app.query_one("#check-status", Static).render()) == "instruments: all 4 answered and ready"
+            assert amp.model.fault_code == 0 and not amp.model.enabled
+            await press_until_complete(pilot, app, "f5")
+        assert not app.acquisition.running
+
+    try:
+        asyncio.run(go())
+    finally:
+        lab.stop()
+    assert run_file_state(out) == "complete"

@@ -79,6 +79,7 @@ class LabApp(SetupTabActions, App):
         Binding("ctrl+l", "load", "Load", priority=True),
         Binding("ctrl+n", "new", "New", priority=True),
         Binding("f4", "check", "Check", priority=True),
+        Binding("ctrl+f", "check(True)", "Reset faults", priority=True, show=False),
         Binding("f5", "start", "Start", priority=True),
         # Only after a resume stopped on another instrument than the run's last session's.
         Binding("ctrl+r", "start(True)", "Resume, replaced", priority=True, show=False),
@@ -163,6 +164,8 @@ class LabApp(SetupTabActions, App):
             tab = self.query_one(TabbedContent).active
         except Exception:  # noqa: BLE001 -- before the layout exists
             return True
+        if action == "check" and parameters == (True,):  # Ctrl+F: from any tab, after a trip
+            return not self.running
         if action in ("load", "check", "new"):
             return tab == "setup" and not self.running
         if action == "start":
@@ -371,6 +374,8 @@ class LabApp(SetupTabActions, App):
             elif remedy == "address" and self.setup is not None:
                 how += (f" (an instrument not reached: if it answers at another address now, "
                         f"put that in {self.setup.source} first)")
+            elif remedy == "reset_faults":
+                how += " (an amplifier's trip is latched: once its cause is gone, Ctrl+F resets it first)"
             elif remedy == "new_instruments":
                 how += " after checking the addresses; Ctrl+R resumes with the instruments that answer now (replaced)"
             self.query_one(ResultsPane).status(f"no results: {text}" + (f"; {how}" if resumable else ""))

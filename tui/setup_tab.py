@@ -101,7 +101,9 @@ class SetupTabActions:
         for r in rows:
             t.add_row(*r)
 
-    def action_check(self) -> None:
+    def action_check(self, reset_faults: bool = False) -> None:
+        """F4: check the instruments; Ctrl+F: reset the amplifiers' latched faults first (the
+        amplifier refuses while a cause is present; nothing is switched on)."""
         if self.running:
             self.notify("the run owns the instruments; their state is on the Run tab", severity="warning")
             return
@@ -109,13 +111,15 @@ class SetupTabActions:
         if self.setup is None:
             self.notify("load a valid setup first", severity="error")
             return
-        self.query_one("#check-status", Static).update("checking instruments...")
-        self._check(self.setup, self.query_one("#sim", Switch).value)
+        self.action_show_tab("setup")
+        self.query_one("#check-status", Static).update(
+            "resetting latched amplifier faults, checking instruments..." if reset_faults else "checking instruments...")
+        self._check(self.setup, self.query_one("#sim", Switch).value, reset_faults)
 
     @work(thread=True, exclusive=True, group="check")
-    def _check(self, setup, sim: bool) -> None:
+    def _check(self, setup, sim: bool, reset_faults: bool = False) -> None:
         try:
-            states = check_lab(setup, sim)
+            states = check_lab(setup, sim, reset_faults=reset_faults)
         except Exception as exc:  # noqa: BLE001 -- e.g. a setup the simulated lab cannot build
             self._from_worker(self._show_line, "#setup-error", f"error: {one_line(exc)}")
             return

@@ -69,7 +69,9 @@ def _load(path: str):
 
 def run_check(args: argparse.Namespace) -> int:
     from daq.check import check_lab, check_verdict
+    from ssidlab.argtypes import check_output_paths
 
+    check_output_paths([args.setup], [args.json])
     setup = _load(args.setup)
     states = check_lab(setup, sim=args.sim, timeout_s=args.timeout_s, reset_faults=args.reset_faults)
     verdict = check_verdict(states) + (" (simulated lab)" if args.sim else "")

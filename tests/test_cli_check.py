@@ -61,3 +61,6 @@ def test_instruments_that_do_not_answer_exit_3_and_a_bad_setup_exits_2(tmp_path,
     assert out[-1].startswith("instruments: 3 of 3 did not answer (gen0, amp0, daq)"), out
     assert main(["check", str(tmp_path / "nowhere.toml")]) == 2
     assert main(["check", str(tmp_path / "s.toml"), "--timeout-s", "0"]) == 2
+    assert main(["check", str(tmp_path / "s.toml"), "--json", str(tmp_path / "nowhere" / "c.json")]) == 2
+    assert main(["check", str(tmp_path / "s.toml"), "--json", str(tmp_path / "s.toml")]) == 2  # its own setup
+    assert "3 of 3 did not answer" not in capsys.readouterr().out  # refused before any instrument is asked

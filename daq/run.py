@@ -289,4 +289,20 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
             summary["uff"] = str(uff)
             echo(f"exported {frf.n_out * frf.n_in} FRFs to {uff} (UFF 58)")
     summary["test_time_s"] = float(summary.get("test_time_s", np.nan))
+    summary.update(_reciprocity(frf, echo))
     return summary
+
+
+def _reciprocity(frf, echo) -> dict:
+    """The run's reciprocity check (``ssid.reciprocity``) between its driven DOFs, said and
+    summarised: a MIMO test's own check of its transducers' calibration and linearity."""
+    from ssid.reciprocity import reciprocity_check
+
+    pairs = reciprocity_check(frf)
+    for p in pairs:
+        echo(p.describe())
+    return {"reciprocity": [{"dofs": [p.dof_a, p.dof_b], "n_lines": p.n_lines, "gain_abs": abs(p.gain),
+                             "gain_phase_deg": float(np.degrees(np.angle(p.gain))), "gain_std": p.gain_std,
+                             "frac": p.frac, "residual_ratio": p.residual_ratio, "reciprocal": p.reciprocal}
+                            for p in pairs],
+            "n_not_reciprocal": sum(not p.reciprocal for p in pairs)}

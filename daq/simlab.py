@@ -18,6 +18,9 @@ simulated instruments through the ordinary drivers, exactly as to real ones.
   modes near the sample rate needs 4 or more, see :class:`sim_devices.world.World`); with 2
   or more the simulated front end's anti-alias filter (``[daq] passband_fraction``) acts on
   the internal steps, as a real front end's always does; 1 samples the world unfiltered;
+* ``sensitivity_error``: a table of channel name = factor, the factor by which that
+  transducer's true sensitivity differs from the setup's (a calibration gone wrong, which
+  the run's reciprocity check should find);
 * ``[sim.stand]``: ``stand_mass_kg``, ``stand_k_n_per_m``, ``stand_c_n_s_per_m``,
   ``ground_k_n_per_m`` of the stand under each reaction DOF;
 * ``[[sim.effects]]``: hidden effects, ``type`` one of ``added_mass`` (``dof``,
@@ -77,6 +80,7 @@ def build_world(setup: TestSetup):
     sim = dict(setup.sim)
     stand_raw = sim.pop("stand", {})
     effects_raw = sim.pop("effects", [])
+    miscalibrated = _sensitivity_errors(setup, sim.pop("sensitivity_error", {}))
     t = TomlTable(src, "[sim]", sim)
     structure = t.str("structure", "example", choices=("payload", "example"))
     zeta = t.num("damping_ratio", 0.02, lo=0.0, hi=0.5)
@@ -120,10 +124,11 @@ def build_world(setup: TestSetup):
         c = by_input.get(k)
         if c is None:  # an unused input still needs something wired to it
             sensors.append(SensorSpec(f"unused {k}", "acceleration", dofs[0], 0.01, range_v, noise_v))
-        elif c.quantity == "force":
-            sensors.append(SensorSpec(c.name, "force", force_of[c.name], c.sensitivity_mv_per_unit / 1e3, range_v, noise_v))
         else:
-            sensors.append(SensorSpec(c.name, c.quantity, c.dof, c.sensitivity_mv_per_unit / 1e3, range_v, noise_v))
+            # The transducer's own sensitivity; the acquisition goes by the setup's.
+            v_per_unit = c.sensitivity_mv_per_unit / 1e3 * miscalibrated.get(c.name, 1.0)
+            where = force_of[c.name] if c.quantity == "force" else c.dof
+            sensors.append(SensorSpec(c.name, c.quantity, where, v_per_unit, range_v, noise_v))
     reactions = tuple(setup.reactions)
     stand = StandSpec(reactions, **stand_kw) if reactions else None
     try:
@@ -132,6 +137,22 @@ def build_world(setup: TestSetup):
                      antialias_passband=setup.daq.passband_fraction)
     except (WorldError, ValueError) as exc:
         raise InputError(f"{src}: [sim]: {exc}") from None
+
+
+def _sensitivity_errors(setup: TestSetup, raw) -> dict[str, float]:
+    """``[sim] sensitivity_error``: channel name -> the factor by which that transducer's true
+    sensitivity differs from the setup's (a calibration sheet that is off, for tests of what
+    the acquisition's checks find)."""
+    where = f"{setup.source}: [sim] sensitivity_error"
+    if not isinstance(raw, dict):
+        raise InputError(f"{where}: must be a table of channel name = factor")
+    names = {c.name for c in setup.channels}
+    for name, factor in raw.items():
+        if name not in names:
+            raise InputError(f"{where}: no channel named {name!r}")
+        if isinstance(factor, bool) or not isinstance(factor, (int, float)) or not 0.1 <= factor <= 10:
+            raise InputError(f"{where}: {name!r}: a factor between 0.1 and 10, got {factor!r}")
+    return {name: float(factor) for name, factor in raw.items()}
 
 
 @dataclasses.dataclass

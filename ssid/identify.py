@@ -26,6 +26,7 @@ from .modal import (
     unit_max_shapes,
 )
 from .noise import data_noise_weights, fit_additive_proportional, frf_noise_weights, roughness_weights
+from .reciprocity import reciprocity_check
 from .step1 import (
     Step1Data,
     Step1Estimate,
@@ -402,6 +403,8 @@ def identify_mck(
     starts: dict = {}
     est, d, info = identify_step1(data, solver=solver, candidates=starts)
     warnings = list(info.pop("warnings"))
+    warnings.extend(f"{p.describe()}; the symmetric M, C, K that SSID fits cannot hold both: check these "
+                    "transducers before trusting the model" for p in reciprocity_check(data) if not p.reciprocal)
 
     step1_weight = d.weight
     modes, M, C, K, asm = _step2(d, est, solver)

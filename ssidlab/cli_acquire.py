@@ -149,6 +149,7 @@ def run_acquire(args: argparse.Namespace) -> int:
     from daq.run import run_test
     from daq.safety import RunStopped
     from daq.setup import load_setup
+    from ssid.jsonutil import to_jsonable
 
     if args.resume and args.out:
         raise InputError("--out and --resume exclude each other (the resumed file is written in place)")
@@ -189,7 +190,7 @@ def run_acquire(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGINT, previous_int)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
-            json.dump(summary, f, indent=2, default=str)
+            json.dump(to_jsonable(summary), f, indent=2, default=str)  # strict JSON: NaN as null
             f.write("\n")
     if not args.quiet and "n_lines" in summary:
         print(f"done: {summary['file']} ({summary['state']}; {summary['n_lines']} lines, "
@@ -204,6 +205,7 @@ def _caveats(summary: dict) -> str:
         ("n_aborted", "sub-line{} aborted"), ("n_held", "sub-line{} held below a limit"),
         ("n_level_off", "sub-line{} kept off the target level"),
         ("n_measured_again", "sub-line{} measured again below a limit"),
-        ("unsettled_averages", "average{} not in steady state"), ("n_values_blanked", "FRF value{} blanked"))
+        ("unsettled_averages", "average{} not in steady state"), ("n_values_blanked", "FRF value{} blanked"),
+        ("n_not_reciprocal", "pair{} of driven DOFs NOT reciprocal"))
         if (n := int(summary.get(key, 0)))]
     return "".join(said)

@@ -56,6 +56,10 @@ def test_free_example_is_the_stand_example_off_its_stand():
     (("refine = 3", "refine = 3\nrefien = 2"), "[stepped_sine] refien: unknown key"),
     (('type = "stepped_sine"', 'type = "chirp"'), "[excitation] type"),
     (('structure = "example"', "structure = 3"), "[sim] structure"),
+    (('structure = "example"', 'structure = "example"\nsensitivity_error = { "force 9+Z" = 1.05 }'),
+     "[sim] sensitivity_error: no channel named 'force 9+Z'"),
+    (('structure = "example"', 'structure = "example"\nsensitivity_error = { "force 1+Z" = -1 }'),
+     "[sim] sensitivity_error: 'force 1+Z': a factor between 0.1 and 10"),
 ])
 def test_bad_setup_names_the_key(tmp_path, edit, key):
     text = sine_setup()

@@ -1,0 +1,113 @@
+"""Reciprocity check (ssid.reciprocity) on FRFs synthesised from a known M, C, K: the 14-DOF
+example chain (symmetric matrices, so its FRF matrix is exactly symmetric) driven at three
+DOFs, with the faults a MIMO test meets put in by hand: a force gauge's calibration off, an
+accelerometer mounted upside down, one FRF measured on a stiffer structure (a non-linear
+joint at another level)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ssid.frf import FRFData, accelerance_from_model
+from ssid.models import example_system
+from ssid.reciprocity import CALIBRATION_TOLERANCE, reciprocity_check
+
+INPUTS = ["2", "7", "12"]
+
+
+def _chain(n_freq: int = 400) -> FRFData:
+    M, C, K, dofs = example_system(14, seed=1)
+    labels = [str(k) for k in range(len(dofs))]
+    return accelerance_from_model(M, C, K, labels, np.linspace(2.0, 400.0, n_freq), labels, INPUTS)
+
+
+def _noisy(frf: FRFData, rel: float, seed: int) -> FRFData:
+    """Noise model: each value gets independent circular complex Gaussian noise of standard
+    deviation ``rel`` times its own magnitude (plus a floor of 1e-6 of the largest), and
+    ``H_var`` states that variance."""
+    rng = np.random.default_rng(seed)
+    var = (rel * np.abs(frf.H)) ** 2 + (1e-6 * np.max(np.abs(frf.H))) ** 2
+    e = rng.standard_normal(frf.H.shape) + 1j * rng.standard_normal(frf.H.shape)
+    return FRFData(frf.freq_hz, frf.H + np.sqrt(var / 2) * e, frf.outputs, frf.inputs, H_var=var)
+
+
+def _by_pair(frf: FRFData) -> dict:
+    return {(p.dof_a, p.dof_b): p for p in reciprocity_check(frf)}
+
+
+def test_a_symmetric_structure_is_reciprocal_at_every_pair():
+    pairs = _by_pair(_chain())
+    assert set(pairs) == {("2", "7"), ("2", "12"), ("7", "12")}
+    for p in pairs.values():
+        assert p.reciprocal and p.n_lines == 400
+        assert abs(p.gain - 1) < 1e-10 and p.frac == pytest.approx(1.0, abs=1e-12)
+        assert np.isnan(p.gain_std) and np.isnan(p.residual_ratio)  # no variances stated
+    assert reciprocity_check(FRFData(np.array([1.0]), np.ones((1, 1, 1)), ["a"], ["a"])) == []
+
+
+def test_a_force_gauge_off_by_5_percent_shows_as_the_gain_of_its_pairs():
+    """Force gauge at input 7 reads 1.05 times the force: every FRF of that input is 1/1.05
+    of the truth. H(2,7) / H(7,2) = 1/1.05, H(7,12) / H(12,7) = 1.05; the pair without it
+    stays reciprocal."""
+    frf = _chain()
+    frf.H[:, :, 1] /= 1.05
+    pairs = _by_pair(frf)
+    assert pairs[("2", "7")].gain == pytest.approx(1 / 1.05, abs=1e-10)
+    assert pairs[("7", "12")].gain == pytest.approx(1.05, abs=1e-10)
+    assert not pairs[("2", "7")].reciprocal and not pairs[("7", "12")].reciprocal
+    assert pairs[("2", "12")].reciprocal
+    assert "calibration" in pairs[("7", "12")].describe() and "NOT RECIPROCAL" in pairs[("7", "12")].describe()
+    # Within what calibrations hold, the same fault is no finding.
+    frf = _chain()
+    frf.H[:, :, 1] /= 1 + CALIBRATION_TOLERANCE / 2
+    assert all(p.reciprocal for p in reciprocity_check(frf))
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_under_noise_reciprocal_data_pass_and_faults_are_found(seed):
+    """1 % noise on every value (stated in H_var). Reciprocal data: the residual is the noise
+    (ratio about 1: the mean of 400 unit exponentials lies within 1 +- 0.2 with overwhelming
+    probability) and the gain within 3 of its standard deviations of 1. An accelerometer
+    upside down at input 12 is a gain of -1; a 1.5 % calibration error, inside the tolerance
+    but 15 or more standard deviations out, is not a finding."""
+    clean = _noisy(_chain(), 0.01, seed)
+    for p in reciprocity_check(clean):
+        assert p.reciprocal, p.describe()
+        assert 0.8 < p.residual_ratio < 1.2 and abs(p.gain - 1) < 3 * p.gain_std
+        assert 0 < p.gain_std < 2e-3
+    frf = _chain()
+    frf.H[:, frf.outputs.index("12"), :] *= -1
+    flipped = _by_pair(_noisy(frf, 0.01, seed))
+    assert flipped[("2", "12")].gain.real == pytest.approx(-1, abs=0.01)
+    assert "opposite sign" in flipped[("2", "12")].describe() and flipped[("2", "7")].reciprocal
+    frf = _chain()
+    frf.H[:, :, 1] /= 1.015
+    assert all(p.reciprocal for p in reciprocity_check(_noisy(frf, 0.01, seed)))
+
+
+def test_a_shape_difference_beyond_the_noise_is_found():
+    """H(2,12) measured on a structure 3 % stiffer (a joint at another level): no gain
+    explains it, so the residual is far beyond the stated noise; FRAC drops below 1."""
+    M, C, K, dofs = example_system(14, seed=1)
+    labels = [str(k) for k in range(len(dofs))]
+    f = np.linspace(2.0, 400.0, 400)
+    frf = _noisy(accelerance_from_model(M, C, K, labels, f, labels, INPUTS), 0.01, 5)
+    stiff = accelerance_from_model(M, C, 1.03 * K, labels, f, labels, INPUTS)
+    frf.H[:, frf.outputs.index("2"), 2] = stiff.H[:, stiff.outputs.index("2"), 2]
+    p = _by_pair(frf)[("2", "12")]
+    assert not p.reciprocal and p.residual_ratio > 100 and p.frac < 0.9
+    assert "shapes differ" in p.describe()
+
+
+def test_identify_warns_when_its_data_are_not_reciprocal():
+    """SSID fits symmetric M, C, K: on data whose force gauge at 7 is 5 % off, the result
+    carries a warning naming the pairs and the gain; on the same data calibrated, none."""
+    from ssid.identify import identify_mck
+
+    frf = _chain(200)
+    assert not any("reciprocity" in w for w in identify_mck(frf, solver="ls").warnings)
+    frf.H[:, :, 1] /= 1.05
+    said = [w for w in identify_mck(frf, solver="ls").warnings if w.startswith("reciprocity")]
+    assert len(said) == 2 and all("NOT RECIPROCAL" in w and "check these transducers" in w for w in said), said
+    assert said[0].startswith("reciprocity 2 <-> 7: gain 0.9524")

@@ -87,6 +87,9 @@ class ReciprocityPair:
                 f"FRAC {self.frac:.4f} over {self.n_lines} lines")
         if self.reciprocal:
             return head + ": reciprocal"
+        if not np.isfinite(g):
+            return (f"reciprocity {self.dof_a} <-> {self.dof_b}: NOT RECIPROCAL: H({self.dof_a},{self.dof_b}) or "
+                    f"H({self.dof_b},{self.dof_a}) is zero at all {self.n_lines} lines (a dead channel?)")
         why = []
         if not _gain_ok(g, self.gain_std):
             why.append(f"H({self.dof_a},{self.dof_b}) is {abs(g):.3f} times H({self.dof_b},{self.dof_a})"
@@ -95,7 +98,6 @@ class ReciprocityPair:
         if not _shape_ok(self.residual_ratio, self.frac):
             why.append("their shapes differ beyond the noise (non-linearity, a sensor off the drive point or axis?)")
         return head + ": NOT RECIPROCAL: " + "; ".join(why)
-
 
 
 def _gain_ok(gain: complex, gain_std: float) -> bool:
@@ -123,11 +125,13 @@ def _pair(frf: FRFData, a: int, b: int) -> ReciprocityPair | None:
         vh, vg = frf.H_var[ok, io[a], b], frf.H_var[ok, io[b], a]
         if np.all(np.isfinite(vh) & np.isfinite(vg)) and np.all(vh + vg > 0):
             var = (vh, vg)
+    if not (np.any(h) and np.any(g)):
+        nan = float("nan")
+        return ReciprocityPair(frf.inputs[a], frf.inputs[b], int(ok.sum()), complex(nan), nan, nan, nan, False)
     # Lines weighted by the noise of their difference; one pass, as the gain is near 1
     # wherever this matters (far from 1, the verdict does not hang on the weights).
-    w = 1.0 / (var[0] + var[1]) if var is not None else np.full(h.shape, 1.0 / np.mean(np.abs(g) ** 2))
-    gg = float(np.sum(w * np.abs(g) ** 2))
-    rho = complex(np.sum(w * h * np.conj(g)) / gg) if gg > 0 else complex("nan")
+    w = 1.0 / (var[0] + var[1]) if var is not None else np.ones(h.shape)
+    rho = complex(np.sum(w * h * np.conj(g)) / np.sum(w * np.abs(g) ** 2))
     frac = float(np.abs(np.vdot(h, g)) ** 2 / (np.vdot(h, h).real * np.vdot(g, g).real))
     if var is not None:
         v = var[0] + abs(rho) ** 2 * var[1]

@@ -44,6 +44,11 @@ def test_a_symmetric_structure_is_reciprocal_at_every_pair():
         assert abs(p.gain - 1) < 1e-10 and p.frac == pytest.approx(1.0, abs=1e-12)
         assert np.isnan(p.gain_std) and np.isnan(p.residual_ratio)  # no variances stated
     assert reciprocity_check(FRFData(np.array([1.0]), np.ones((1, 1, 1)), ["a"], ["a"])) == []
+    dead = _chain()
+    dead.H[:, :, 2] = 0.0  # a column that reads nothing (a channel dead in the data)
+    pairs = _by_pair(dead)
+    assert not pairs[("2", "12")].reciprocal and "a dead channel?" in pairs[("2", "12")].describe()
+    assert pairs[("2", "7")].reciprocal
 
 
 def test_a_force_gauge_off_by_5_percent_shows_as_the_gain_of_its_pairs():

@@ -36,3 +36,17 @@ def test_a_force_gauge_off_its_calibration_breaks_reciprocity_by_its_factor(tmp_
         assert not pair["reciprocal"] and pair["gain_abs"] == pytest.approx(1 / error, rel=0.01), pair
         assert "NOT RECIPROCAL" in said[0] and "calibration" in said[0]
         assert out[-1].endswith("; 1 pair of driven DOFs NOT reciprocal)"), out[-1]
+
+
+def test_the_tui_results_carry_the_warning_of_non_reciprocal_data(tmp_path):
+    """What the TUI's Results tab shows (tui.results.analyse_run) for the miscalibrated run:
+    identify's reciprocity warning, among the notes under the modes."""
+    from daq.run import run_test
+    from daq.setup import parse_setup
+    from tui.results import analyse_run
+
+    text = sine_setup(n_lines=4, two=True, sim_extra='sensitivity_error = { "force 7+Z" = 1.05 }')
+    run_test(parse_setup(text, str(tmp_path / "s.toml")), out=str(tmp_path / "run.h5"), sim=True, echo=lambda m: None)
+    notes = analyse_run(tmp_path / "run.h5").notes
+    said = [n for n in notes if n.startswith("warning: reciprocity 1+Z <-> 7+Z")]
+    assert len(said) == 1 and "NOT RECIPROCAL" in said[0], notes

@@ -99,6 +99,9 @@ def analyse_run(path: str | Path, setup=None, *, sim: bool = False, model_path: 
     desc = (f"{path.name}: {frf.n_freq} lines, {frf.n_out} outputs x {frf.n_in} inputs; "
             f"{len(rows)} modes ({res.solver}, {lo:.4g}-{hi:.4g} Hz)")
     out = RunResults(path, frf, res, rows, desc)
+    # Of identify's warnings, the one that questions the data themselves; the others (a
+    # blanked column, a real root) are in the run log's terms already or too fine for 24 rows.
+    out.notes.extend(f"warning: {w}" for w in res.warnings if w.startswith("reciprocity"))
     out.predicted = accelerance_under_test_loads(res.M, res.C, res.K, list(res.dofs), frf)
     try:
         mac_model, disc_model, words = _models(setup, sim, model_path)

@@ -139,6 +139,19 @@ sensor_noise_volt_rms = {noise_v}
 """)
 
 
+def ctrl_c_at_line(n: int):
+    """A run's echo that raises KeyboardInterrupt (Ctrl-C) at its ``n``-th progress line."""
+    seen = 0
+
+    def echo(msg: str) -> None:
+        nonlocal seen
+        seen += 1
+        if seen == n:
+            raise KeyboardInterrupt
+
+    return echo
+
+
 def pointed_at(text: str, inst) -> str:
     """``text`` (a setup built on ``BASE``, one shaker or two) with the addresses of the
     instruments of ``inst``, the setup :func:`daq.simlab.start_sim_lab` pointed at its lab: run

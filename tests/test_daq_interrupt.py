@@ -18,7 +18,7 @@ from daq.run import run_test
 from daq.setup import parse_setup
 from ssid.io import read_frf
 
-from test_daq_helpers import cli, run_on_sim, sine_setup
+from test_daq_helpers import cli, ctrl_c_at_line, run_on_sim, sine_setup
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,15 +35,8 @@ def _same_frf(a, b, rtol=2 * 2e-3):
 def test_ctrl_c_leaves_a_readable_file_and_resume_gives_the_same_frf(tmp_path):
     setup = parse_setup(sine_setup(two=True), str(tmp_path / "s.toml"))
     run_on_sim(setup, tmp_path / "full.h5")
-    count = {"n": 0}
-
-    def echo(msg):
-        count["n"] += 1
-        if count["n"] == 12:
-            raise KeyboardInterrupt
-
     with pytest.raises(KeyboardInterrupt):
-        run_on_sim(setup, tmp_path / "cut.h5", echo=echo)
+        run_on_sim(setup, tmp_path / "cut.h5", echo=ctrl_c_at_line(12))
     part = read_frf(tmp_path / "cut.h5")  # readable mid-run: every completed line, rest invalid
     with h5py.File(tmp_path / "cut.h5") as f:
         assert f["acq"].attrs["state"] == "interrupted" and 5 <= f["acq/n_done"][0] <= 12
@@ -58,6 +51,23 @@ def test_ctrl_c_leaves_a_readable_file_and_resume_gives_the_same_frf(tmp_path):
     assert status == 2 and "differs from the setup" in err
 
 
+def _signal_at_sub_line(proc: subprocess.Popen, sig: int, n: int, timeout_s: float) -> None:
+    """Send ``sig`` to the acquiring ``proc`` at its ``n``-th sub-line progress line and wait
+    for it to end (killed if it has not within ``timeout_s``)."""
+    try:
+        k = 0
+        for line in proc.stdout:
+            k += line.startswith("  shaker")
+            if k == n:
+                proc.send_signal(sig)
+                break
+        proc.wait(timeout=timeout_s)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stdout.close()
+
+
 def test_kill_9_mid_run_then_resume_gives_the_same_file(tmp_path):
     """A separate process runs `ssidlab acquire --sim` and is killed with SIGKILL mid-run."""
     text = sine_setup(two=True)
@@ -68,18 +78,7 @@ def test_kill_9_mid_run_then_resume_gives_the_same_file(tmp_path):
     proc = subprocess.Popen([sys.executable, "-u", "-c", code, str(tmp_path / "s.toml"), "--sim",
                              "--out", str(tmp_path / "killed.h5")], stdout=subprocess.PIPE, text=True,
                             cwd=tmp_path)
-    try:
-        n = 0
-        for line in proc.stdout:
-            n += line.startswith("  shaker")
-            if n == 9:
-                os.kill(proc.pid, signal.SIGKILL)
-                break
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        proc.stdout.close()
+    _signal_at_sub_line(proc, signal.SIGKILL, 9, timeout_s=30)
     assert proc.returncode == -signal.SIGKILL
     part = read_frf(tmp_path / "killed.h5")  # the killed run's file opens and validates
     with h5py.File(tmp_path / "killed.h5") as f:
@@ -103,15 +102,8 @@ def test_sigint_stops_a_run_started_with_sigint_ignored(tmp_path):
         env=dict(os.environ, PYTHONPATH=str(ROOT)),
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
-        for line in proc.stdout:
-            if line.startswith("  shaker"):
-                proc.send_signal(signal.SIGINT)
-                break
-        proc.wait(timeout=60)
+        _signal_at_sub_line(proc, signal.SIGINT, 1, timeout_s=60)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-        proc.stdout.close()
         err = proc.stderr.read()
         proc.stderr.close()
     assert proc.returncode == 130, err

@@ -15,7 +15,7 @@ from daq.setup import parse_setup
 from daq.simlab import build_world
 from ssid.io import read_frf
 
-from test_daq_helpers import all_safe, frf_error, random_setup, run_on_sim
+from test_daq_helpers import all_safe, ctrl_c_at_line, frf_error, random_setup, run_on_sim
 
 
 def test_periodic_random_mimo_noise_free_matches_the_world(tmp_path):
@@ -84,15 +84,8 @@ def test_periodic_random_noise_on_errors_as_the_averages_predict(tmp_path):
 def test_continuous_random_welch_and_resume(tmp_path):
     setup = parse_setup(random_setup(kind="random", noise=True, averages=24, block=1024, settle=2),
                         str(tmp_path / "s.toml"))
-    count = {"n": 0}
-
-    def echo(msg):
-        count["n"] += 1
-        if count["n"] == 3:
-            raise KeyboardInterrupt
-
     with pytest.raises(KeyboardInterrupt):
-        run_on_sim(setup, tmp_path / "run.h5", echo=echo)
+        run_on_sim(setup, tmp_path / "run.h5", echo=ctrl_c_at_line(3))
     with h5py.File(tmp_path / "run.h5") as f:
         n_before = int(f["acq/n_done"][0])
         assert f["acq"].attrs["state"] == "interrupted" and 0 < n_before < 24

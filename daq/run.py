@@ -298,11 +298,11 @@ def _reciprocity(frf, echo) -> dict:
     summarised: a MIMO test's own check of its transducers' calibration and linearity."""
     from ssid.reciprocity import reciprocity_check
 
-    pairs = reciprocity_check(frf)
-    for p in pairs:
+    rows = []
+    for p in reciprocity_check(frf):
         echo(p.describe())
-    return {"reciprocity": [{"dofs": [p.dof_a, p.dof_b], "n_lines": p.n_lines, "gain_abs": abs(p.gain),
-                             "gain_phase_deg": float(np.degrees(np.angle(p.gain))), "gain_std": p.gain_std,
-                             "frac": p.frac, "residual_ratio": p.residual_ratio, "reciprocal": p.reciprocal}
-                            for p in pairs],
-            "n_not_reciprocal": sum(not p.reciprocal for p in pairs)}
+        c = p.curves
+        rows.append({"dofs": [p.dof_a, p.dof_b], "n_lines": c.n_lines, "gain_abs": abs(c.gain),
+                     "gain_phase_deg": float(np.degrees(np.angle(c.gain))), "gain_std": c.gain_std,
+                     "frac": c.frac, "residual_ratio": c.residual_ratio, "reciprocal": p.reciprocal})
+    return {"reciprocity": rows, "n_not_reciprocal": sum(not r["reciprocal"] for r in rows)}

@@ -40,9 +40,9 @@ def test_a_symmetric_structure_is_reciprocal_at_every_pair():
     pairs = _by_pair(_chain())
     assert set(pairs) == {("2", "7"), ("2", "12"), ("7", "12")}
     for p in pairs.values():
-        assert p.reciprocal and p.n_lines == 400
-        assert abs(p.gain - 1) < 1e-10 and p.frac == pytest.approx(1.0, abs=1e-12)
-        assert np.isnan(p.gain_std) and np.isnan(p.residual_ratio)  # no variances stated
+        assert p.reciprocal and p.curves.n_lines == 400
+        assert abs(p.curves.gain - 1) < 1e-10 and p.curves.frac == pytest.approx(1.0, abs=1e-12)
+        assert np.isnan(p.curves.gain_std) and np.isnan(p.curves.residual_ratio)  # no variances stated
     assert reciprocity_check(FRFData(np.array([1.0]), np.ones((1, 1, 1)), ["a"], ["a"])) == []
     dead = _chain()
     dead.H[:, :, 2] = 0.0  # a column that reads nothing (a channel dead in the data)
@@ -58,8 +58,8 @@ def test_a_force_gauge_off_by_5_percent_shows_as_the_gain_of_its_pairs():
     frf = _chain()
     frf.H[:, :, 1] /= 1.05
     pairs = _by_pair(frf)
-    assert pairs[("2", "7")].gain == pytest.approx(1 / 1.05, abs=1e-10)
-    assert pairs[("7", "12")].gain == pytest.approx(1.05, abs=1e-10)
+    assert pairs[("2", "7")].curves.gain == pytest.approx(1 / 1.05, abs=1e-10)
+    assert pairs[("7", "12")].curves.gain == pytest.approx(1.05, abs=1e-10)
     assert not pairs[("2", "7")].reciprocal and not pairs[("7", "12")].reciprocal
     assert pairs[("2", "12")].reciprocal
     assert "calibration" in pairs[("7", "12")].describe() and "NOT RECIPROCAL" in pairs[("7", "12")].describe()
@@ -79,12 +79,12 @@ def test_under_noise_reciprocal_data_pass_and_faults_are_found(seed):
     clean = _noisy(_chain(), 0.01, seed)
     for p in reciprocity_check(clean):
         assert p.reciprocal, p.describe()
-        assert 0.8 < p.residual_ratio < 1.2 and abs(p.gain - 1) < 3 * p.gain_std
-        assert 0 < p.gain_std < 2e-3
+        assert 0.8 < p.curves.residual_ratio < 1.2 and abs(p.curves.gain - 1) < 3 * p.curves.gain_std
+        assert 0 < p.curves.gain_std < 2e-3
     frf = _chain()
     frf.H[:, frf.outputs.index("12"), :] *= -1
     flipped = _by_pair(_noisy(frf, 0.01, seed))
-    assert flipped[("2", "12")].gain.real == pytest.approx(-1, abs=0.01)
+    assert flipped[("2", "12")].curves.gain.real == pytest.approx(-1, abs=0.01)
     assert "opposite sign" in flipped[("2", "12")].describe() and flipped[("2", "7")].reciprocal
     frf = _chain()
     frf.H[:, :, 1] /= 1.015
@@ -101,7 +101,7 @@ def test_a_shape_difference_beyond_the_noise_is_found():
     stiff = accelerance_from_model(M, C, 1.03 * K, labels, f, labels, INPUTS)
     frf.H[:, frf.outputs.index("2"), 2] = stiff.H[:, stiff.outputs.index("2"), 2]
     p = _by_pair(frf)[("2", "12")]
-    assert not p.reciprocal and p.residual_ratio > 100 and p.frac < 0.9
+    assert not p.reciprocal and p.curves.residual_ratio > 100 and p.curves.frac < 0.9
     assert "shapes differ" in p.describe()
 
 

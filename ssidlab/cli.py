@@ -357,6 +357,12 @@ def _add_acquire(sub: Any) -> None:
     add_acquire_subcommand(sub)
 
 
+def _add_compare(sub: Any) -> None:
+    from ssidlab.cli_compare import add_compare_subcommand
+
+    add_compare_subcommand(sub)
+
+
 def _add_check(sub: Any) -> None:
     from ssidlab.cli_check import add_check_subcommand
 
@@ -399,8 +405,8 @@ def _add_tui(sub: Any) -> None:
 # Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
 # `run=_run_<name>`; list it here. Errors follow the same rules through main().
 _SUBCOMMANDS = (
-    _add_identify, _add_bands, _add_pseudo, _add_place, _add_demo, _add_correlate, _add_sim_lab, _add_convert, _add_export_model,
-    _add_discrepancy, _add_check, _add_acquire, _add_tui, _add_sim_model,
+    _add_identify, _add_bands, _add_pseudo, _add_place, _add_demo, _add_correlate, _add_compare, _add_sim_lab,
+    _add_convert, _add_export_model, _add_discrepancy, _add_check, _add_acquire, _add_tui, _add_sim_model,
 )
 
 

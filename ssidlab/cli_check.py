@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import shlex
 from typing import Any
 
@@ -69,7 +68,7 @@ def _load(path: str):
 
 def run_check(args: argparse.Namespace) -> int:
     from daq.check import check_lab, check_verdict
-    from ssidlab.argtypes import check_output_paths
+    from ssidlab.argtypes import check_output_paths, write_json
 
     check_output_paths([args.setup], [args.json])
     setup = _load(args.setup)
@@ -85,9 +84,7 @@ def run_check(args: argparse.Namespace) -> int:
         print(f"once a fault's cause is gone, reset it with: ssidlab check {shlex.quote(args.setup)} --reset-faults"
               + (" --sim" if args.sim else ""))
     if args.json:
-        with open(args.json, "w", encoding="utf-8") as f:
-            json.dump({"setup": args.setup, "simulated": bool(args.sim), "verdict": verdict,
-                       "ready": all(s.ready for s in states),
-                       "instruments": [dict(dataclasses.asdict(s), ready=s.ready) for s in states]}, f, indent=2)
-            f.write("\n")
+        write_json(args.json, {"setup": args.setup, "simulated": bool(args.sim), "verdict": verdict,
+                               "ready": all(s.ready for s in states),
+                               "instruments": [dict(dataclasses.asdict(s), ready=s.ready) for s in states]})
     return 0 if all(s.ready for s in states) else EXIT_NOT_READY

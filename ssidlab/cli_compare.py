@@ -1,0 +1,73 @@
+"""``ssidlab compare``: two FRF files of one structure - do they agree within their noise?
+
+    ssidlab compare A.h5 B.h5 [--json OUT.json] [--quiet]
+
+The linearity check (the same test at two force levels) and the repeatability check (the
+same test on another day, after a re-mount) of a modal test (``ssid.frf_compare``). Each FRF
+of ``A`` is compared with the same output / input FRF of ``B`` over the lines both measured:
+the gain ``rho`` in ``H_A ~ rho H_B``, FRAC, and what the gain leaves in units of the stated
+noise. An FRF whose gain is off 1 beyond the calibration tolerance and its noise, or whose
+shape differs beyond the noise, is listed. Exit 0 when the comparison was made (whatever it
+found; the JSON's ``agree`` says), 2 on bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Any
+
+import numpy as np
+
+__all__ = ["add_compare_subcommand"]
+
+HELP = ("Compare two FRF files of one structure (linearity between force levels, repeatability "
+        "between runs): gain, FRAC and residual against the stated noise.")
+
+
+def add_compare_subcommand(sub: Any) -> argparse.ArgumentParser:
+    """Add the ``compare`` subparser to ``sub`` (an argparse subparsers action); returns it."""
+    p = sub.add_parser("compare", prog="ssidlab compare", help=HELP, description=HELP, allow_abbrev=False)
+    p.add_argument("a", metavar="A.h5", help="FRF file (ssidlab-frf, e.g. a run file)")
+    p.add_argument("b", metavar="B.h5", help="FRF file of the same structure to compare it with")
+    p.add_argument("--json", metavar="OUT.json", help="every FRF's comparison and the verdict as JSON")
+    p.add_argument("--quiet", action="store_true", help="only the verdict line")
+    p.set_defaults(run=run_compare)
+    return p
+
+
+def _row(c) -> str:
+    deg = round(math.degrees(np.angle(c.gain)), 2) + 0.0  # + 0.0: no "-0.00"
+    resid = f", residual {c.residual_ratio:.3g} x noise" if np.isfinite(c.residual_ratio) else ""
+    why = [w for w, bad in (("gain", not c.gain_ok), ("shape", not c.shape_ok)) if bad]
+    return (f"gain {abs(c.gain):.4f} at {deg:+.2f} deg, FRAC {c.frac:.4f}{resid}"
+            + (f": {' and '.join(why)} differ" if why else ""))
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    from ssid.frf_compare import compare_frfs
+    from ssid.io import read_frf
+    from ssidlab.argtypes import check_output_paths, write_json
+
+    check_output_paths([args.a, args.b], [args.json])
+    a, b = read_frf(args.a), read_frf(args.b)
+    cmp = compare_frfs(a, b)
+    n, bad = cmp.n_compared(), cmp.disagreeing()
+    f = cmp.freq_hz
+    if not args.quiet:
+        print(f"{args.a} against {args.b}: {f.size} common lines ({f[0]:.4g}-{f[-1]:.4g} Hz), "
+              f"{len(cmp.outputs)} outputs x {len(cmp.inputs)} inputs")
+        for o, i, c in bad:
+            print(f"  {o} / {i}: " + ("zero at every line in one file (a dead channel?)" if c.dead else _row(c)))
+    verdict = (f"all {n} FRFs agree within their noise and the calibration tolerance" if not bad else
+               f"{len(bad)} of {n} FRFs differ beyond their noise or the calibration tolerance")
+    print(verdict)
+    if args.json:
+        write_json(args.json, {
+            "a": args.a, "b": args.b, "n_lines": int(f.size), "n_compared": n, "n_differ": len(bad),
+            "agree": not bad, "verdict": verdict,
+            "frfs": [{"output": o, "input": i, "n_lines": c.n_lines, "gain_abs": abs(c.gain),
+                      "gain_phase_deg": float(np.degrees(np.angle(c.gain))), "gain_std": c.gain_std,
+                      "frac": c.frac, "residual_ratio": c.residual_ratio, "agree": c.agree}
+                     for o, row in zip(cmp.outputs, cmp.curves) for i, c in zip(cmp.inputs, row) if c is not None]})
+    return 0

@@ -15,8 +15,8 @@ resume is often the very moment they have to change:
 
 Addresses may change, but the instruments may not: after a restart two generators' serial
 ports can swap, and the setup unchanged then drives one shaker with the other's signal (two
-amplifiers' addresses likewise). :func:`instruments_not_the_same` compares who answers with who answered in the run's last
-session.
+amplifiers' addresses likewise). :func:`instruments_not_the_same` compares who answers with
+who answered in the run's last session.
 
 Anything else - a calibration, the wiring, the excitation, the limits, the simulated world -
 is refused: the lines on file and the schedule's decisions belong to the stored setup.

@@ -69,13 +69,13 @@ def instruments_in_use_rows(ev: dict, setup) -> list[InstrumentRow]:
     """Instrument table rows from the run's ``instruments`` event (identities as read).
 
     ``setup`` gives the addresses of real instruments; simulated ones are marked so."""
+    from drivers.daq import firmware_text
+
     sim = bool(ev.get("simulated"))
     addr = {name: a for name, _, a in _instruments(setup)} if setup is not None and not sim else {}
     rows: list[InstrumentRow] = []
     for group, items in ev.get("identities", {}).items():
         if group == "daq":
-            from drivers.daq import firmware_text
-
             ident = ", ".join(f"{k} {firmware_text(v) if k == 'fw_version' else v}" for k, v in items.items()
                               if k in ("serial", "fw_version", "n_inputs"))
             rows.append(("daq", "daq", addr.get("daq", "simulated" if sim else ""), "in use by the run", ident))

@@ -172,7 +172,14 @@ class CanFdDaq:
         self._req = self.db.get_message_by_frame_id(REQ_ID)
         self._rsp = self.db.get_message_by_frame_id(RSP_ID)
         self._own_bus = bus is None
-        self.bus = bus if bus is not None else open_can_bus(interface, channel, self.nominal_bitrate, self.data_bitrate, **bus_kwargs)
+        if bus is None:
+            try:
+                bus = open_can_bus(interface, channel, self.nominal_bitrate, self.data_bitrate, **bus_kwargs)
+            except (OSError, can.CanError) as exc:
+                # A CAN adapter that is missing, down or renamed (can0 -> can1 after a
+                # restart) is an instrument not reached, said with where it was looked for.
+                raise ConnectionLost(f"{name}: cannot open the CAN bus {interface}:{channel}: {exc}") from exc
+        self.bus = bus
         self._poll_s = 0.002 if isinstance(self.bus, VirtualBus) else 0.0
         self._token = 0
         self._responses: dict[int, dict] = {}

@@ -127,7 +127,7 @@ def _say_how_to_continue(run_path: Path, sim: bool, setup_arg: str | None = None
               f"range_volt in the setup and {with_setup}", file=sys.stderr, flush=True)
     elif remedy == "address":
         print(f"ssidlab acquire: if the instrument answers at another address now (a serial port "
-              f"renumbered, a new IP address), put that in the setup and {with_setup}",
+              f"renumbered, a new IP address, a CAN adapter renamed), put that in the setup and {with_setup}",
               file=sys.stderr, flush=True)
     elif remedy == "reset_faults":
         check = shlex.quote(setup_arg) if resumed and setup_arg else run_q

@@ -14,6 +14,7 @@ from drivers.daq_protocol import bus_load, decode_codes, fd_frame_bits, load_dbc
 from drivers.errors import (
     BusCapacityError,
     BusOff,
+    ConnectionLost,
     DeviceError,
     FramesLost,
     InstrumentError,
@@ -229,3 +230,12 @@ def test_exit_stops_acquisition(rig):
     daq.read(100)
     daq.close()
     assert sim.state == 0
+
+
+def test_a_can_bus_that_cannot_be_opened_is_an_instrument_not_reached():
+    """A CAN adapter missing or renamed (socketcan with no such interface; on a machine
+    without socketcan the same): ConnectionLost naming the interface and channel, so a run
+    stops safely with the advice to put the new address in the setup, instead of ending
+    as a bad-input error that names neither."""
+    with pytest.raises(ConnectionLost, match=r"daq: cannot open the CAN bus socketcan:ssidlab-no-such-can: "):
+        CanFdDaq(interface="socketcan", channel="ssidlab-no-such-can", timeout_s=0.2)

@@ -27,7 +27,7 @@ def guide_commands() -> list[str]:
 
 def test_guide_has_the_whole_walk_through():
     cmds = " ".join(guide_commands())
-    for sub in ("place", "acquire", "identify", "correlate", "discrepancy", "convert",
+    for sub in ("place", "check", "acquire", "identify", "correlate", "discrepancy", "convert",
                 "export-model", "bands"):
         assert f"ssidlab {sub} " in cmds
 

@@ -33,7 +33,6 @@ ends.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shlex
 import signal
@@ -62,7 +61,9 @@ def add_acquire_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--new-instruments", action="store_true",
                    help="with --resume: an instrument answers as another than in the run's last session "
                         "because it was replaced; continue with it (recorded in the run file)")
-    p.add_argument("--json", metavar="SUMMARY.json", help="write the run summary as JSON")
+    p.add_argument("--json", metavar="SUMMARY.json",
+                   help="write the run summary as JSON; after a stop, the run file's state, its records, "
+                        "the remedy (daq.safety.resume_remedy) and the command that continues it")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument("--events", action="store_true", help="also print run events as '@event {json}' lines")
     p.add_argument("--control-stdin", action="store_true",
@@ -96,17 +97,20 @@ def _read_control(control, stream) -> None:
     os.kill(os.getpid(), signal.SIGINT)
 
 
-def _say_how_to_continue(run_path: Path, sim: bool, setup_arg: str | None = None, resumed: bool = False) -> None:
+def _say_how_to_continue(run_path: Path, sim: bool, setup_arg: str | None = None, resumed: bool = False) -> dict:
     """The line an engineer needs after a stop: where the measured lines are, and the
     command that continues the run from its first incomplete line. After a stop that a
     plain resume would meet again (:func:`daq.safety.resume_remedy`: a DAQ overload, an
     instrument not reached, an amplifier's latched fault, other instruments answering), also
-    what to change and the command that continues with it."""
+    what to change and the command that continues with it.
+
+    Returns the same for a controlling program (``--json``): the run file's ``state``,
+    ``n_records``, ``remedy`` and ``continue_with``; empty without a run file."""
     from daq.safety import resume_remedy
     from daq.storage import peek_run_file
 
     if not run_path.is_file():
-        return
+        return {}
     sim_flag = " --sim" if sim else ""
     run_q = shlex.quote(str(run_path))
     # A resume with a setup file that stopped before its session was recorded (an instrument
@@ -137,6 +141,7 @@ def _say_how_to_continue(run_path: Path, sim: bool, setup_arg: str | None = None
     elif remedy == "new_instruments":
         print(f"ssidlab acquire: if the setup's addresses are right and an instrument was replaced, "
               f"continue with: {cmd} --new-instruments", file=sys.stderr, flush=True)
+    return {"state": state, "file": str(run_path), "n_records": n, "remedy": remedy, "continue_with": cmd}
 
 
 class _Terminated(KeyboardInterrupt):
@@ -149,12 +154,13 @@ def run_acquire(args: argparse.Namespace) -> int:
     from daq.run import run_test
     from daq.safety import RunStopped
     from daq.setup import load_setup
-    from ssid.jsonutil import to_jsonable
+    from ssidlab.argtypes import check_output_paths
 
     if args.resume and args.out:
         raise InputError("--out and --resume exclude each other (the resumed file is written in place)")
     if args.new_instruments and not args.resume:
         raise InputError("--new-instruments goes with --resume (a new run has no instruments to compare)")
+    check_output_paths([p for p in (args.setup, args.resume) if p], [args.json])
     if args.resume:
         setup = load_resume_setup(args.resume, args.setup)
         out = args.resume
@@ -179,23 +185,28 @@ def run_acquire(args: argparse.Namespace) -> int:
                            events=_print_event if args.events else None, new_instruments=args.new_instruments)
     except RunStopped as exc:
         print(f"ssidlab acquire: stopped: {' '.join(str(exc).splitlines())}", file=sys.stderr)
-        _say_how_to_continue(run_path, args.sim, args.setup, bool(args.resume))
+        _write_summary(args.json, _say_how_to_continue(run_path, args.sim, args.setup, bool(args.resume)))
         return EXIT_STOPPED
     except KeyboardInterrupt:
         print("ssidlab acquire: interrupted (outputs off, amplifiers disabled)", file=sys.stderr)
-        _say_how_to_continue(run_path, args.sim, args.setup, bool(args.resume))
+        _write_summary(args.json, _say_how_to_continue(run_path, args.sim, args.setup, bool(args.resume)))
         return EXIT_INTERRUPTED
     finally:
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGINT, previous_int)
-    if args.json:
-        with open(args.json, "w", encoding="utf-8") as f:
-            json.dump(to_jsonable(summary), f, indent=2, default=str)  # strict JSON: NaN as null
-            f.write("\n")
+    _write_summary(args.json, summary)
     if not args.quiet and "n_lines" in summary:
         print(f"done: {summary['file']} ({summary['state']}; {summary['n_lines']} lines, "
               f"{summary['test_time_s']:.1f} s test time{_caveats(summary)})")
     return 0
+
+
+def _write_summary(path: str | None, summary: dict) -> None:
+    """``--json``: the run's summary, or after a stop where the run stands and how it goes on."""
+    from ssidlab.argtypes import write_json
+
+    if path and summary:
+        write_json(path, summary)
 
 
 def _caveats(summary: dict) -> str:

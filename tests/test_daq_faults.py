@@ -368,7 +368,10 @@ def test_after_an_interlock_trip_the_fault_is_reset_by_the_check_and_the_run_res
                                "its cause is still present"), out
 
         amp.set_interlock(True)
-        assert cli(["--resume", str(run)])[0] == 3
+        assert cli(["--resume", str(run), "--json", str(tmp_path / "stop.json")])[0] == 3
+        stop = json.loads((tmp_path / "stop.json").read_text())  # what a controlling program reads
+        assert stop["remedy"] == "reset_faults" and stop["state"].startswith("stopped: amplifier fault")
+        assert stop["n_records"] >= 2 and stop["continue_with"] == f"ssidlab acquire --resume {run}"
         err = capsys.readouterr().err.strip().splitlines()
         assert "amplifier fault: amp0: fault latched (interlock open)" in err[0], err
         assert err[2].endswith(f"reset the amplifier's latched fault: ssidlab check {run} --reset-faults; "

@@ -301,8 +301,7 @@ def _reciprocity(frf, echo) -> dict:
     rows = []
     for p in reciprocity_check(frf):
         echo(p.describe())
-        c = p.curves
-        rows.append({"dofs": [p.dof_a, p.dof_b], "n_lines": c.n_lines, "gain_abs": abs(c.gain),
-                     "gain_phase_deg": float(np.degrees(np.angle(c.gain))), "gain_std": c.gain_std,
-                     "frac": c.frac, "residual_ratio": c.residual_ratio, "reciprocal": p.reciprocal})
+        row = {"dofs": [p.dof_a, p.dof_b], **p.curves.to_json_dict()}
+        row["reciprocal"] = row.pop("agree")  # the two curves of a pair agree: reciprocal
+        rows.append(row)
     return {"reciprocity": rows, "n_not_reciprocal": sum(not r["reciprocal"] for r in rows)}

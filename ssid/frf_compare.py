@@ -84,6 +84,17 @@ class CurveComparison:
     def agree(self) -> bool:
         return not self.dead and self.gain_ok and self.shape_ok
 
+    def describe(self) -> str:
+        """``gain 1.0000 at +0.00 deg, FRAC 1.0000``: the numbers an engineer reads first."""
+        deg = round(math.degrees(np.angle(self.gain)), 2) + 0.0  # + 0.0: no "-0.00"
+        return f"gain {abs(self.gain):.4f} at {deg:+.2f} deg, FRAC {self.frac:.4f}"
+
+    def to_json_dict(self) -> dict:
+        """The comparison's numbers as plain JSON values (the gain as magnitude and phase)."""
+        return {"n_lines": self.n_lines, "gain_abs": abs(self.gain),
+                "gain_phase_deg": float(np.degrees(np.angle(self.gain))), "gain_std": self.gain_std,
+                "frac": self.frac, "residual_ratio": self.residual_ratio, "agree": self.agree}
+
 
 def compare_curves(a: np.ndarray, b: np.ndarray, var_a: np.ndarray | None = None,
                    var_b: np.ndarray | None = None) -> CurveComparison:

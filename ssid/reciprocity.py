@@ -23,7 +23,6 @@ noise the acquisition stated (``H_var``) and a calibration tolerance.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from itertools import combinations
 
@@ -65,8 +64,7 @@ class ReciprocityPair:
         if c.dead:
             return (f"reciprocity {a} <-> {b}: NOT RECIPROCAL: H({a},{b}) or H({b},{a}) is zero at all "
                     f"{c.n_lines} lines (a dead channel?)")
-        deg = round(math.degrees(np.angle(c.gain)), 2) + 0.0  # + 0.0: no "-0.00"
-        head = f"reciprocity {a} <-> {b}: gain {abs(c.gain):.4f} at {deg:+.2f} deg, FRAC {c.frac:.4f} over {c.n_lines} lines"
+        head = f"reciprocity {a} <-> {b}: {c.describe()} over {c.n_lines} lines"
         if self.reciprocal:
             return head + ": reciprocal"
         why = []

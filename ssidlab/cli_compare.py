@@ -14,7 +14,6 @@ found; the JSON's ``agree`` says), 2 on bad input.
 from __future__ import annotations
 
 import argparse
-import math
 from typing import Any
 
 import numpy as np
@@ -37,11 +36,9 @@ def add_compare_subcommand(sub: Any) -> argparse.ArgumentParser:
 
 
 def _row(c) -> str:
-    deg = round(math.degrees(np.angle(c.gain)), 2) + 0.0  # + 0.0: no "-0.00"
     resid = f", residual {c.residual_ratio:.3g} x noise" if np.isfinite(c.residual_ratio) else ""
     why = [w for w, bad in (("gain", not c.gain_ok), ("shape", not c.shape_ok)) if bad]
-    return (f"gain {abs(c.gain):.4f} at {deg:+.2f} deg, FRAC {c.frac:.4f}{resid}"
-            + (f": {' and '.join(why)} differ" if why else ""))
+    return c.describe() + resid + (f": {' and '.join(why)} differ" if why else "")
 
 
 def run_compare(args: argparse.Namespace) -> int:
@@ -66,8 +63,6 @@ def run_compare(args: argparse.Namespace) -> int:
         write_json(args.json, {
             "a": args.a, "b": args.b, "n_lines": int(f.size), "n_compared": n, "n_differ": len(bad),
             "agree": not bad, "verdict": verdict,
-            "frfs": [{"output": o, "input": i, "n_lines": c.n_lines, "gain_abs": abs(c.gain),
-                      "gain_phase_deg": float(np.degrees(np.angle(c.gain))), "gain_std": c.gain_std,
-                      "frac": c.frac, "residual_ratio": c.residual_ratio, "agree": c.agree}
+            "frfs": [{"output": o, "input": i, **c.to_json_dict()}
                      for o, row in zip(cmp.outputs, cmp.curves) for i, c in zip(cmp.inputs, row) if c is not None]})
     return 0

@@ -20,7 +20,7 @@ import logging
 
 import numpy as np
 
-from drivers.amplifier import SyncShakerAmplifier
+from drivers.amplifier import MODEL_ID, SyncShakerAmplifier
 from drivers.daq import CanFdDaq, DaqChannel
 from drivers.errors import AmplifierFault, BusCapacityError, HeartbeatLost, InstrumentError, InterlockOpen
 from drivers.siggen import SignalGenerator
@@ -243,7 +243,7 @@ class InstrumentRig(Rig):
 
     def identities(self) -> dict:
         out = {"generators": {k: g.idn for k, g in self.gens.items()},
-               "amplifiers": {k: f"model 0x5A01 serial {a.amp.serial} at {a.amp.host}:{a.amp.port}"
+               "amplifiers": {k: f"model 0x{MODEL_ID:04X} serial {a.amp.serial} at {a.amp.host}:{a.amp.port}"
                               for k, a in self.amps.items()},
                "daq": {k: (int(v) if isinstance(v, (int, np.integer)) else str(v))
                        for k, v in (self.daq.identity or {}).items()} if self.daq else {}}

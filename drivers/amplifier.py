@@ -34,7 +34,7 @@ from .errors import (
     RangeError,
 )
 
-__all__ = ["FAULT_NAMES", "REG", "AmpStatus", "ShakerAmplifier", "SyncShakerAmplifier"]
+__all__ = ["FAULT_NAMES", "MODEL_ID", "REG", "AmpStatus", "ShakerAmplifier", "SyncShakerAmplifier"]
 
 log = logging.getLogger(__name__)
 

@@ -13,7 +13,8 @@ What a disagreement says:
   of the four transducers (with force gauge ``F'_k = a_k F_k`` and accelerometer
   ``A'_k = b_k A_k``, ``rho = (b_a a_a) / (b_b a_b)``), or a sensor whose sign or axis is
   wrong (``rho`` = -1);
-* a **shape** difference left after the gain (FRAC below 1, a residual beyond the noise):
+* a **shape** difference left after the gain (FRAC below 1, a residual beyond the noise and
+  above :data:`ssid.frf_compare.SHAPE_TOLERANCE` of the FRF):
   a non-linear structure or fixture, an accelerometer not at the force's point or axis, a
   shaker exciting more than its axis.
 
@@ -55,7 +56,7 @@ class ReciprocityPair:
     @property
     def reciprocal(self) -> bool:
         """The gain within the calibration tolerance or its noise, and no shape difference
-        beyond the noise (or, without variances, FRAC >= 0.99)."""
+        both beyond the noise and above the shape tolerance (without variances: FRAC >= 0.99)."""
         return self.curves.agree
 
     def describe(self) -> str:

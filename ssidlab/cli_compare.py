@@ -36,7 +36,8 @@ def add_compare_subcommand(sub: Any) -> argparse.ArgumentParser:
 
 
 def _row(c) -> str:
-    resid = f", residual {c.residual_ratio:.3g} x noise" if np.isfinite(c.residual_ratio) else ""
+    resid = (f", residual {c.residual_ratio:.3g} x noise, {c.relative_residual:.2g} of the FRF"
+             if np.isfinite(c.residual_ratio) else "")
     why = [w for w, bad in (("gain", not c.gain_ok), ("shape", not c.shape_ok)) if bad]
     return c.describe() + resid + (f": {' and '.join(why)} differ" if why else "")
 

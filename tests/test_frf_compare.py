@@ -12,7 +12,7 @@ import pytest
 
 from ssid.errors import InputError
 from ssid.frf import FRFData, accelerance_from_model
-from ssid.frf_compare import compare_frfs
+from ssid.frf_compare import SHAPE_TOLERANCE, compare_frfs
 from ssid.models import example_system
 from ssidlab.cli import main
 
@@ -44,6 +44,20 @@ def test_two_noisy_measurements_of_one_structure_agree_and_a_stiffer_one_does_no
     found = compare_frfs(_noisy(off, 0.01, seed), b).disagreeing()
     assert {i for _, i, _ in found} == {"7"} and len(found) == 14
     assert all(c.shape_ok and abs(c.gain - 1 / 1.05) < 0.005 for _, _, c in found)
+
+
+def test_a_shape_difference_must_matter_as_well_as_stand_out_of_the_noise():
+    """Stated noise 1e-7 of each value (plus the floor of 1e-6 of the largest), as quiet as
+    a noise-free simulation. A structure 1e-5 stiffer (resonances 5e-6 higher) leaves 1e-4
+    of the FRF after the gain, 7 or more times the stated noise: it is not a finding
+    (``SHAPE_TOLERANCE``, 1e-3 of the FRF). 1e-3 stiffer (resonances 0.05 % higher) leaves
+    1 % and differs at every FRF."""
+    a = _noisy(_chain(), 1e-7, 1)
+    tiny = [c for row in compare_frfs(a, _noisy(_chain(1 + 1e-5), 1e-7, 2)).curves for c in row]
+    assert all(c.residual_ratio > 3 and c.relative_residual < SHAPE_TOLERANCE / 3 for c in tiny)
+    assert all(c.agree for c in tiny)
+    small = [c for row in compare_frfs(a, _noisy(_chain(1 + 1e-3), 1e-7, 2)).curves for c in row]
+    assert all(c.relative_residual > 5 * SHAPE_TOLERANCE and not c.shape_ok for c in small)
 
 
 def test_files_with_other_lines_are_compared_on_the_lines_they_share():

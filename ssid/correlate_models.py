@@ -42,8 +42,9 @@ from .correlate_frf import (
     refine_peak_frequencies,
 )
 from .errors import InputError
-from .frf import FRFData, accelerance_from_model
+from .frf import FRFData
 from .io import Model
+from .reaction_loads import choose_reactions, model_frf_under_loads
 from .tam import (
     TAM_METHODS,
     dof_indices,
@@ -239,6 +240,7 @@ def correlate_with_frf(
     zeta: float = 0.02,
     f_min_hz: float | None = None,
     f_max_hz: float | None = None,
+    reactions: str = "auto",
 ) -> CorrelationStudy:
     """Correlate an analysis model with measured FRFs.
 
@@ -257,6 +259,11 @@ def correlate_with_frf(
         Modal damping ratio used only when ``analysis.C`` is None.
     f_min_hz, f_max_hz : float, optional
         Band of lines compared.
+    reactions : {"auto", "apply", "ignore"}
+        FRFs measured on a test stand: whether the model is loaded with the measured
+        reactions as well as the input force (a model of the substructure alone) or not (a
+        model that includes the stand); ``auto`` decides from the data
+        (:func:`ssid.reaction_loads.choose_reactions`).
     """
     warnings: list[str] = []
     missing = [d for d in frf.outputs if d not in set(analysis.dofs)]
@@ -277,8 +284,13 @@ def correlate_with_frf(
     else:
         C = analysis.C
         damping_source = "model C"
-    model = accelerance_from_model(analysis.M, C, analysis.K, analysis.dofs, test.freq_hz,
-                                   test.outputs, test.inputs)
+    choice = choose_reactions(analysis.M, C, analysis.K, analysis.dofs, test, reactions)
+    model = FRFData(test.freq_hz, model_frf_under_loads(analysis.M, C, analysis.K, analysis.dofs, test, choice.loads),
+                    list(test.outputs), list(test.inputs))
+    if choice.applied:
+        warnings.append("the test modes (CMIF peaks) are those of the structure on its stand, the "
+                        "analysis modes the model's own: FRAC and the gap compare like with like "
+                        "(the model under the measured reactions), the mode pairs do not")
     retained = dof_indices(analysis.dofs, test.outputs)
     tam_used, M_tam, K_tam = _tam(analysis, retained, tam, interface, targets, test.outputs)
 
@@ -319,6 +331,7 @@ def correlate_with_frf(
         "frf_gap_metric": FRF_GAP_METRIC,
         "frf_gap_db": frf_gap_db(test.H, model.H, valid),
         "damping_source": damping_source,
+        "reactions": choice.to_json_dict(),
         "cmif": {"freq_hz": test.freq_hz, "test": sv_test, "analysis": sv_model},
         "warnings": warnings,
     }

@@ -17,6 +17,9 @@ __all__ = [
     "accelerance",
     "accelerance_from_model",
     "selection_matrix",
+    "AppliedLoads",
+    "applied_loads",
+    "accelerance_under_test_loads",
 ]
 
 
@@ -197,6 +200,58 @@ def accelerance_from_model(
     return FRFData(freq_hz=freq_hz, H=H, outputs=list(outputs), inputs=list(inputs))
 
 
+@dataclass(frozen=True)
+class AppliedLoads:
+    """The forces a test applied to the structure per unit input force.
+
+    Attributes
+    ----------
+    dofs : list of str
+        Load DOFs: the inputs' DOFs, then the reaction DOFs that are not inputs.
+    T : (n_freq, n_load, n_in) complex
+        Force at load DOF ``l`` per unit force of input ``j``: 1 at the input's own DOF plus,
+        on a test stand, the measured interface reactions ``H_reaction[:, r, j]`` at the
+        reaction DOFs (the coupling of the report's section 3.3).
+    var : (n_freq, n_load, n_in) float or None
+        Variance of each entry of ``T`` (the reactions' ``H_reaction_var``; 0 for the unit
+        forces), None when the file states none.
+    """
+
+    dofs: list[str]
+    T: np.ndarray
+    var: np.ndarray | None
+
+    def predict(self, H_model: np.ndarray) -> np.ndarray:
+        """``H_model @ T`` line by line: (n_freq, n_out, n_load) -> (n_freq, n_out, n_in)."""
+        return np.einsum("kol,kli->koi", H_model, self.T)
+
+    def predicted_variance(self, H_model: np.ndarray) -> np.ndarray | None:
+        """Variance the measured reactions' noise gives :meth:`predict`'s values, or None."""
+        if self.var is None:
+            return None
+        return np.einsum("kol,kli->koi", np.abs(H_model) ** 2, self.var)
+
+
+def applied_loads(frf: FRFData, with_reactions: bool = True) -> AppliedLoads:
+    """What each input of ``frf``'s test applied to the structure (:class:`AppliedLoads`).
+
+    Without reactions in the file (or ``with_reactions`` False), the unit force at each
+    input's DOF alone.
+    """
+    react = list(frf.reactions or []) if with_reactions and frf.H_reaction is not None else []
+    dofs = list(frf.inputs) + [r for r in dict.fromkeys(react) if r not in frf.inputs]
+    T = np.zeros((frf.n_freq, len(dofs), frf.n_in), complex)
+    T[:, [dofs.index(d) for d in frf.inputs], np.arange(frf.n_in)] = 1.0
+    var = None
+    if react and frf.H_reaction_var is not None:
+        var = np.zeros(T.shape)
+    for r, lbl in enumerate(react):
+        T[:, dofs.index(lbl), :] += frf.H_reaction[:, r, :]
+        if var is not None:
+            var[:, dofs.index(lbl), :] += frf.H_reaction_var[:, r, :]
+    return AppliedLoads(dofs, T, var)
+
+
 def accelerance_under_test_loads(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: list[str],
                                  frf: FRFData) -> np.ndarray:
     """Accelerance a model predicts for a test, under the test's own loads, (n_freq, n_out, n_in).
@@ -204,12 +259,9 @@ def accelerance_under_test_loads(M: np.ndarray, C: np.ndarray | None, K: np.ndar
     Input ``j`` applies a unit force at its DOF; on a test stand the substructure also feels
     the measured interface reactions ``frf.H_reaction[:, :, j]`` at the reaction DOFs (the
     coupling of the report's section 3.3), so the response is ``a_j = H (e_j + D_r r_j)``
-    with ``H`` the model's accelerance between the output DOFs. Without reactions this is
-    the plain accelerance. Inputs and reactions must be among ``frf.outputs`` (collocated).
+    with ``H`` the model's accelerance from the load DOFs (:func:`applied_loads`) to the
+    outputs. Without reactions this is the plain accelerance.
     """
-    H = accelerance(M, C, K, frf.omega, selection_matrix(dofs, frf.outputs), selection_matrix(dofs, frf.outputs).T)
-    load = np.zeros((frf.n_freq, frf.n_out, frf.n_in), complex)
-    load[:, frf.input_index(), np.arange(frf.n_in)] = 1.0
-    if frf.H_reaction is not None and frf.reactions:
-        load[:, frf.reaction_index(), :] += frf.H_reaction
-    return np.einsum("koi,kij->koj", H, load)
+    loads = applied_loads(frf)
+    H = accelerance(M, C, K, frf.omega, selection_matrix(dofs, loads.dofs), selection_matrix(dofs, frf.outputs).T)
+    return loads.predict(H)

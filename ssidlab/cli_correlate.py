@@ -20,6 +20,7 @@ from typing import Any
 
 from ssid.errors import InputError
 from ssid.jsonutil import to_jsonable
+from ssid.reaction_loads import REACTION_CHOICES
 from ssid.tam import TAM_METHODS
 from ssidlab.argtypes import (
     check_output_paths,
@@ -61,6 +62,10 @@ def add_correlate_subcommand(sub: Any) -> argparse.ArgumentParser:
                    "'1-10,17,18' (default: the lowest as many as test DOFs)")
     p.add_argument("--zeta", type=_damping_ratio, default=0.02, metavar="RATIO",
                    help="modal damping ratio for a model without C, with --frf (default 0.02)")
+    p.add_argument("--reactions", choices=REACTION_CHOICES, default="auto",
+                   help="--frf measured on a test stand (with interface reactions): apply them to the "
+                   "model (a model of the substructure alone), ignore them (a model that includes "
+                   "the stand), or auto (default): the one that reproduces the data better")
     p.add_argument("--fmin", type=frequency_hz, metavar="HZ", help="lowest line compared (--frf)")
     p.add_argument("--fmax", type=frequency_hz, metavar="HZ", help="highest line compared (--frf)")
     p.add_argument("--json", metavar="OUT.json", required=True, help="correlation results")
@@ -109,7 +114,7 @@ def run_correlate(args: argparse.Namespace) -> int:
         frf = read_frf(args.frf)
         study = correlate_with_frf(
             frf, analysis, tam=args.tam, interface=args.interface, targets=args.targets,
-            zeta=args.zeta, f_min_hz=args.fmin, f_max_hz=args.fmax,
+            zeta=args.zeta, f_min_hz=args.fmin, f_max_hz=args.fmax, reactions=args.reactions,
         )
         test_source, analysis_source = args.frf, models[0]
     else:
@@ -189,6 +194,8 @@ def pair_table(summary: dict) -> str:
     if "frf_gap" in summary:
         lines.append(f"FRAC mean {summary['frac']['mean']:.3f}, gap ({summary['frf_gap_metric']}) "
                      f"{summary['frf_gap']:.4g}, {summary['frf_gap_db']:.3g} dB rms")
+    if summary.get("reactions", {}).get("text"):
+        lines.append(summary["reactions"]["text"])
     return "\n".join(lines)
 
 

@@ -2,7 +2,8 @@
 
     ssidlab discrepancy --model NOMINAL.h5 --measured FRF.h5 --json OUT.json
                         [--out UPDATED.h5] [--plots DIR] [--fmin HZ] [--fmax HZ]
-                        [--max-effects 1|2] [--no-second-round] [--quiet]
+                        [--max-effects 1|2] [--no-second-round] [--reactions auto|apply|ignore]
+                        [--quiet]
 
 The JSON keys ``effect``, ``dofs``, ``parameters``, ``gap_before``, ``gap_after``,
 ``gap_metric`` and ``candidates`` are the contract's (``../shared/contract.md``); the others are
@@ -26,6 +27,10 @@ from ssidlab.argtypes import check_output_paths, frequency_hz, write_chart
 
 __all__ = ["add_discrepancy_subcommand", "run_discrepancy", "summary_text"]
 
+#: ``ssid.reaction_loads.REACTION_CHOICES``, spelled out: this module imports no numerics at
+#: load time (see run_discrepancy).
+REACTION_CHOICES = ("auto", "apply", "ignore")
+
 HELP = ("Find where a nominal model and measured FRFs disagree, name the missing effect, add it "
         "and show the gap shrink.")
 
@@ -43,6 +48,10 @@ def add_discrepancy_subcommand(sub: Any) -> argparse.ArgumentParser:
                    help="effect found, gaps before and after, ranked candidates")
     p.add_argument("--out", metavar="UPDATED.h5", help="write the nominal model with the effect added")
     p.add_argument("--plots", metavar="DIR", help="directory for PNG plots (created if needed)")
+    p.add_argument("--reactions", choices=REACTION_CHOICES, default="auto",
+                   help="FRFs measured on a test stand (with interface reactions): apply them to the "
+                   "model (a model of the substructure alone), ignore them (a model that includes "
+                   "the stand), or auto (default): the one that reproduces the data better")
     p.add_argument("--fmin", type=frequency_hz, metavar="HZ", help="lowest line used")
     p.add_argument("--fmax", type=frequency_hz, metavar="HZ", help="highest line used")
     p.add_argument("--max-effects", type=int, choices=(1, 2), default=1,
@@ -93,7 +102,8 @@ def run_discrepancy(args: argparse.Namespace) -> int:
         raise InputError(f"{args.measured}: output {missing[0]!r} is not a DOF of the model {args.model}")
 
     result = find_discrepancy(model, frf, f_min_hz=args.fmin, f_max_hz=args.fmax,
-                              max_effects=args.max_effects, second_round=not args.no_second_round)
+                              max_effects=args.max_effects, second_round=not args.no_second_round,
+                              reactions=args.reactions)
     if args.out is not None:
         try:
             write_model(args.out, result.updated_model)
@@ -121,6 +131,7 @@ def summary_text(data: dict) -> str:
     lines = [f"effect: {data['effect']}" + (f" at {where}" if where else "") + (f" ({pars})" if pars else ""),
              f"gap ({data['gap_metric']}, 1 = noise level): {data['gap_before']:.4g} -> {data['gap_after']:.4g}"]
     lines.append(data.get("residual", {}).get("text", ""))
+    lines.append(data.get("reactions", {}).get("text", ""))
     lines.append("candidates (delta EBIC):")
     for c in data["candidates"][:6]:
         cp = ", ".join(f"{k} = {v:.4g}" for k, v in c["parameters"].items())

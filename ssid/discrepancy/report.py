@@ -105,9 +105,23 @@ def _model_modes(model: Model, out_idx: np.ndarray, f_max_hz: float) -> tuple[np
     return f[keep], phi[np.ix_(out_idx, np.flatnonzero(keep))]
 
 
+def _frf_modes(freq_hz: np.ndarray, H: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """CMIF peaks of FRFs ``H`` (n_freq, n_out, n_in): frequencies and real shapes at the outputs."""
+    sv = cmif(H, valid)
+    peaks = cmif_peaks(freq_hz, sv)
+    if peaks.size == 0:
+        return np.zeros(0), np.zeros((H.shape[1], 0))
+    return (refine_peak_frequencies(freq_hz, sv[:, 0], peaks),
+            real_mode_from_complex(cmif_shapes(H, peaks, valid)))
+
+
 def paired_modes(frf: FRFData, valid: np.ndarray, models: dict[str, Model],
-                 out_idx: np.ndarray) -> list[dict]:
+                 out_idx: np.ndarray, predicted: dict[str, np.ndarray] | None = None) -> list[dict]:
     """Measured modes (CMIF peaks) paired by MAC with each model's normal modes at the outputs.
+
+    With ``predicted`` (each model's accelerance under the test's loads, by name), a model's
+    modes are the CMIF peaks of that prediction instead: a substructure model loaded by the
+    measured reactions responds at the modes of the structure on its stand, not at its own.
 
     Returns
     -------
@@ -123,7 +137,10 @@ def paired_modes(frf: FRFData, valid: np.ndarray, models: dict[str, Model],
     rows = [{"test_freq_hz": float(f)} for f in f_test]
     for name, model in models.items():
         try:
-            f_m, phi_m = _model_modes(model, out_idx, float(frf.freq_hz[-1]))
+            if predicted is not None:
+                f_m, phi_m = _frf_modes(frf.freq_hz, predicted[name], valid)
+            else:
+                f_m, phi_m = _model_modes(model, out_idx, float(frf.freq_hz[-1]))
         except np.linalg.LinAlgError:
             f_m, phi_m = np.zeros(0), np.zeros((out_idx.size, 0))
         mac = modal_assurance(phi_test, phi_m) if f_m.size else np.zeros((f_test.size, 0))

@@ -10,6 +10,11 @@ receptance ``G = Z^-1`` alone:
 entries (the diagonal for one DOF, four entries for a pair). They are computed once, one
 batched inversion of ``Z`` per block of lines, and never again per candidate.
 
+On a test stand a substructure's "input" is not a unit force at one DOF: it also feels the
+measured interface reactions (``ssid.frf.AppliedLoads``), so ``D`` becomes the per-line
+load matrix ``D_l T_k`` (unit forces at the load DOFs times the forces per unit input);
+the formula is unchanged.
+
 Also here: the global modal damping ratio used when the model file has no C.
 """
 
@@ -29,6 +34,7 @@ __all__ = [
     "modal_accelerance",
     "nominal_response",
     "receptance_entries",
+    "to_inputs",
     "unit_modal_damping",
 ]
 
@@ -46,7 +52,7 @@ class NominalResponse:
     G_out : (n_freq, n_out, n) complex
         Rows of ``G`` at the output DOFs (m/N).
     G_in : (n_freq, n, n_in) complex
-        Columns of ``G`` at the input DOFs.
+        Columns of ``G`` at the input DOFs (under applied loads: ``G D_l T_k``).
     G_diag : (n_freq, n) complex
         Diagonal of ``G``.
     H : (n_freq, n_out, n_in) complex
@@ -80,6 +86,15 @@ def _inverse(Z: np.ndarray, freq_hz: np.ndarray) -> np.ndarray:
     return G
 
 
+def to_inputs(X: np.ndarray, T: np.ndarray | None) -> np.ndarray:
+    """Per-line columns at the load DOFs to columns per input: ``X[k] @ T[k]``.
+
+    ``X``: (n_freq, ..., n_load); ``T``: (n_freq, n_load, n_in) or None (the load DOFs are
+    the inputs, ``X`` is returned as it is).
+    """
+    return X if T is None else np.einsum("k...l,kli->k...i", X, T)
+
+
 def nominal_response(
     M: np.ndarray,
     C: np.ndarray | None,
@@ -87,6 +102,7 @@ def nominal_response(
     omega: np.ndarray,
     out_idx: np.ndarray,
     in_idx: np.ndarray,
+    T: np.ndarray | None = None,
 ) -> NominalResponse:
     """Receptance pieces of a model at the lines ``omega`` (see :class:`NominalResponse`).
 
@@ -96,21 +112,24 @@ def nominal_response(
         ``C`` None means undamped.
     omega : (n_freq,) rad/s
     out_idx, in_idx : int arrays
-        Model indices of the output and input DOFs.
+        Model indices of the output and input DOFs (with ``T``: of the load DOFs).
+    T : (n_freq, n_load, n_in) complex, optional
+        Forces at the load DOFs per unit input force (``ssid.frf.AppliedLoads.T``); None:
+        a unit force at each input's DOF.
     """
     w = np.asarray(omega, dtype=float)
     n = M.shape[0]
     L = w.size
     G_out = np.empty((L, out_idx.size, n), dtype=complex)
-    G_in = np.empty((L, n, in_idx.size), dtype=complex)
+    G_in = np.empty((L, n, in_idx.size if T is None else T.shape[2]), dtype=complex)
     G_diag = np.empty((L, n), dtype=complex)
     for s in range(0, L, CHUNK_LINES):
         sl = slice(s, min(L, s + CHUNK_LINES))
         G = _inverse(_dynamic_stiffness(M, C, K, w[sl]), w[sl] / (2 * np.pi))
         G_out[sl] = G[:, out_idx, :]
-        G_in[sl] = G[:, :, in_idx]
+        G_in[sl] = to_inputs(G[:, :, in_idx], None if T is None else T[sl])
         G_diag[sl] = np.diagonal(G, axis1=1, axis2=2)
-    H = -(w**2)[:, None, None] * G_out[:, :, in_idx]
+    H = -(w**2)[:, None, None] * to_inputs(G_out[:, :, in_idx], T)
     return NominalResponse(w, G_out, G_in, G_diag, H)
 
 
@@ -156,24 +175,26 @@ def modal_accelerance(
     zeta: float,
     u: np.ndarray | None = None,
     delta: np.ndarray | None = None,
+    T: np.ndarray | None = None,
 ) -> np.ndarray:
     """Accelerance with modal damping ``zeta``, optionally with a rank-one effect, (n_freq, n_out, n_in).
 
     ``G = sum_r phi_r phi_r^T / (lam_r - w^2 + 2 j zeta sqrt(lam_r) w)`` (exact for modal
     damping, and far cheaper than a solve per line while ``zeta`` is searched); with ``u``
     (n,) and ``delta`` (n_freq,) the effect ``delta u u^T`` is added by Sherman-Morrison.
+    ``in_idx`` and ``T`` as in :func:`nominal_response`.
     """
     w = np.asarray(omega, dtype=float)[:, None]
     inv_den = 1.0 / (lam[None, :] - w**2 + 2j * zeta * np.sqrt(np.abs(lam))[None, :] * w)
     po, pi = phi[out_idx], phi[in_idx]
-    X = np.einsum("or,kr,ir->koi", po, inv_den, pi, optimize=True)
+    X = to_inputs(np.einsum("or,kr,ir->koi", po, inv_den, pi, optimize=True), T)
     if u is not None:
         pu = phi.T @ u  # (n_modes,): modal participation of the effect's direction
         g_o = (po * pu[None, :]) @ inv_den.T  # (n_out, n_freq)
-        g_i = (pi * pu[None, :]) @ inv_den.T
+        g_i = to_inputs(((pi * pu[None, :]) @ inv_den.T).T, T)  # (n_freq, n_in)
         g_uu = inv_den @ pu**2
         a = delta / (1 + delta * g_uu)
-        X = X - a[:, None, None] * g_o.T[:, :, None] * g_i.T[:, None, :]
+        X = X - a[:, None, None] * g_o.T[:, :, None] * g_i[:, None, :]
     return -(w[:, :, None] ** 2) * X
 
 

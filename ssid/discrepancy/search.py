@@ -145,6 +145,7 @@ def search_round(
     out_idx: np.ndarray,
     in_idx: np.ndarray,
     n_top_pairs: int = 6,
+    T: np.ndarray | None = None,
 ) -> SearchResult:
     """Try every effect of the library on the model (M, C, K) against the measured FRFs.
 
@@ -158,13 +159,16 @@ def search_round(
     H_meas, W : (n_freq, n_out, n_in)
         Measured accelerance and weights ``1/sigma`` (0 where not valid).
     out_idx, in_idx : int arrays
-        Model indices of the outputs and inputs.
+        Model indices of the outputs and inputs (with ``T``: of the load DOFs).
+    T : (n_freq, n_load, n_in) complex, optional
+        Applied loads per unit input (a substructure on a test stand also feels the
+        measured reactions, ``ssid.frf.AppliedLoads``); None: a unit force at each input.
 
     Returns
     -------
     SearchResult with every candidate tried, ranked by EBIC (best first).
     """
-    nom = nominal_response(M, C, K, omega, out_idx, in_idx)
+    nom = nominal_response(M, C, K, omega, out_idx, in_idx, T)
     valid = W > 0
     R = np.where(valid, H_meas - nom.H, 0)
     rss0 = float(np.sum(W**2 * np.abs(R) ** 2))

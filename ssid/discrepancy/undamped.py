@@ -31,7 +31,7 @@ from .damping import damping_from_data
 from .effects import PARAMETER_KEYS, Effect, effect_dynamic_stiffness, unit_shape
 from .fit import fit_one_parameter, fit_oscillator
 from .localise import Locations, compress
-from .response import fit_global_damping, modal_accelerance, unit_modal_damping
+from .response import fit_global_damping, modal_accelerance, to_inputs, unit_modal_damping
 from .search import NONNEGATIVE, Candidate, SearchResult, rerank_none
 
 __all__ = ["joint_damping_fit", "modal_location", "search_undamped"]
@@ -50,15 +50,18 @@ def effect_direction(n: int, dofs: list[str], effect: Effect) -> np.ndarray:
 
 
 def modal_location(lam, phi, out_idx, in_idx, omega, zeta: float, u: np.ndarray,
-                   H: np.ndarray, W: np.ndarray) -> tuple[Locations, float]:
-    """Compressed residual data of the one location ``u`` with modal damping ``zeta``, and RSS_0."""
+                   H: np.ndarray, W: np.ndarray, T: np.ndarray | None = None) -> tuple[Locations, float]:
+    """Compressed residual data of the one location ``u`` with modal damping ``zeta``, and RSS_0.
+
+    ``in_idx`` and ``T`` (applied loads) as in :func:`ssid.discrepancy.response.nominal_response`.
+    """
     w = np.asarray(omega, dtype=float)[:, None]
     inv_den = 1.0 / (lam[None, :] - w**2 + 2j * zeta * np.sqrt(np.abs(lam))[None, :] * w)
     po, pi = phi[out_idx], phi[in_idx]
-    H_nom = -(w[:, :, None] ** 2) * np.einsum("or,kr,ir->koi", po, inv_den, pi, optimize=True)
+    H_nom = -(w[:, :, None] ** 2) * to_inputs(np.einsum("or,kr,ir->koi", po, inv_den, pi, optimize=True), T)
     pu = phi.T @ u
     g_o = (inv_den * pu[None, :]) @ po.T  # (n_freq, n_out)
-    g_i = (inv_den * pu[None, :]) @ pi.T  # (n_freq, n_in)
+    g_i = to_inputs((inv_den * pu[None, :]) @ pi.T, T)  # (n_freq, n_in)
     g = inv_den @ pu**2
     R = np.where(W > 0, H - H_nom, 0)
     W2 = W**2
@@ -77,7 +80,7 @@ def _fit_at(cand: Candidate, loc: Locations, omega: np.ndarray) -> tuple[float, 
 
 
 def joint_damping_fit(cand: Candidate, model: Model, lam, phi, out_idx, in_idx, omega, H, W,
-                      zeta0: float) -> tuple[float, Effect, float]:
+                      zeta0: float, T: np.ndarray | None = None) -> tuple[float, Effect, float]:
     """Damping ratio and effect parameters fitted together: ``(zeta, effect, rss)``.
 
     Outer: bounded 1-D search on ``log zeta`` within a factor 3 of ``zeta0``; inner: the
@@ -88,7 +91,7 @@ def joint_damping_fit(cand: Candidate, model: Model, lam, phi, out_idx, in_idx, 
 
     def rss_of(log_zeta: float) -> float:
         z = float(np.exp(log_zeta))
-        loc, rss0 = modal_location(lam, phi, out_idx, in_idx, omega, z, u, H, W)
+        loc, rss0 = modal_location(lam, phi, out_idx, in_idx, omega, z, u, H, W, T)
         cost, pars = _fit_at(cand, loc, omega)
         rss = rss0 - float(loc.explained[0]) + cost
         if not np.isfinite(rss):
@@ -117,10 +120,12 @@ def _leaders(search: SearchResult, n: int) -> list[Candidate]:
     return out
 
 
-def search_undamped(model: Model, data: FRFData, omega, H, W, valid, out_idx, in_idx, search_fn):
+def search_undamped(model: Model, data: FRFData, omega, H, W, valid, out_idx, in_idx, search_fn,
+                    T: np.ndarray | None = None):
     """The search for a model without C (module docstring).
 
-    ``search_fn(C) -> SearchResult`` runs one search round with damping matrix ``C``.
+    ``search_fn(C) -> SearchResult`` runs one search round with damping matrix ``C``;
+    ``in_idx`` and ``T`` (applied loads) as in :func:`ssid.discrepancy.response.nominal_response`.
 
     Returns
     -------
@@ -131,7 +136,7 @@ def search_undamped(model: Model, data: FRFData, omega, H, W, valid, out_idx, in
     lam, phi = normal_modes(model.M, model.K)
 
     def nominal_frf(z):
-        return modal_accelerance(lam, phi, out_idx, in_idx, omega, z)
+        return modal_accelerance(lam, phi, out_idx, in_idx, omega, z, T=T)
 
     zeta_nom = fit_global_damping(H, W, nominal_frf)
     rss_none = float(np.sum(W**2 * np.abs(H - nominal_frf(zeta_nom)) ** 2))
@@ -149,12 +154,12 @@ def search_undamped(model: Model, data: FRFData, omega, H, W, valid, out_idx, in
         u = effect_direction(model.n, model.dofs, eff)
         delta = effect_dynamic_stiffness(eff, omega)
         zeta = fit_global_damping(H, W, lambda z, u=u, delta=delta: modal_accelerance(
-            lam, phi, out_idx, in_idx, omega, z, u=u, delta=delta), zeta_range=(zeta / 4, zeta * 4))
+            lam, phi, out_idx, in_idx, omega, z, u=u, delta=delta, T=T), zeta_range=(zeta / 4, zeta * 4))
         how = "refitted to the FRFs with the effect found in place"
         search = search_fn(zeta * C1)
     joint = []
     for cand in _leaders(search, N_JOINT):
-        z, eff, rss = joint_damping_fit(cand, model, lam, phi, out_idx, in_idx, omega, H, W, zeta)
+        z, eff, rss = joint_damping_fit(cand, model, lam, phi, out_idx, in_idx, omega, H, W, zeta, T)
         joint.append((float(search.criterion(rss, eff.n_parameters)), z, eff))
     if joint:
         _, z, eff = min(joint, key=lambda t: t[0])

@@ -25,8 +25,9 @@ import numpy as np
 
 from ..correlate_frf import frf_gap
 from ..errors import InputError
-from ..frf import FRFData, accelerance_from_model
+from ..frf import AppliedLoads, FRFData
 from ..io import Model
+from ..reaction_loads import choose_reactions, model_frf_under_loads, weights_with_reaction_noise
 from .effects import Effect, apply_effect_to_model, effect_dynamic_stiffness
 from .report import (
     LOG_GAP_METRIC,
@@ -132,8 +133,8 @@ def _localisation(search: SearchResult, dofs: list[str], n_top: int = 10) -> dic
     }
 
 
-def _search(model: Model, C, omega, H, W, out_idx, in_idx) -> SearchResult:
-    return search_round(model.M, C, model.K, model.dofs, omega, H, W, out_idx, in_idx)
+def _search(model: Model, C, omega, H, W, out_idx, in_idx, T) -> SearchResult:
+    return search_round(model.M, C, model.K, model.dofs, omega, H, W, out_idx, in_idx, T=T)
 
 
 def _validate(search: SearchResult, tries: int = 3) -> list[dict]:
@@ -164,6 +165,7 @@ def find_discrepancy(
     max_effects: int = 1,
     second_round: bool = True,
     n_bands: int = 8,
+    reactions: str = "auto",
 ) -> DiscrepancyResult:
     """Find the effect missing from ``model`` that explains the measured ``frf``.
 
@@ -183,6 +185,11 @@ def find_discrepancy(
         Search again on the updated model and report whether another effect is indicated.
     n_bands : int
         Bands of the gap-by-band report.
+    reactions : {"auto", "apply", "ignore"}
+        FRFs measured on a test stand carry the interface reactions: ``apply`` loads the
+        model with them (a model of the substructure alone), ``ignore`` does not (a model
+        that includes the stand), ``auto`` takes the one that reproduces the data better
+        (:mod:`ssid.reaction_loads`).
 
     Returns
     -------
@@ -197,17 +204,24 @@ def find_discrepancy(
     W, noise = noise_weights(data, valid)
     H = np.where(valid, data.H, 0)
     omega = data.omega
+    choice = choose_reactions(model.M, model.C, model.K, model.dofs, data, reactions)
+    loads = choice.loads
+    T = None if loads is None else loads.T
     out_idx = np.array([model.dofs.index(d) for d in data.outputs])
-    in_idx = np.array([model.dofs.index(d) for d in data.inputs])
+    in_idx = np.array([model.dofs.index(d) for d in (data.inputs if loads is None else loads.dofs)])
+    if loads is not None and loads.var is not None:
+        W = weights_with_reaction_noise(W, model.M, model.C, model.K, model.dofs, data, loads)
+        noise = {**noise, "reactions": "the measured reactions' stated variance, through the nominal "
+                 "model, added to each value's"}
     warnings: list[str] = []
 
     C, damping = model.C, "model C"
     if model.C is None:
         search, C, _, damping = search_undamped(
             model, data, omega, H, W, valid, out_idx, in_idx,
-            lambda C_: _search(model, C_, omega, H, W, out_idx, in_idx))
+            lambda C_: _search(model, C_, omega, H, W, out_idx, in_idx, T), T)
     else:
-        search = _search(model, C, omega, H, W, out_idx, in_idx)
+        search = _search(model, C, omega, H, W, out_idx, in_idx, T)
     validation = _validate(search)
     t_search = time.perf_counter() - t0
 
@@ -218,20 +232,20 @@ def find_discrepancy(
     for eff in effects:
         updated = apply_effect_to_model(updated, eff)
     H_nom = search.nominal.H
-    H_upd = _model_frf(updated, data)
+    H_upd = _model_frf(updated, data, loads)
 
     rounds = [_round_json(search, H, valid, model.dofs)]
     second = None
     if second_round and effects:
-        second = _search(updated, updated.C, omega, H, W, out_idx, in_idx)
+        second = _search(updated, updated.C, omega, H, W, out_idx, in_idx, T)
         _validate(second)
         rounds.append(_round_json(second, H, valid, updated.dofs))
         if second.best.name != "none" and max_effects >= 2:
-            effects = _backfit(nominal, effects[0], second.best.effect, omega, H, W, out_idx, in_idx)
+            effects = _backfit(nominal, effects[0], second.best.effect, omega, H, W, out_idx, in_idx, T)
             updated = nominal
             for eff in effects:
                 updated = apply_effect_to_model(updated, eff)
-            H_upd = _model_frf(updated, data)
+            H_upd = _model_frf(updated, data, loads)
     gap_before = noise_gap(H, H_nom, W)
     gap_after = noise_gap(H, H_upd, W)
     residual = _residual_statement(second, effects, gap_after)
@@ -255,13 +269,15 @@ def find_discrepancy(
         "inputs": list(data.inputs),
         "noise": noise,
         "damping_source": damping,
+        "reactions": choice.to_json_dict(),
         "residual": residual,
         "tried": search.tried,
         "localisation": _localisation(search, model.dofs),
         "gap_by_band": gap_by_band(data.freq_hz, H, {"nominal": H_nom, "updated": H_upd}, W, n_bands),
         "gap_by_frf": {"outputs": list(data.outputs), "inputs": list(data.inputs),
                        "nominal": gap_by_frf(H, H_nom, W), "updated": gap_by_frf(H, H_upd, W)},
-        "paired_modes": paired_modes(data, valid, {"nominal": nominal, "updated": updated}, out_idx),
+        "paired_modes": paired_modes(data, valid, {"nominal": nominal, "updated": updated}, out_idx,
+                                     None if loads is None else {"nominal": H_nom, "updated": H_upd}),
         "rounds": rounds,
         "warnings": warnings,
         "timing_s": {"search": t_search, "total": time.perf_counter() - t0},
@@ -280,7 +296,7 @@ def find_discrepancy(
     return DiscrepancyResult(first, effects, gap_before, gap_after, cands, updated, info, arrays)
 
 
-def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx, in_idx,
+def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx, in_idx, T,
              sweeps: int = 2) -> list[Effect]:
     """Two effects refitted in turn, each with the other in place (backfitting).
 
@@ -295,16 +311,15 @@ def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx
     for _ in range(sweeps):
         for k in (0, 1):
             base = apply_effect_to_model(nominal, effects[1 - k])
-            found = _search(base, base.C, omega, H, W, out_idx, in_idx)
+            found = _search(base, base.C, omega, H, W, out_idx, in_idx, T)
             _validate(found)
             if found.best.name != "none" and all(d in nominal.dofs for d in found.best.effect.dofs):
                 effects[k] = found.best.effect
     return effects
 
 
-def _model_frf(model: Model, data: FRFData) -> np.ndarray:
-    return accelerance_from_model(model.M, model.C, model.K, model.dofs, data.freq_hz,
-                                  data.outputs, data.inputs).H
+def _model_frf(model: Model, data: FRFData, loads: AppliedLoads | None) -> np.ndarray:
+    return model_frf_under_loads(model.M, model.C, model.K, model.dofs, data, loads)
 
 
 def _round_json(search: SearchResult, H, valid, dofs) -> dict:

@@ -72,6 +72,41 @@ def example_system(n: int = 14, seed: int = 1) -> tuple[np.ndarray, np.ndarray, 
     return chain_model(m, kb, kg, cb, cg, extra)
 
 
+def mount_on_test_stand(
+    M: np.ndarray,
+    C: np.ndarray,
+    K: np.ndarray,
+    dofs: list[str],
+    reactions: list[str],
+    stand_mass_kg: float = 20.0,
+    stand_k_n_per_m: float = 2e6,
+    stand_c_n_s_per_m: float = 40.0,
+    ground_k_n_per_m: float = 5e6,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    """A substructure bolted to a flexible test stand: the coupled M, C, K and DOF labels.
+
+    Each reaction DOF ``r`` of the substructure is tied by a spring-damper (``stand_k``,
+    ``stand_c``) to its own stand mass (DOF ``"stand@r"``, appended after the substructure's),
+    which sits on a spring to ground: the stand has dynamics of its own, as in report
+    section 6.6.
+    """
+    from ..frf import selection_matrix
+
+    n = M.shape[0]
+    nr = len(reactions)
+    Mc = np.zeros((n + nr, n + nr))
+    Cc = np.zeros_like(Mc)
+    Kc = np.zeros_like(Mc)
+    Mc[:n, :n], Cc[:n, :n], Kc[:n, :n] = M, C, K
+    Mc[n:, n:] = stand_mass_kg * np.eye(nr)
+    # Interface spring-dampers: element matrix [[1, -1], [-1, 1]] between x_r and x_stand.
+    T = np.hstack([selection_matrix(dofs, reactions).T, -np.eye(nr)])  # (nr, n + nr): x_r - x_t
+    Kc += stand_k_n_per_m * T.T @ T
+    Cc += stand_c_n_s_per_m * T.T @ T
+    Kc[n:, n:] += ground_k_n_per_m * np.eye(nr)
+    return Mc, Cc, Kc, list(dofs) + [f"stand@{r}" for r in reactions]
+
+
 def frf_on_test_stand(
     M: np.ndarray,
     C: np.ndarray,
@@ -87,9 +122,7 @@ def frf_on_test_stand(
 ):
     """Accelerances and interface reactions of a substructure bolted to a flexible test stand.
 
-    Each reaction DOF of the substructure is tied by a spring-damper (``stand_k``,
-    ``stand_c``) to its own stand mass, which sits on a spring to ground: the stand has
-    dynamics of its own, as in report section 6.6. The substructure's own M, C, K exclude the
+    The stand as in :func:`mount_on_test_stand`. The substructure's own M, C, K exclude the
     stand, so SSID with the measured reactions must recover them alone.
 
     Returns
@@ -101,17 +134,9 @@ def frf_on_test_stand(
 
     n = M.shape[0]
     nr = len(reactions)
-    Sr = selection_matrix(dofs, reactions)  # (n, nr)
-    Mc = np.zeros((n + nr, n + nr))
-    Cc = np.zeros_like(Mc)
-    Kc = np.zeros_like(Mc)
-    Mc[:n, :n], Cc[:n, :n], Kc[:n, :n] = M, C, K
-    Mc[n:, n:] = stand_mass_kg * np.eye(nr)
-    # Interface spring-dampers: element matrix [[1, -1], [-1, 1]] between x_r and x_stand.
-    T = np.hstack([Sr.T, -np.eye(nr)])  # (nr, n + nr): relative motion x_r - x_t
-    Kc += stand_k_n_per_m * T.T @ T
-    Cc += stand_c_n_s_per_m * T.T @ T
-    Kc[n:, n:] += ground_k_n_per_m * np.eye(nr)
+    Mc, Cc, Kc, _ = mount_on_test_stand(M, C, K, dofs, reactions, stand_mass_kg, stand_k_n_per_m,
+                                        stand_c_n_s_per_m, ground_k_n_per_m)
+    T = np.hstack([selection_matrix(dofs, reactions).T, -np.eye(nr)])  # relative motion x_r - x_t
     freq_hz = np.asarray(freq_hz, dtype=float)
     w = 2 * np.pi * freq_hz
     D = np.vstack([selection_matrix(dofs, inputs), np.zeros((nr, len(inputs)))])

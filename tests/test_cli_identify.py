@@ -100,6 +100,10 @@ def test_lab_demo_end_to_end(tmp_path):
     assert disc["effect"] == "added_mass" and disc["dofs"] == ["6+Z"]
     assert abs(disc["parameters"]["mass_kg"] - 0.25) < 0.05
     assert disc["gap_after"] < 0.5 * disc["gap_before"]
+    # And from the FE payload model alone, loaded by the measured reactions (no stand model).
+    sub = summary["discrepancy_substructure"]
+    assert sub["reactions"]["applied"] and (sub["effect"], sub["dofs"]) == ("added_mass", ["6+Z"])
+    assert abs(sub["parameters"]["mass_kg"] - 0.25) < 0.05 and sub["gap_after"] < 0.5 * sub["gap_before"]
     # The printed table pairs each identified mode with its FE mode by MAC, as correlation.json
     # does (the hidden mass swaps the close pair's order), not by mode number.
     pairs = {m["test_mode"]: m["analysis_mode"]

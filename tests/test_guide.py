@@ -58,6 +58,11 @@ def test_guide_commands_run_as_written(tmp_path):
     assert 0.8 < z_truth < 1.2, z_truth
     assert abs(disc["gap_after"] / z_truth - 1) < 0.05, (disc["gap_after"], z_truth)
     assert "within the stated noise" in disc["residual"]["text"]
+    assert disc["reactions"]["in_file"] == ["4+Z", "8+Z", "18+Z"] and not disc["reactions"]["applied"]
+    # The payload model alone, loaded by the measured reactions, finds the same mass.
+    sub = json.loads((tmp_path / "discrepancy_fe.json").read_text())
+    assert sub["reactions"]["applied"] and (sub["effect"], sub["dofs"]) == ("added_mass", ["6+Z"])
+    assert abs(sub["parameters"]["mass_kg"] - 0.25) < 0.01 and sub["gap_after"] < 1.2
     placement = json.loads((tmp_path / "placement.json").read_text())
     assert {"4+Z", "8+Z", "18+Z"} <= set(placement["chosen"]) and len(placement["chosen"]) == 10
     for name in ("run.h5", "run.uff", "identified.h5", "correlation.json", "updated.h5",

@@ -221,6 +221,11 @@ class AppliedLoads:
     T: np.ndarray
     var: np.ndarray | None
 
+    def model_accelerance(self, M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: list[str],
+                          omega: np.ndarray, outputs: list[str]) -> np.ndarray:
+        """A model's accelerance from the load DOFs to ``outputs``, (n_freq, n_out, n_load)."""
+        return accelerance(M, C, K, omega, selection_matrix(dofs, self.dofs), selection_matrix(dofs, outputs).T)
+
     def predict(self, H_model: np.ndarray) -> np.ndarray:
         """``H_model @ T`` line by line: (n_freq, n_out, n_load) -> (n_freq, n_out, n_in)."""
         return np.einsum("kol,kli->koi", H_model, self.T)
@@ -263,5 +268,4 @@ def accelerance_under_test_loads(M: np.ndarray, C: np.ndarray | None, K: np.ndar
     outputs. Without reactions this is the plain accelerance.
     """
     loads = applied_loads(frf)
-    H = accelerance(M, C, K, frf.omega, selection_matrix(dofs, loads.dofs), selection_matrix(dofs, frf.outputs).T)
-    return loads.predict(H)
+    return loads.predict(loads.model_accelerance(M, C, K, dofs, frf.omega, frf.outputs))

@@ -79,10 +79,9 @@ def model_frf_under_loads(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, do
     With ``loads``: under the applied loads (:meth:`ssid.frf.AppliedLoads.predict`); None: a
     unit force at each input's DOF.
     """
-    S = selection_matrix(dofs, frf.outputs).T
     if loads is None:
-        return accelerance(M, C, K, frf.omega, selection_matrix(dofs, frf.inputs), S)
-    return loads.predict(accelerance(M, C, K, frf.omega, selection_matrix(dofs, loads.dofs), S))
+        return accelerance(M, C, K, frf.omega, selection_matrix(dofs, frf.inputs), selection_matrix(dofs, frf.outputs).T)
+    return loads.predict(loads.model_accelerance(M, C, K, dofs, frf.omega, frf.outputs))
 
 
 def _modal_c(M: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -160,7 +159,6 @@ def weights_with_reaction_noise(W: np.ndarray, M: np.ndarray, C: np.ndarray | No
     if loads.var is None:
         return W
     Cc = _modal_c(M, K) if C is None else C
-    H = accelerance(M, Cc, K, frf.omega, selection_matrix(dofs, loads.dofs), selection_matrix(dofs, frf.outputs).T)
-    var = loads.predicted_variance(H)
+    var = loads.predicted_variance(loads.model_accelerance(M, Cc, K, dofs, frf.omega, frf.outputs))
     ok = W > 0
     return np.where(ok, 1.0 / np.sqrt(1.0 / np.where(ok, W, 1.0) ** 2 + var), 0.0)

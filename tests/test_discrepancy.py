@@ -290,3 +290,21 @@ def test_52_dof_model_16_outputs_1000_lines_in_under_a_minute():
     res = find_discrepancy(case.nominal, case.frf)
     assert time.perf_counter() - t0 < 60.0
     assert (res.effect.name, res.dofs) == (case.truth.name, list(case.truth.dofs))
+
+
+def test_the_residual_line_says_whose_noise_it_is_within():
+    """A gap after the effect below 1.2 is "within the stated noise" only when the file stated
+    it (``H_var``); a level estimated from the data's roughness (e.g. a UFF import of an
+    adaptive stepped sine, where it came out 80 times too high) is said to be an estimate."""
+    from types import SimpleNamespace
+
+    from ssid.discrepancy.workflow import _residual_statement
+
+    nxt = SimpleNamespace(name="grounded_spring", rss=4.0,
+                          effect=Effect("grounded_spring", ("3",), {"stiffness_n_per_m": 1.0}))
+    second = SimpleNamespace(best=nxt, n_valid=100, none=lambda: SimpleNamespace(delta_criterion=-5.0))
+    first = [Effect("added_mass", ("2",), {"mass_kg": 0.1})]
+    assert "within the stated noise" in _residual_statement(second, first, 0.5)["text"]
+    text = _residual_statement(second, first, 0.5, stated=False)["text"]
+    assert "within the estimated noise: the file states none" in text and "stated noise" not in text
+    assert "within" not in _residual_statement(second, first, 3.0, stated=False)["text"]

@@ -248,7 +248,7 @@ def find_discrepancy(
             H_upd = _model_frf(updated, data, loads)
     gap_before = noise_gap(H, H_nom, W)
     gap_after = noise_gap(H, H_upd, W)
-    residual = _residual_statement(second, effects, gap_after)
+    residual = _residual_statement(second, effects, gap_after, noise["source"] == "H_var")
     if chosen.name == "none" and search.rss0 > 2.0 * search.n_valid:
         warnings.append("no effect of the library pays for its parameters, yet the residual is "
                         f"{search.rss0 / search.n_valid:.2g} times the noise level: the model "
@@ -337,8 +337,13 @@ def _round_json(search: SearchResult, H, valid, dofs) -> dict:
     }
 
 
-def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_after: float) -> dict:
-    """Does one effect close the gap? The residual and the next-best candidate."""
+def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_after: float,
+                        stated: bool = True) -> dict:
+    """Does one effect close the gap? The residual and the next-best candidate.
+
+    ``stated``: the noise level is the file's (``H_var``); else it was estimated from the
+    data's roughness, which a coarse or adaptive sweep overstates, and the text says so.
+    """
     nxt = None
     if second is not None:
         b = second.best
@@ -358,7 +363,9 @@ def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_
         # The search ranks with each model's own residual level, so it can still find a
         # pattern in a residual below the stated noise: say so, or the line reads as a
         # contradiction.
-        within = ", within the stated noise" if gap_after <= GAP_WITHIN_NOISE else ""
+        within = ((", within the stated noise" if stated else
+                   ", within the estimated noise: the file states none")
+                  if gap_after <= GAP_WITHIN_NOISE else "")
         # What the next effect would buy tells a pattern of the errors from a missing effect.
         text = (f"one effect does not close the gap (gap after {gap_after:.3g}{within}): the second "
                 f"search names {nxt['effect']} at {'-'.join(nxt['dofs'])}, which would lower it to "

@@ -196,6 +196,7 @@ def pair_table(summary: dict) -> str:
                      f"{summary['frf_gap']:.4g}, {summary['frf_gap_db']:.3g} dB rms")
     if summary.get("reactions", {}).get("text"):
         lines.append(summary["reactions"]["text"])
+    lines.extend(f"warning: {w}" for w in summary.get("warnings", []))
     return "\n".join(lines)
 
 

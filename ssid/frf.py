@@ -237,13 +237,12 @@ class AppliedLoads:
         return np.einsum("kol,kli->koi", np.abs(H_model) ** 2, self.var)
 
 
-def applied_loads(frf: FRFData, with_reactions: bool = True) -> AppliedLoads:
+def applied_loads(frf: FRFData) -> AppliedLoads:
     """What each input of ``frf``'s test applied to the structure (:class:`AppliedLoads`).
 
-    Without reactions in the file (or ``with_reactions`` False), the unit force at each
-    input's DOF alone.
+    Without reactions in the file, the unit force at each input's DOF alone.
     """
-    react = list(frf.reactions or []) if with_reactions and frf.H_reaction is not None else []
+    react = list(frf.reactions or []) if frf.H_reaction is not None else []
     dofs = list(frf.inputs) + [r for r in dict.fromkeys(react) if r not in frf.inputs]
     T = np.zeros((frf.n_freq, len(dofs), frf.n_in), complex)
     T[:, [dofs.index(d) for d in frf.inputs], np.arange(frf.n_in)] = 1.0

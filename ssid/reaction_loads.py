@@ -24,7 +24,7 @@ import numpy as np
 
 from .correlate_frf import frf_gap
 from .errors import InputError
-from .frf import AppliedLoads, FRFData, accelerance, applied_loads, selection_matrix
+from .frf import AppliedLoads, FRFData, accelerance_from_model, applied_loads
 
 __all__ = ["REACTION_CHOICES", "ReactionChoice", "choose_reactions", "model_frf_under_loads",
            "weights_with_reaction_noise"]
@@ -80,7 +80,7 @@ def model_frf_under_loads(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, do
     unit force at each input's DOF.
     """
     if loads is None:
-        return accelerance(M, C, K, frf.omega, selection_matrix(dofs, frf.inputs), selection_matrix(dofs, frf.outputs).T)
+        return accelerance_from_model(M, C, K, dofs, frf.freq_hz, frf.outputs, frf.inputs).H
     return loads.predict(loads.model_accelerance(M, C, K, dofs, frf.omega, frf.outputs))
 
 

@@ -128,12 +128,9 @@ def paired_modes(frf: FRFData, valid: np.ndarray, models: dict[str, Model],
     One dict per measured mode: ``test_freq_hz`` and, for each model ``name``,
     ``<name>_freq_hz``, ``<name>_mac``, ``<name>_freq_error_percent`` (None when unpaired).
     """
-    sv = cmif(frf.H, valid)
-    peaks = cmif_peaks(frf.freq_hz, sv)
-    if peaks.size == 0:
+    f_test, phi_test = _frf_modes(frf.freq_hz, frf.H, valid)
+    if f_test.size == 0:
         return []
-    f_test = refine_peak_frequencies(frf.freq_hz, sv[:, 0], peaks)
-    phi_test = real_mode_from_complex(cmif_shapes(frf.H, peaks, valid))
     rows = [{"test_freq_hz": float(f)} for f in f_test]
     for name, model in models.items():
         try:

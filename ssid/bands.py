@@ -41,7 +41,7 @@ from .band_scaling import (
 )
 from .correlate import modal_assurance
 from .errors import IdentificationError
-from .frf import FRFData
+from .frf import FRFData, require_response
 from .identify import identify_step1
 from .modal import modal_phase_collinearity, root_frequency_damping
 from .plots_bands import plot_band_roots
@@ -146,6 +146,7 @@ def process_bands(
     -------
     BandResult; ``selected`` holds one root per physical mode, ascending in frequency.
     """
+    require_response(frf)
     need = min_lines if min_lines is not None else band_min_lines(frf.n_out, frf.n_in, frf.n_react)
     roots: list[BandRoot] = []
     data: list[Step1Data] = []

@@ -42,7 +42,7 @@ from .correlate_frf import (
     refine_peak_frequencies,
 )
 from .errors import InputError
-from .frf import FRFData
+from .frf import FRFData, require_response
 from .io import Model
 from .reaction_loads import choose_reactions, model_frf_under_loads
 from .tam import (
@@ -269,6 +269,7 @@ def correlate_with_frf(
     missing = [d for d in frf.outputs if d not in set(analysis.dofs)]
     if missing:
         raise InputError(f"FRF output {missing[0]!r} is not among the analysis model's DOFs")
+    require_response(frf)
     lo = frf.freq_hz[0] if f_min_hz is None else f_min_hz
     hi = frf.freq_hz[-1] if f_max_hz is None else f_max_hz
     test = frf.band(lo, hi)

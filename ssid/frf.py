@@ -10,8 +10,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .errors import InputError
+
 __all__ = [
     "FRFData",
+    "require_response",
     "receptance",
     "mobility",
     "accelerance",
@@ -120,6 +123,60 @@ class FRFData:
             H_var=cut(self.H_var),
             H_reaction_var=cut(self.H_reaction_var),
         )
+
+
+# |H| far outside this range is no accelerance in SI units: 1e-100 (m/s^2)/N would take a
+# structure of 1e100 kg, and beyond it |H|^2 times omega^4 (the weights and powers the fits
+# form) leaves float64 before any physics does.
+PLAUSIBLE_ACCELERANCE = (1e-100, 1e100)
+
+
+def require_response(frf: FRFData, source: str = "FRF data") -> None:
+    """Refuse FRFs that no analysis can use: nothing valid, no response, a dead channel.
+
+    An output DOF whose every valid value is zero (over all inputs and lines) is an
+    accelerometer that measured nothing: unwired, dead, or a wrong channel map. An identified
+    model, a MAC or a discrepancy over that DOF would be silent garbage, so the analysis
+    stops with the channel's name instead. The same holds for an input to which no output
+    responds (a shaker that did not drive, or a channel map that points elsewhere).
+
+    Parameters
+    ----------
+    frf : FRFData
+        The measured FRFs (already checked against the file layout).
+    source : str
+        Name used at the start of the message (normally the file path).
+
+    Raises
+    ------
+    InputError
+        The first problem found, as one line starting with ``source``.
+    """
+    valid = frf.valid_mask()
+    if not valid.any():
+        raise InputError(f"{source}: every H value is marked invalid: nothing to analyse")
+    mag = np.where(valid, np.abs(np.nan_to_num(frf.H)), 0.0)
+    largest = float(mag.max())
+    if largest == 0.0:
+        raise InputError(f"{source}: every H value is zero: no response was measured "
+                         "(sensors unwired, or the wrong dataset?)")
+    lo, hi = PLAUSIBLE_ACCELERANCE
+    if not lo <= largest <= hi:
+        raise InputError(f"{source}: the largest |H| is {largest:.3g} (m/s^2)/N, outside "
+                         f"{lo:g} to {hi:g}: not an accelerance in SI units (a scale or unit "
+                         "error?)")
+    for axis, labels, kind, what in (
+            (1, frf.outputs, "output", "an accelerometer that measured nothing (unwired or dead?)"),
+            (2, frf.inputs, "input", "no output responded to it (a shaker that did not drive?)")):
+        other = (0, 2) if axis == 1 else (0, 1)
+        seen = mag.max(axis=other) > 0
+        if not seen.all():
+            dead = [labels[i] for i in np.flatnonzero(~seen)]
+            names = f"{kind}s {', '.join(map(repr, dead))} are" if len(dead) > 1 else \
+                f"{kind} {dead[0]!r} is"
+            raise InputError(
+                f"{source}: {names} zero or marked invalid at every line: {what}; every "
+                f"{kind} DOF must be measured: re-measure it or leave it out of the file")
 
 
 def selection_matrix(dofs: list[str], labels: list[str]) -> np.ndarray:

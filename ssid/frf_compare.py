@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
-from .frf import FRFData
+from .frf import FRFData, require_response
 
 __all__ = ["CALIBRATION_TOLERANCE", "SHAPE_NOISE_RATIO", "SHAPE_TOLERANCE", "CurveComparison", "FRFComparison",
            "compare_curves", "compare_frfs"]
@@ -175,6 +175,8 @@ def compare_frfs(a: FRFData, b: FRFData, rtol_hz: float = 1e-9) -> FRFComparison
     InputError
         No output and input label in common, or no frequency line in common.
     """
+    require_response(a, "first FRF data")
+    require_response(b, "second FRF data")
     outputs = [o for o in a.outputs if o in b.outputs]
     inputs = [i for i in a.inputs if i in b.inputs]
     if not outputs or not inputs:

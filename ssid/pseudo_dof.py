@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import IdentificationError
-from .frf import FRFData
+from .frf import FRFData, require_response
 from .modal import modal_phase_collinearity, root_frequency_damping
 from .pseudo_dof_step2 import (
     PseudoDofMCK,
@@ -179,6 +179,7 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
     n_partitions : p, the number of partitions stacked (the report's Eq. 5.24: 2); the
         model has order p n for n sensors.
     """
+    require_response(frf)
     if not frf.valid_mask().all():
         raise IdentificationError("pseudo DOFs need a record without blanked values")
     if n_partitions < 2:

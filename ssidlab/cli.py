@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ssid.errors import IdentificationError, InputError
-from ssid.io import read_frf, write_model
+from ssid.io import read_measured_frf, write_model
 from ssidlab import __version__
 from ssidlab.argtypes import check_output_paths, frequency_hz
 
@@ -196,7 +196,7 @@ def _run_identify(args: argparse.Namespace) -> int:
     if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
         raise InputError(f"--fmin ({args.fmin:g} Hz) must be below --fmax ({args.fmax:g} Hz)")
     check_output_paths([args.frf], [args.out, args.json])
-    frf = read_frf(args.frf)
+    frf = read_measured_frf(args.frf)
     _check_band(args.frf, frf, args.fmin, args.fmax)
 
     # Imported here: the solver stack is heavy, and input errors and --help must work even

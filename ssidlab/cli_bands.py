@@ -98,9 +98,9 @@ def run_bands(args: argparse.Namespace) -> int:
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
     from ssid.band_select import modal_model_from_bands
     from ssid.bands import band_layout, plot_band_roots, process_bands
-    from ssid.io import read_frf, write_model
+    from ssid.io import read_measured_frf, write_model
 
-    frf = read_frf(args.frf)
+    frf = read_measured_frf(args.frf)
     if frf.H_reaction is not None:
         raise InputError(f"{args.frf}: holds interface reactions; band processing with "
                          "reactions is not supported: over a narrow band, step 1 with reactions "

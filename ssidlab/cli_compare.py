@@ -44,11 +44,11 @@ def _row(c) -> str:
 
 def run_compare(args: argparse.Namespace) -> int:
     from ssid.frf_compare import compare_frfs
-    from ssid.io import read_frf
+    from ssid.io import read_measured_frf
     from ssidlab.argtypes import check_output_paths, write_json
 
     check_output_paths([args.a, args.b], [args.json])
-    a, b = read_frf(args.a), read_frf(args.b)
+    a, b = read_measured_frf(args.a), read_measured_frf(args.b)
     cmp = compare_frfs(a, b)
     n, bad = cmp.n_compared(), cmp.disagreeing()
     f = cmp.freq_hz

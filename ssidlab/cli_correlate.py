@@ -103,7 +103,7 @@ def run_correlate(args: argparse.Namespace) -> int:
         _check_plot_dir(args.plots, sources)
 
     from ssid.correlate_models import correlate_models, correlate_with_frf
-    from ssid.io import read_frf
+    from ssid.io import read_measured_frf
     from ssid.matrix_io import read_analysis_model
 
     analysis = read_analysis_model(models[0] if args.frf else models[1])
@@ -111,7 +111,7 @@ def run_correlate(args: argparse.Namespace) -> int:
         raise InputError(f"--targets: mode {max(args.targets)} but the analysis model has "
                          f"{analysis.n} modes")
     if args.frf:
-        frf = read_frf(args.frf)
+        frf = read_measured_frf(args.frf)
         study = correlate_with_frf(
             frf, analysis, tam=args.tam, interface=args.interface, targets=args.targets,
             zeta=args.zeta, f_min_hz=args.fmin, f_max_hz=args.fmax, reactions=args.reactions,

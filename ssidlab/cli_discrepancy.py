@@ -86,11 +86,11 @@ def run_discrepancy(args: argparse.Namespace) -> int:
 
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
     from ssid.discrepancy import find_discrepancy
-    from ssid.io import read_frf, write_model
+    from ssid.io import read_measured_frf, write_model
     from ssid.matrix_io import read_analysis_model
 
     model = read_analysis_model(args.model)
-    frf = read_frf(args.measured)
+    frf = read_measured_frf(args.measured)
     lo = -math.inf if args.fmin is None else args.fmin
     hi = math.inf if args.fmax is None else args.fmax
     in_band = (frf.freq_hz >= lo) & (frf.freq_hz <= hi)

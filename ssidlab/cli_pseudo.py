@@ -88,7 +88,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
                          "--partitions auto")
     check_output_paths([args.frf], [args.json, args.out, args.plot])
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
-    from ssid.io import Model, read_frf, write_model
+    from ssid.io import Model, read_measured_frf, write_model
     from ssid.pseudo_dof import (
         frf_relative_error,
         identify_pseudo_dof,
@@ -99,7 +99,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
         pseudo_modal_model,
     )
 
-    frf = read_frf(args.frf)
+    frf = read_measured_frf(args.frf)
     if frf.H_reaction is not None:
         raise InputError(f"{args.frf}: holds interface reactions; pseudo DOFs with reactions "
                          "are not supported (use ssidlab identify)")

@@ -87,10 +87,10 @@ def analyse_run(path: str | Path, setup=None, *, sim: bool = False, model_path: 
     """
     from ssid.frf import accelerance_under_test_loads
     from ssid.identify import identify_mck
-    from ssid.io import read_frf
+    from ssid.io import read_measured_frf
 
     path = Path(path)
-    frf = read_frf(path)
+    frf = read_measured_frf(path)
     res = identify_mck(frf)
     lo, hi = res.band_hz
     rows = [ModeRow(i + 1, float(f), float(z), float(m), bool(lo <= f <= hi))

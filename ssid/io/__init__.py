@@ -18,7 +18,7 @@ from ._common import (
     QUANTITY,
     SYMMETRY_RTOL,
 )
-from .frf_file import read_frf, validate_frf, write_frf
+from .frf_file import read_frf, read_measured_frf, validate_frf, write_frf
 from .model_file import Model, read_model, validate_model, write_model
 
 __all__ = [
@@ -30,6 +30,7 @@ __all__ = [
     "COHERENCE_SLACK",
     "Model",
     "read_frf",
+    "read_measured_frf",
     "write_frf",
     "validate_frf",
     "read_model",

@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from ssid.frf import FRFData
+from ssid.frf import FRFData, require_response
 
 from ._common import (
     _FRF_RESERVED_ATTRS,
@@ -90,6 +90,19 @@ def read_frf(path: PathLike) -> FRFData:
             attrs=_read_extra_attrs(f, _FRF_RESERVED_ATTRS),
         )
     return validate_frf(raw, src)
+
+
+def read_measured_frf(path: PathLike) -> FRFData:
+    """:func:`read_frf` for an analysis: also refuses a file with no response in it.
+
+    Besides the layout, the data must hold something to analyse (see
+    :func:`ssid.frf.require_response`): valid values, a response at every output and input
+    (no dead channel) and magnitudes of an accelerance in SI units. Conversion between
+    formats uses :func:`read_frf`, which carries such files through unchanged.
+    """
+    frf = read_frf(path)
+    require_response(frf, os.fspath(path))
+    return frf
 
 
 def write_frf(path: PathLike, frf: FRFData) -> None:

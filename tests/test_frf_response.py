@@ -1,0 +1,101 @@
+"""FRFs with nothing to analyse are refused with the channel named, never analysed into garbage.
+
+A dead accelerometer (zero at every line), a shaker that did not drive (no output responds to
+its input), an all-zero or all-blanked file, or values no accelerance in SI units can take.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ssid.errors import InputError
+from ssid.frf import require_response
+from ssid.io import read_frf, write_frf, write_model
+from conftest import chain_frf, chain_model
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def _with(**changes):
+    return dataclasses.replace(chain_frf(), **changes)
+
+
+def test_a_measured_record_passes():
+    require_response(chain_frf())
+    # a scale error of a few decades is not refused: it is data in other units, analysable
+    frf = chain_frf()
+    require_response(_with(H=frf.H * 1e-6))
+
+
+@pytest.mark.parametrize("make,fragment", [
+    (lambda f: _with(H=np.zeros_like(f.H)), "every H value is zero"),
+    (lambda f: _with(valid=np.zeros(f.H.shape, bool)), "every H value is marked invalid"),
+    (lambda f: _with(H=f.H * 1e120), "not an accelerance in SI units"),
+    (lambda f: _with(H=f.H * 1e-120), "not an accelerance in SI units"),
+])
+def test_records_with_nothing_to_analyse_are_refused(make, fragment):
+    with pytest.raises(InputError, match=fragment):
+        require_response(make(chain_frf()), "run.h5")
+
+
+def test_a_dead_output_and_a_dead_input_are_named():
+    frf = chain_frf()
+    H = frf.H.copy()
+    H[:, 1, :] = 0.0
+    with pytest.raises(InputError, match=r"run\.h5: output '2\+Z' is zero or marked invalid"):
+        require_response(_with(H=H), "run.h5")
+    valid = np.ones(frf.H.shape, bool)
+    valid[:, 2, :] = False
+    valid[:, 0, :] = False
+    with pytest.raises(InputError, match=r"outputs '1\+Z', '3\+Z' are zero"):
+        require_response(_with(valid=valid), "run.h5")
+    H = frf.H.copy()
+    H[:, :, 1] = 0.0
+    with pytest.raises(InputError, match=r"input '3\+Z' is zero or marked invalid.*did not drive"):
+        require_response(_with(H=H), "run.h5")
+
+
+def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO_ROOT), env.get("PYTHONPATH")]))
+    env.pop("SSIDLAB_DEBUG", None)
+    return subprocess.run([sys.executable, "-m", "ssidlab", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_every_analysis_command_refuses_a_dead_channel_and_convert_keeps_it(tmp_path):
+    frf = chain_frf(n_freq=200)
+    good = tmp_path / "good.h5"
+    write_frf(good, frf)
+    H = frf.H.copy()
+    H[:, 1, :] = 0.0
+    dead = tmp_path / "dead.h5"
+    write_frf(dead, dataclasses.replace(frf, H=H))
+    write_model(tmp_path / "model.h5", chain_model())
+    commands = [
+        ["identify", "dead.h5", "--out", "m.h5", "--json", "r.json"],
+        ["bands", "dead.h5", "--json", "b.json"],
+        ["pseudo-dof", "dead.h5", "--json", "p.json"],
+        ["correlate", "--model", "model.h5", "--frf", "dead.h5", "--json", "c.json"],
+        ["discrepancy", "--model", "model.h5", "--measured", "dead.h5", "--json", "d.json"],
+        ["compare", "good.h5", "dead.h5"],
+    ]
+    for args in commands:
+        proc = _run(*args, cwd=tmp_path)
+        lines = proc.stderr.splitlines()
+        assert proc.returncode == 2, (args, proc.stderr)
+        assert "Traceback" not in proc.stderr and len(lines) == 1, (args, proc.stderr)
+        assert lines[0].startswith(f"ssidlab {args[0]}: error: dead.h5: output '2+Z' is zero"), lines[0]
+    # conversion is not analysis: the file goes through as it is
+    proc = _run("convert", "dead.h5", "dead.uff", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = _run("convert", "dead.uff", "back.h5", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert np.all(read_frf(tmp_path / "back.h5").H[:, 1, :] == 0)

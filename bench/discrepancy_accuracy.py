@@ -10,6 +10,12 @@ partial measurement, 1-3 % noise; see its docstring). Effects and structures are
 turn so that every effect appears equally often on both structures; seeds are fixed. The
 workflow (``find_discrepancy``) is never shown the truth.
 
+``--calibration N`` adds N cases with one transducer's gain wrong (an accelerometer's
+sensitivity off by 10-20 %, entered in g for m/s^2, a factor 1000, or mounted reversed), every
+other one with a hidden effect as well: the workflow should flag channel gains
+(``info["calibration"]``), recover that gain and still name the effect; the effect and null
+cases count how often the flag is raised where no gain is wrong.
+
 ``--model-error REL`` gives the truth a distributed stiffness error the nominal model lacks
 (``K_true = S K S``, ``S = diag(1 + REL n)``): a test of how the workflow degrades when the
 nominal model is not exact apart from the one effect.
@@ -45,6 +51,10 @@ from ssid.discrepancy.cases import STRUCTURES, make_case
 EFFECTS = EFFECT_NAMES[:-1]
 PARAM_TOL = 0.20
 SEED0 = 1000
+#: Gains planted on one output in the calibration cases: sensitivity 10 % and 20 % off, a
+#: sensor calibrated in g entered as m/s^2, a factor 1000 (mm for m), a reversed sensor.
+CAL_GAINS = (1.1, 0.8, 1 / 9.80665, 1000.0, -1.0)
+CAL_RTOL = 0.05
 
 
 def plan(n_effect: int, n_null: int) -> list[tuple[int, str, str]]:
@@ -55,6 +65,34 @@ def plan(n_effect: int, n_null: int) -> list[tuple[int, str, str]]:
     for i in range(n_null):
         cases.append((SEED0 + 5000 + i, STRUCTURES[i % 2], "none"))
     return cases
+
+
+def run_calibration_case(spec: tuple[int, str, str, float, float]) -> dict:
+    """A case (hidden ``effect`` or none) whose output ``seed % n_out`` reads ``gain`` times
+    the truth."""
+    seed, structure, effect, gain, model_error = spec
+    case = make_case(seed, structure=structure, effect=effect, model_error=model_error)
+    frf = case.frf
+    i = seed % frf.n_out
+    frf.H = frf.H.copy()
+    frf.H[:, i, :] *= gain
+    if frf.H_var is not None:
+        frf.H_var = frf.H_var.copy()
+        frf.H_var[:, i, :] *= gain**2
+    res = find_discrepancy(case.nominal, frf)
+    cal = res.info["calibration"]
+    g = cal["output_gain"][frf.outputs[i]]
+    # Only ratios of gains are determined (an FRF is a ratio): compare with the median gain.
+    ratio = g / np.median(list(cal["output_gain"].values()))
+    # Flagged: the effect the search names once the gains are corrected.
+    fix = cal.get("with_gains_corrected") if cal["flagged"] else None
+    name, dofs = (res.effect.name, res.effect.dofs) if fix is None else (fix["effect"], fix["dofs"])
+    named = name == effect and (effect == "none" or set(dofs) == set(case.truth.dofs))
+    return {"seed": seed, "structure": structure, "gain": gain, "flagged": cal["flagged"],
+            "gain_found": ratio, "gain_ok": abs(ratio / gain - 1) <= CAL_RTOL, "effect": effect,
+            "named": named, "truth_text": case.truth.describe(),
+            "found_text": res.effect.describe() if fix is None else fix["text"], "gap_before": res.gap_before,
+            "gap_with_gains": cal["gap_with_gains"]}
 
 
 def run_case(spec: tuple[int, str, str, float]) -> dict:
@@ -75,7 +113,7 @@ def run_case(spec: tuple[int, str, str, float]) -> dict:
         "gap_before": res.gap_before, "gap_after": res.gap_after,
         "halved": res.gap_after <= 0.5 * res.gap_before, "time_s": dt,
         "undamped": case.info["undamped_nominal"], "n_out": case.info["n_out"],
-        "n_dofs": case.info["n_dofs"],
+        "n_dofs": case.info["n_dofs"], "calibration_flag": res.info["calibration"]["flagged"],
     }
 
 
@@ -124,8 +162,31 @@ def print_report(results: list[dict], wall_s: float) -> None:
         print(f"  seed {r['seed']} {r['structure']:<7} truth {r['truth_text']}\n"
               f"{'':>20}found {r['found_text']}  [{errs}] gap {r['gap_before']:.3g} -> {r['gap_after']:.3g}"
               f"{'  (model without C)' if r['undamped'] else ''}")
+    flagged = [r for r in results if r["calibration_flag"]]
+    print(f"\nChannel gains flagged where no gain is wrong: {len(flagged)} of {len(results)}")
+    for r in flagged:
+        print(f"  seed {r['seed']} {r['structure']:<7} truth {r['truth_text']}; found {r['found_text']}")
     t = np.array([r["time_s"] for r in results])
     print(f"\nTime per case: median {np.median(t):.2f} s, max {t.max():.2f} s; wall {wall_s:.0f} s")
+
+
+def print_calibration(rows: list[dict]) -> None:
+    print("\nCalibration cases (one output's gain wrong; every other case with a hidden effect too)")
+    for label, sel in (("no effect", [r for r in rows if r["effect"] == "none"]),
+                       ("with an effect", [r for r in rows if r["effect"] != "none"])):
+        print(f"  {label:<15} channel gains flagged {_rate(sel, 'flagged')}, gain within "
+              f"{100 * CAL_RTOL:g} % {_rate(sel, 'gain_ok')}, effect (or none) named at its DOF(s) "
+              f"{_rate(sel, 'named')}")
+    for g in CAL_GAINS:
+        sel = [r for r in rows if r["gain"] == g]
+        print(f"  gain {g:>8.4g}: flagged {_rate(sel, 'flagged')}, gain within {100 * CAL_RTOL:g} % "
+              f"{_rate(sel, 'gain_ok')}")
+    for r in rows:
+        if not (r["flagged"] and r["gain_ok"] and r["named"]):
+            print(f"  seed {r['seed']} {r['structure']:<7} gain {r['gain']:.4g}: found "
+                  f"{r['gain_found']:.4g}, flagged {r['flagged']}; truth {r['truth_text']}; "
+                  f"named {r['found_text']}; gap "
+                  f"{r['gap_before']:.3g}, {r['gap_with_gains']:.3g} with the gains")
 
 
 def world_cases() -> None:
@@ -162,7 +223,8 @@ def world_cases() -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="20 effect cases and 10 null cases")
+    ap.add_argument("--quick", action="store_true", help="20 effect cases, 10 null cases and 10 "
+                    "calibration cases")
     ap.add_argument("--cases", type=int, default=150, help="effect cases (default 150)")
     ap.add_argument("--null", type=int, default=50, help="null cases (default 50)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
@@ -170,6 +232,9 @@ def main() -> None:
     ap.add_argument("--model-error", type=float, default=0.0, metavar="REL",
                     help="distributed stiffness error of the truth that the nominal model lacks, "
                     "relative RMS (default 0: the nominal model is exact but for the effect)")
+    ap.add_argument("--calibration", type=int, default=40, metavar="N",
+                    help="cases with one transducer's gain wrong, every other one with a hidden "
+                    "effect too (default 40)")
     args = ap.parse_args()
     n_eff, n_null = (20, 10) if args.quick else (args.cases, args.null)
     print(f"discrepancy accuracy: {n_eff} effect cases + {n_null} null cases, {args.jobs} worker(s)")
@@ -186,6 +251,18 @@ def main() -> None:
     else:
         results = [run_case(s) for s in specs]
     print_report(results, time.perf_counter() - t0)
+    n_cal = 10 if args.quick else args.calibration
+    # Effects in turn on every other case; gains cycle independently of structure and effect.
+    cal_specs = [(SEED0 + 8000 + i, STRUCTURES[(i // 2) % 2],
+                  "none" if i % 2 == 0 else EFFECTS[(i // 2) % len(EFFECTS)],
+                  CAL_GAINS[i % len(CAL_GAINS)], args.model_error) for i in range(n_cal)]
+    if cal_specs:
+        if args.jobs > 1:
+            with mp.get_context("spawn").Pool(args.jobs) as pool:
+                cal = pool.map(run_calibration_case, cal_specs, chunksize=1)
+        else:
+            cal = [run_calibration_case(s) for s in cal_specs]
+        print_calibration(cal)
     if not args.no_world:
         world_cases()
 

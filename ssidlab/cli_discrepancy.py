@@ -136,4 +136,5 @@ def summary_text(data: dict) -> str:
     for c in data["candidates"][:6]:
         cp = ", ".join(f"{k} = {v:.4g}" for k, v in c["parameters"].items())
         lines.append(f"  {c['delta_criterion']:>10.1f}  {c['effect']:<20} {' - '.join(c['dofs']):<14} {cp}")
+    lines.extend(f"warning: {w}" for w in data.get("warnings", []))
     return "\n".join(x for x in lines if x)

@@ -308,3 +308,95 @@ def test_the_residual_line_says_whose_noise_it_is_within():
     text = _residual_statement(second, first, 0.5, stated=False)["text"]
     assert "within the estimated noise: the file states none" in text and "stated noise" not in text
     assert "within" not in _residual_statement(second, first, 3.0, stated=False)["text"]
+
+
+def test_no_effect_with_a_large_gap_is_not_called_agreement():
+    """``none`` winning says nothing pays for its parameters; with a gap well above the noise
+    the line must not read "the data agree with the nominal model"."""
+    from ssid.discrepancy.workflow import _residual_statement
+
+    small = _residual_statement(None, [], 0.9)
+    assert small["closed"] is True and "agree with the nominal model" in small["text"]
+    large = _residual_statement(None, [], 35.0)
+    assert large["closed"] is False
+    assert "agree" not in large["text"] and "35" in large["text"]
+
+
+@pytest.mark.parametrize("gain", [1000.0, 1 / 9.80665, -1.0, 1.2])
+def test_a_wrong_accelerometer_gain_is_flagged_not_named_an_effect(gain):
+    """One output scaled by a real factor (units, a typo in the sensitivity, a reversed
+    sensor): no change of M, C, K does that, so the channel-gain check must beat every effect
+    and recover the factor. Noise: 2 % relative, complex Gaussian (seeded)."""
+    M, C, K, dofs = example_system(8, seed=3)
+    freq = np.geomspace(10.0, 700.0, 500)
+    outs, ins = dofs[:5] + dofs[6:], [dofs[1], dofs[6]]
+    frf = accelerance_from_model(M, C, K, dofs, freq, outs, ins)
+    frf.H = _noisy(frf.H, seed=11)
+    frf.H[:, 3, :] *= gain
+    res = find_discrepancy(Model(M=M, K=K, C=C, dofs=dofs), frf)
+    cal = res.info["calibration"]
+    assert cal["flagged"] and cal["explains_better"], cal["text"]
+    assert any(w == cal["text"] for w in res.info["warnings"])
+    others = np.median([g for lbl, g in cal["output_gain"].items() if lbl != outs[3]])
+    # 2 % noise on 500 lines x 2 inputs: the factor is fixed to well under 1 %.
+    assert cal["output_gain"][outs[3]] / others == pytest.approx(gain, rel=0.01)
+    assert cal["gap_with_gains"] < 1.3  # within the noise once the gain is applied
+    assert f"output {outs[3]!r}" in cal["text"]
+    assert cal["with_gains_corrected"]["effect"] == "none", cal["with_gains_corrected"]
+
+
+@pytest.mark.parametrize("index", range(5))
+def test_a_physical_effect_is_not_mistaken_for_a_channel_gain(index):
+    """The effects of the library move or reshape resonances; channel gains cannot, so with
+    one effect hidden the check must not flag the transducers (2 % noise, seeded)."""
+    M, C, K, dofs = example_system(8, seed=3)
+    eff = _chain_effects(dofs)[index]
+    freq = np.geomspace(10.0, 700.0, 500)
+    outs, ins = dofs[:5] + dofs[6:], [dofs[1], dofs[6]]
+    M2, C2, K2, d2 = apply_effect(M, C, K, dofs, eff)
+    frf = accelerance_from_model(M2, C2, K2, d2, freq, outs, ins)
+    frf.H = _noisy(frf.H, seed=index)
+    res = find_discrepancy(Model(M=M, K=K, C=C, dofs=dofs), frf)
+    assert not res.info["calibration"]["flagged"], res.info["calibration"]["text"]
+
+
+def test_one_factor_on_every_frf_is_described_as_one():
+    """Every FRF 1.1 times the model's (a force gauge's sheet 10 % off, or the model's mass
+    scale): the gains flag it as one common factor, not as a list of channels."""
+    M, C, K, dofs = example_system(8, seed=3)
+    freq = np.geomspace(10.0, 700.0, 500)
+    outs, ins = dofs[:5] + dofs[6:], [dofs[1], dofs[6]]
+    frf = accelerance_from_model(M, C, K, dofs, freq, outs, ins)
+    frf.H = 1.1 * _noisy(frf.H, seed=12)
+    cal = find_discrepancy(Model(M=M, K=K, C=C, dofs=dofs), frf).info["calibration"]
+    assert cal["flagged"] and cal["explains_better"], cal["text"]
+    assert "every FRF x 1.1" in cal["text"], cal["text"]
+
+
+def test_a_wrong_gain_beside_a_real_effect_is_flagged_and_the_effect_still_named():
+    """A hidden 0.1 kg mass and an accelerometer reading 1.2 times the truth elsewhere: the
+    mass explains more than the gains, so it is named; with it added, the gains still pay
+    for their parameters, and the warning says the effect was fitted to miscalibrated data.
+    2 % noise (seeded)."""
+    M, C, K, dofs = example_system(8, seed=3)
+    eff = _chain_effects(dofs)[0]
+    freq = np.geomspace(10.0, 700.0, 500)
+    outs, ins = dofs[:5] + dofs[6:], [dofs[1], dofs[6]]
+    M2, C2, K2, d2 = apply_effect(M, C, K, dofs, eff)
+    frf = accelerance_from_model(M2, C2, K2, d2, freq, outs, ins)
+    frf.H = _noisy(frf.H, seed=21)
+    frf.H[:, 0, :] *= 1.2
+    res = find_discrepancy(Model(M=M, K=K, C=C, dofs=dofs), frf)
+    assert res.effect.name == "added_mass" and res.effect.dofs == eff.dofs
+    cal = res.info["calibration"]
+    assert cal["flagged"] and cal["pays_on_top_of_effect"] and not cal["explains_better"], cal["text"]
+    assert cal["basis"] == "updated"
+    others = np.median([g for lbl, g in cal["output_gain"].items() if lbl != outs[0]])
+    assert cal["output_gain"][outs[0]] / others == pytest.approx(1.2, rel=0.01)
+    assert cal["text"].startswith("with added_mass added, channel gains still explain")
+    fix = cal["with_gains_corrected"]
+    assert fix["effect"] == "added_mass" and fix["dofs"] == list(eff.dofs), fix
+    # with the data corrected the mass is no longer biased by the gain: within the 5 % that
+    # the uncorrupted cases of test_each_effect_is_named_with_its_dofs_and_parameters ask
+    assert fix["parameters"]["mass_kg"] == pytest.approx(0.1, rel=0.05)
+    assert fix["gap_after"] < 1.3

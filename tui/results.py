@@ -57,7 +57,8 @@ class RunResults:
             return "discrepancy workflow: " + ("; ".join(n for n in self.notes if "discrepancy" in n)
                                                or "no analysis model")
         if d["effect"] == "none":
-            return (f"discrepancy workflow: no missing effect: the model agrees with the data within noise "
+            # The workflow's own words: "agrees within noise" only when the gap is at the noise.
+            return (f"discrepancy workflow ({self.model_source}): no effect named: {d['residual']['text']} "
                     f"(gap {d['gap_before']:.3g})")
         params = ", ".join(f"{k} {v:.4g}" for k, v in d["parameters"].items())
         return (f"discrepancy workflow ({self.model_source}): {d['effect']} at {', '.join(d['dofs'])} "
@@ -127,6 +128,8 @@ def analyse_run(path: str | Path, setup=None, *, sim: bool = False, model_path: 
         out.discrepancy = disc.to_json_dict()
         out.updated_model = disc.updated_model
         out.updated = disc.arrays["H_updated"]  # on every line: the workflow was given the whole band
+        if disc.info["calibration"]["flagged"]:
+            out.notes.append(f"warning: {disc.info['calibration']['text']}")
     except Exception as exc:  # noqa: BLE001
         out.notes.append(f"discrepancy workflow: {one_line(exc)}")
     return out

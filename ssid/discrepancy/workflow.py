@@ -10,6 +10,9 @@
 4. A second round on the updated model says whether one effect closed the gap: if another
    effect still beats ``none`` it is reported (and, with ``max_effects=2``, added, the two
    refitted in turn each with the other in place).
+5. Channel gains (``ssid.discrepancy.calibration``): if one real gain per transducer explains
+   the data better than any effect, or still pays on top of the effect, the data are flagged
+   as miscalibrated and the search is run again on them corrected.
 
 Damping: a model file without C is given modal damping with one ratio for all modes, found
 as ``ssid.discrepancy.undamped`` describes. ``gap_before`` uses the nominal model with that
@@ -25,9 +28,10 @@ import numpy as np
 
 from ..correlate_frf import frf_gap
 from ..errors import InputError
-from ..frf import AppliedLoads, FRFData
+from ..frf import AppliedLoads, FRFData, require_response
 from ..io import Model
 from ..reaction_loads import choose_reactions, model_frf_under_loads, weights_with_reaction_noise
+from .calibration import check_channel_gains, fit_channel_gains
 from .effects import Effect, apply_effect_to_model, effect_dynamic_stiffness
 from .report import (
     LOG_GAP_METRIC,
@@ -197,6 +201,7 @@ def find_discrepancy(
     """
     t0 = time.perf_counter()
     _check(model, frf)
+    require_response(frf)
     lo = frf.freq_hz[0] if f_min_hz is None else f_min_hz
     hi = frf.freq_hz[-1] if f_max_hz is None else f_max_hz
     data = frf.band(lo, hi)
@@ -249,7 +254,14 @@ def find_discrepancy(
     gap_before = noise_gap(H, H_nom, W)
     gap_after = noise_gap(H, H_upd, W)
     residual = _residual_statement(second, effects, gap_after, noise["source"] == "H_var")
-    if chosen.name == "none" and search.rss0 > 2.0 * search.n_valid:
+    calibration = check_channel_gains(search, H, H_nom, H_upd, W, effects, data)
+    if calibration["flagged"]:
+        fix = _search_gains_corrected(nominal, omega, H, W, out_idx, in_idx, T, data, loads, calibration)
+        calibration["with_gains_corrected"] = fix
+        if fix is not None:
+            calibration["text"] += f"; {fix['text']}"
+        warnings.append(calibration["text"])
+    elif chosen.name == "none" and search.rss0 > 2.0 * search.n_valid:
         warnings.append("no effect of the library pays for its parameters, yet the residual is "
                         f"{search.rss0 / search.n_valid:.2g} times the noise level: the model "
                         "differs from the test in a way the library does not describe")
@@ -271,6 +283,7 @@ def find_discrepancy(
         "damping_source": damping,
         "reactions": choice.to_json_dict(),
         "residual": residual,
+        "calibration": calibration,
         "tried": search.tried,
         "localisation": _localisation(search, model.dofs),
         "gap_by_band": gap_by_band(data.freq_hz, H, {"nominal": H_nom, "updated": H_upd}, W, n_bands),
@@ -294,6 +307,39 @@ def find_discrepancy(
     cands = [_candidate_json(search, c, H, valid) for c in _listed(search)]
     first = effects[0] if effects else chosen.effect
     return DiscrepancyResult(first, effects, gap_before, gap_after, cands, updated, info, arrays)
+
+
+def _search_gains_corrected(nominal: Model, omega, H, W, out_idx, in_idx, T, data: FRFData,
+                            loads: AppliedLoads | None, calibration: dict, sweeps: int = 2) -> dict | None:
+    """The effect search again on the data divided by the channel gains, alternating.
+
+    Gains fitted against the nominal model may hold part of a real effect, and an effect
+    fitted to miscalibrated data part of the gains: each sweep corrects the data by the
+    current gains (a value's noise scales with it), searches, and refits the gains against
+    the model with the effect found. None when a gain is too small to divide by.
+    """
+    a = np.array([calibration["output_gain"][o] for o in data.outputs])
+    b = np.array([calibration["input_gain"][i] for i in data.inputs])
+    for _ in range(sweeps):
+        g = a[None, :, None] * b[None, None, :]
+        if np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))):
+            return None
+        Hc, Wc = H / g, W * np.abs(g)
+        found = _search(nominal, nominal.C, omega, Hc, Wc, out_idx, in_idx, T)
+        _validate(found)
+        updated = nominal if found.best.name == "none" else apply_effect_to_model(nominal, found.best.effect)
+        gains = fit_channel_gains(H, _model_frf(updated, data, loads), W)
+        a, b = gains.output_gain, gains.input_gain
+    eff = found.best.effect
+    g = a[None, :, None] * b[None, None, :]
+    before = noise_gap(H / g, found.nominal.H, W * np.abs(g))
+    after = noise_gap(H / g, _model_frf(updated, data, loads), W * np.abs(g))
+    named = "no effect" if eff.name == "none" else eff.describe()
+    return {"effect": eff.name, "dofs": list(eff.dofs), "parameters": dict(eff.parameters),
+            "output_gain": dict(zip(data.outputs, map(float, a))),
+            "input_gain": dict(zip(data.inputs, map(float, b))),
+            "gap_before": before, "gap_after": after,
+            "text": f"with the gains corrected, the search names {named} (gap {before:.3g} -> {after:.3g})"}
 
 
 def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx, in_idx, T,
@@ -354,6 +400,11 @@ def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_
     closed = nxt is None if (second is not None or not effects) else None
     if closed is None:
         text = f"{effects[0].describe()} found; whether it closes the gap was not checked"
+    elif not effects and gap_after > GAP_WITHIN_NOISE:
+        closed = False
+        text = (f"no effect of the library pays for its parameters, yet the gap is {gap_after:.3g} "
+                "(1 = noise level): the model differs from the test in a way the library does "
+                "not describe")
     elif not effects:
         text = "the data agree with the nominal model within noise: no effect pays for its parameters"
     elif closed:

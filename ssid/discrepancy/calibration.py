@@ -10,8 +10,10 @@ nominal model's FRFs,
 
     H_meas[k, i, j] ~ a_i b_j H_model[k, i, j],
 
-and ranks that model with the effects by the same criterion: if the gains explain the data
-better than any effect, the gap is the transducers' before it is the structure's.
+and ranks that model with the effects by the same criterion (:func:`check_channel_gains`):
+if the gains explain the data better than any effect, or still pay on top of the effect
+added, and some gain is more than ``GAIN_TOLERANCE`` off 1, the gap is the transducers'
+before it is the structure's.
 """
 
 from __future__ import annotations
@@ -97,7 +99,10 @@ def fit_channel_gains(H_meas: np.ndarray, H_model: np.ndarray, W: np.ndarray,
     Alternating least squares: with ``b`` fixed each ``a_i`` is a one-parameter linear fit
     (and vice versa), so each half-step lowers the cost and the pair converges to a
     stationary point; starting from ``a = b = 1`` (the model as it is) it finds the gains
-    nearest the nominal calibration, sign errors included.
+    nearest the nominal calibration, sign errors included. (Written out rather than handed
+    to ``scipy.optimize.least_squares``: each half-step is a closed-form ratio of sums over
+    the data already in memory, where a general solver would form an (n_values x n_gains)
+    Jacobian.)
 
     Parameters
     ----------

@@ -280,6 +280,14 @@ def test_bad_input_raises_input_error():
         find_discrepancy(model, FRFData(frf.freq_hz, bad, dofs, [dofs[0]]))
     with pytest.raises(InputError, match="frequency lines"):
         find_discrepancy(model, frf, f_min_hz=1000.0)
+    with pytest.raises(InputError, match="the model's M is zero"):
+        find_discrepancy(Model(M=0 * M, K=K, C=C, dofs=dofs), frf)
+    negative = M.copy()
+    negative[2, 2] = -1.0
+    with pytest.raises(InputError, match="the model's M has the eigenvalue -1"):
+        find_discrepancy(Model(M=negative, K=K, C=C, dofs=dofs), frf)
+    with pytest.raises(InputError, match="the model's K has the eigenvalue.*unstable"):
+        find_discrepancy(Model(M=M, K=-K, C=C, dofs=dofs), frf)
 
 
 def test_52_dof_model_16_outputs_1000_lines_in_under_a_minute():

@@ -85,6 +85,13 @@ def _check(model: Model, frf: FRFData) -> None:
             raise InputError(f"model {name} must be finite and {model.n} x {model.n}")
     if model.C is not None and (model.C.shape != (model.n, model.n) or not np.isfinite(model.C).all()):
         raise InputError(f"model C must be finite and {model.n} x {model.n}")
+    # Massless DOFs are allowed (a lumped model's rotations), a negative or absent mass and a
+    # negative stiffness (an unstable structure) are not: the search would fit effects to them.
+    for name, what in (("M", "a mass matrix"), ("K", "a stiffness matrix (an unstable model)")):
+        lam = np.linalg.eigvalsh(getattr(model, name))
+        if lam[-1] <= 0 or lam[0] < -1e-9 * lam[-1]:
+            problem = "is zero" if lam[-1] <= 0 and lam[0] >= 0 else f"has the eigenvalue {lam[0]:.3g}"
+            raise InputError(f"the model's {name} {problem}: not {what} of a physical structure")
 
 
 def _valid_mask(frf: FRFData) -> np.ndarray:

@@ -132,7 +132,7 @@ PLAUSIBLE_ACCELERANCE = (1e-100, 1e100)
 
 
 def require_response(frf: FRFData, source: str = "FRF data") -> None:
-    """Refuse FRFs that no analysis can use: nothing valid, no response, a dead channel.
+    """Refuse FRFs that no analysis can use: nothing valid, no response, a dead channel or load cell.
 
     An output DOF whose every valid value is zero (over all inputs and lines) is an
     accelerometer that measured nothing: unwired, dead, or a wrong channel map. An identified
@@ -177,6 +177,15 @@ def require_response(frf: FRFData, source: str = "FRF data") -> None:
             raise InputError(
                 f"{source}: {names} zero or marked invalid at every line: {what}; every "
                 f"{kind} DOF must be measured: re-measure it or leave it out of the file")
+    if frf.H_reaction is not None and frf.reactions:
+        # A reaction read as zero would be taken as a support that holds nothing: the
+        # substructure would be identified as free, silently.
+        dead = [lbl for lbl, row in zip(frf.reactions, np.abs(frf.H_reaction).max(axis=(0, 2)))
+                if row == 0]
+        if dead:
+            raise InputError(f"{source}: reaction {', '.join(map(repr, dead))} is zero at every line: a "
+                             "load cell that measured nothing (unwired or dead?); re-measure it, or "
+                             "write the file without reactions if the support is free there")
 
 
 def selection_matrix(dofs: list[str], labels: list[str]) -> np.ndarray:

@@ -62,6 +62,18 @@ def test_a_dead_output_and_a_dead_input_are_named():
         require_response(_with(H=H), "run.h5")
 
 
+def test_a_dead_load_cell_is_named():
+    """A reaction that reads zero at every line would make SSID identify a free
+    substructure, silently; it is refused by name."""
+    frf = chain_frf()
+    rng = np.random.default_rng(3)
+    R = rng.standard_normal((frf.n_freq, 2, frf.n_in)) + 1j * rng.standard_normal((frf.n_freq, 2, frf.n_in))
+    require_response(_with(H_reaction=R, reactions=["1+Z", "3+Z"]))
+    R[:, 1, :] = 0.0
+    with pytest.raises(InputError, match=r"run\.h5: reaction '3\+Z' is zero at every line"):
+        require_response(_with(H_reaction=R, reactions=["1+Z", "3+Z"]), "run.h5")
+
+
 def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO_ROOT), env.get("PYTHONPATH")]))

@@ -138,7 +138,9 @@ def require_response(frf: FRFData, source: str = "FRF data") -> None:
     accelerometer that measured nothing: unwired, dead, or a wrong channel map. An identified
     model, a MAC or a discrepancy over that DOF would be silent garbage, so the analysis
     stops with the channel's name instead. The same holds for an input to which no output
-    responds (a shaker that did not drive, or a channel map that points elsewhere).
+    responds (a shaker that did not drive, or a channel map that points elsewhere), and for
+    a reaction that is zero at every line (a dead load cell). A file whose largest |H| lies
+    outside :data:`PLAUSIBLE_ACCELERANCE` is refused as a unit or scale error.
 
     Parameters
     ----------
@@ -165,27 +167,30 @@ def require_response(frf: FRFData, source: str = "FRF data") -> None:
         raise InputError(f"{source}: the largest |H| is {largest:.3g} (m/s^2)/N, outside "
                          f"{lo:g} to {hi:g}: not an accelerance in SI units (a scale or unit "
                          "error?)")
-    for axis, labels, kind, what in (
-            (1, frf.outputs, "output", "an accelerometer that measured nothing (unwired or dead?)"),
-            (2, frf.inputs, "input", "no output responded to it (a shaker that did not drive?)")):
-        other = (0, 2) if axis == 1 else (0, 1)
-        seen = mag.max(axis=other) > 0
-        if not seen.all():
-            dead = [labels[i] for i in np.flatnonzero(~seen)]
-            names = f"{kind}s {', '.join(map(repr, dead))} are" if len(dead) > 1 else \
-                f"{kind} {dead[0]!r} is"
+    for other_axes, labels, kind, what in (
+            ((0, 2), frf.outputs, "output", "an accelerometer that measured nothing (unwired or dead?)"),
+            ((0, 1), frf.inputs, "input", "no output responded to it (a shaker that did not drive?)")):
+        dead = [labels[i] for i in np.flatnonzero(mag.max(axis=other_axes) == 0)]
+        if dead:
             raise InputError(
-                f"{source}: {names} zero or marked invalid at every line: {what}; every "
-                f"{kind} DOF must be measured: re-measure it or leave it out of the file")
+                f"{source}: {_named(kind, dead)} zero or marked invalid at every line: {what}; "
+                f"every {kind} DOF must be measured: re-measure it or leave it out of the file")
     if frf.H_reaction is not None and frf.reactions:
         # A reaction read as zero would be taken as a support that holds nothing: the
         # substructure would be identified as free, silently.
-        dead = [lbl for lbl, row in zip(frf.reactions, np.abs(frf.H_reaction).max(axis=(0, 2)))
-                if row == 0]
+        peak = np.abs(frf.H_reaction).max(axis=(0, 2))
+        dead = [lbl for lbl, p in zip(frf.reactions, peak) if p == 0]
         if dead:
-            raise InputError(f"{source}: reaction {', '.join(map(repr, dead))} is zero at every line: a "
-                             "load cell that measured nothing (unwired or dead?); re-measure it, or "
-                             "write the file without reactions if the support is free there")
+            raise InputError(f"{source}: {_named('reaction', dead)} zero at every line: a load cell "
+                             "that measured nothing (unwired or dead?); re-measure it, or write the "
+                             "file without reactions if the support is free there")
+
+
+def _named(kind: str, labels: list[str]) -> str:
+    """``"output '4+Z' is"`` or ``"outputs '4+Z', '5+Z' are"``."""
+    if len(labels) == 1:
+        return f"{kind} {labels[0]!r} is"
+    return f"{kind}s {', '.join(map(repr, labels))} are"
 
 
 def selection_matrix(dofs: list[str], labels: list[str]) -> np.ndarray:

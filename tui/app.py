@@ -20,6 +20,7 @@ No science or device logic lives here (:mod:`tui.session`, :mod:`tui.results`).
 
 from __future__ import annotations
 
+import asyncio
 from pathlib import Path
 from typing import ClassVar
 
@@ -433,15 +434,19 @@ class LabApp(SetupTabActions, App):
         self.query_one(ResultsPane).export_status("wrote " + ", ".join(str(p) for p in paths))
 
     async def action_quit(self) -> None:
-        self._stop_acquisition()
+        await self._stop_acquisition()
         await super().action_quit()
 
-    def _stop_acquisition(self) -> None:
+    async def _stop_acquisition(self) -> None:
         if self.acquisition is not None:
-            self.acquisition.shutdown()
+            # Waited for in a thread, never on this event loop: the worker reading the run's
+            # output hands each line to this loop and waits for it (call_from_thread), so a
+            # loop blocked in the wait (up to the 15 s grace) also stops that reader, and the
+            # screen freezes while the run reaches its safe state.
+            await asyncio.to_thread(self.acquisition.shutdown)
 
-    def on_unmount(self) -> None:
-        self._stop_acquisition()
+    async def on_unmount(self) -> None:
+        await self._stop_acquisition()
 
 
 def main(setup_path: str | None = None, *, out: str | None = None, sim: bool = True, model: str | None = None) -> int:

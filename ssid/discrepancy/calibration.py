@@ -71,10 +71,6 @@ class ChannelGains:
             return float("inf")
         return float(np.max(np.abs(np.log(g))))
 
-    def scaled(self, H_model: np.ndarray) -> np.ndarray:
-        """``a_i b_j H_model[k, i, j]``, (n_freq, n_out, n_in)."""
-        return self.output_gain[None, :, None] * self.input_gain[None, None, :] * H_model
-
     def describe(self, outputs: list[str], inputs: list[str], n_show: int = 3) -> str:
         """The gains farthest from 1 (on a log scale), e.g. ``"output '4+Z' x 1000"``: the
         measured FRFs of that channel over the model's."""
@@ -158,7 +154,7 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray, 
     n_eff = sum(e.n_parameters for e in effects)
     alone = fit_channel_gains(H, H_nom, W)
     d_alone = float(search.criterion(alone.rss, alone.n_parameters)) - float(search.best.criterion)
-    on_top, d_top = alone, d_alone
+    on_top, d_top, rss_upd = alone, d_alone, search.rss0
     if effects:
         on_top = fit_channel_gains(H, H_upd, W)
         rss_upd = float(np.sum(W**2 * np.abs(H - H_upd) ** 2))
@@ -171,8 +167,7 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray, 
     pays_on_top = bool(effects) and d_top < 0 and on_top.largest_deviation() > large
     gains, basis = (alone, "nominal") if explains_better or not pays_on_top else (on_top, "updated")
     gap = float(np.sqrt(gains.rss / search.n_valid))
-    H_ref = H_nom if basis == "nominal" else H_upd
-    gap0 = float(np.sqrt(np.sum(W**2 * np.abs(H - H_ref) ** 2) / search.n_valid))
+    gap0 = float(np.sqrt((search.rss0 if basis == "nominal" else rss_upd) / search.n_valid))
     which = gains.describe(data.outputs, data.inputs)
     cause = "a sensitivity entered wrong, a unit (g for m/s^2, lbf for N) or a reversed sensor?"
     if explains_better:

@@ -221,6 +221,14 @@ def world_cases() -> None:
               f"{res.gap_after:.3g}  ({time.perf_counter() - t0:.1f} s)")
 
 
+def _run_all(run, specs: list, jobs: int) -> list[dict]:
+    """``run`` on every spec, in ``jobs`` worker processes."""
+    if jobs > 1:
+        with mp.get_context("spawn").Pool(jobs) as pool:
+            return pool.map(run, specs, chunksize=1)
+    return [run(s) for s in specs]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="20 effect cases, 10 null cases and 10 "
@@ -245,11 +253,7 @@ def main() -> None:
         print(f"truth with a distributed stiffness error of {100 * args.model_error:g} % RMS "
               "that the nominal model lacks")
     t0 = time.perf_counter()
-    if args.jobs > 1:
-        with mp.get_context("spawn").Pool(args.jobs) as pool:
-            results = pool.map(run_case, specs, chunksize=1)
-    else:
-        results = [run_case(s) for s in specs]
+    results = _run_all(run_case, specs, args.jobs)
     print_report(results, time.perf_counter() - t0)
     n_cal = 10 if args.quick else args.calibration
     # Effects in turn on every other case; gains cycle independently of structure and effect.
@@ -257,12 +261,7 @@ def main() -> None:
                   "none" if i % 2 == 0 else EFFECTS[(i // 2) % len(EFFECTS)],
                   CAL_GAINS[i % len(CAL_GAINS)], args.model_error) for i in range(n_cal)]
     if cal_specs:
-        if args.jobs > 1:
-            with mp.get_context("spawn").Pool(args.jobs) as pool:
-                cal = pool.map(run_calibration_case, cal_specs, chunksize=1)
-        else:
-            cal = [run_calibration_case(s) for s in cal_specs]
-        print_calibration(cal)
+        print_calibration(_run_all(run_calibration_case, cal_specs, args.jobs))
     if not args.no_world:
         world_cases()
 

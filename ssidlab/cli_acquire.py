@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from ssid.errors import InputError
+from ssidlab.output_pump import OutputPump
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_STOPPED", "add_acquire_subcommand", "run_acquire"]
 
@@ -180,6 +181,8 @@ def run_acquire(args: argparse.Namespace) -> int:
     if control is not None:
         threading.Thread(target=_read_control, args=(control, sys.stdin), name="acquire-control", daemon=True).start()
     run_path = Path(out or setup.output_file)
+    # From here the run never waits for whoever reads its output (ssidlab.output_pump).
+    pump = OutputPump().start()
     try:
         summary = run_test(setup, out=out, resume=bool(args.resume), sim=args.sim, echo=echo, control=control,
                            events=_print_event if args.events else None, new_instruments=args.new_instruments)
@@ -194,6 +197,9 @@ def run_acquire(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGINT, previous_int)
+        # The instruments are safe and the file closed: give the reader a few seconds for
+        # the rest, but do not let one that stopped reading keep the process alive.
+        pump.close()
     _write_summary(args.json, summary)
     if not args.quiet and "n_lines" in summary:
         print(f"done: {summary['file']} ({summary['state']}; {summary['n_lines']} lines, "

@@ -10,7 +10,21 @@ nominal model's FRFs,
 
     H_meas[k, i, j] ~ a_i b_j H_model[k, i, j],
 
-and ranks that model with the effects by the same criterion (:func:`check_channel_gains`):
+On a test stand the substructure model is loaded by the measured interface reactions
+(``ssid.frf.AppliedLoads``), and a load cell's sensitivity scales the part of every FRF
+that its reaction carries. Split the model's FRFs into the part the unit input forces
+carry, ``H0``, and the part each reaction ``r`` carries, ``H_r`` (both linear in what was
+measured); with ``alpha_i``, ``beta_j`` and ``gamma_r`` the accelerometers', force gauges'
+and load cells' readings over the truth,
+
+    H_meas[k, i, j] = alpha_i (H0[k, i, j] / beta_j + sum_r H_r[k, i, j] / gamma_r),
+
+since the reactions per unit input, ``R / F``, were measured with both. So one more real
+gain per load cell: ``a_i (b_j H0 + sum_r g_r H_r)`` with ``g_r = 1 / gamma_r``. A wrong
+load cell otherwise looks much like a spring or damper at its DOF (a load cell reading
+25 % high: a grounded spring named there).
+
+The gains are ranked with the effects by the same criterion (:func:`check_channel_gains`):
 if the gains explain the data better than any effect, or still pay on top of the effect
 added, and some gain is more than ``GAIN_TOLERANCE`` off 1, the gap is the transducers'
 before it is the structure's.
@@ -18,15 +32,16 @@ before it is the structure's.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..frf import FRFData
+from ..frf import AppliedLoads, FRFData
+from ..reaction_loads import model_frf_under_loads
 from .effects import Effect
 from .search import SearchResult
 
-__all__ = ["ChannelGains", "fit_channel_gains", "check_channel_gains"]
+__all__ = ["ChannelGains", "ModelParts", "check_channel_gains", "fit_channel_gains", "model_parts"]
 
 #: Gains within this fraction of their median are described as one common factor.
 COMMON_RTOL = 0.02
@@ -37,6 +52,52 @@ COMMON_RTOL = 0.02
 #: (``bench/discrepancy_accuracy.py --model-error 0.005``); a calibration sheet's own
 #: uncertainty is 1-2 %.
 GAIN_TOLERANCE = 0.05
+
+
+@dataclass
+class ModelParts:
+    """A model's FRFs under the test's loads, split by the measured quantity that carries each part.
+
+    Attributes
+    ----------
+    H_inputs : (n_freq, n_out, n_in) complex
+        The part the unit input forces carry ((m/s^2)/N); the whole FRF off a stand.
+    H_reactions : (n_react, n_freq, n_out, n_in) complex
+        The part each measured reaction carries (its column of the loads times the model's
+        accelerance from its DOF); n_react = 0 when no reactions are applied.
+    """
+
+    H_inputs: np.ndarray
+    H_reactions: np.ndarray
+
+    @classmethod
+    def plain(cls, H_model: np.ndarray) -> ModelParts:
+        """No reactions applied: the FRF is the inputs' part alone."""
+        H = np.asarray(H_model)
+        return cls(H, np.zeros((0, *H.shape), dtype=complex))
+
+    def total(self) -> np.ndarray:
+        """The model's FRFs, (n_freq, n_out, n_in)."""
+        return self.H_inputs + self.H_reactions.sum(axis=0)
+
+
+def model_parts(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: list[str], frf: FRFData,
+                loads: AppliedLoads | None) -> ModelParts:
+    """:class:`ModelParts` of the model ``(M, C, K, dofs)`` for ``frf``'s test.
+
+    ``loads`` None (no reactions, or a model that includes the stand): the plain FRF. Else
+    the loads are the unit input forces plus ``frf.H_reaction`` at the reaction DOFs
+    (:func:`ssid.frf.applied_loads`), and each of the two is carried through the model's
+    accelerance from the load DOFs apart.
+    """
+    if loads is None or frf.H_reaction is None or not frf.reactions:
+        return ModelParts.plain(model_frf_under_loads(M, C, K, dofs, frf, None))
+    H_load = loads.model_accelerance(M, C, K, dofs, frf.omega, frf.outputs)  # (n_freq, n_out, n_load)
+    rows = [loads.dofs.index(d) for d in frf.inputs]
+    H_inputs = H_load[:, :, rows]
+    H_reactions = np.stack([H_load[:, :, loads.dofs.index(lbl), None] * frf.H_reaction[:, r, None, :]
+                            for r, lbl in enumerate(frf.reactions)])
+    return ModelParts(H_inputs, H_reactions)
 
 
 @dataclass
@@ -55,28 +116,38 @@ class ChannelGains:
     rss : float
         Weighted residual sum of squares left, ``sum |W (H_meas - a b H_model)|^2``.
     n_parameters : int
-        ``n_out + n_in - 1``: the gains' free parameters.
+        ``n_out + n_in + n_react - 1``: the gains' free parameters.
+    reaction_gain : (n_react,) float
+        ``gamma_r``: each load cell's reading over the force it carried, in the same scale as
+        the inputs' gains (1: agrees; empty when no reactions are applied).
     """
 
     output_gain: np.ndarray
     input_gain: np.ndarray
     rss: float
     n_parameters: int
+    reaction_gain: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def largest_deviation(self) -> float:
-        """``max |ln(a_i b_j)|`` over the FRFs (0.0953 for a gain of 1.1 or 1/1.1); infinite
-        when a gain is negative (a reversed channel) or zero."""
-        g = self.output_gain[:, None] * self.input_gain[None, :]
+        """``max |ln(a_i b_j)|`` over the FRFs and ``max |ln gamma_r|`` over the load cells
+        (0.0953 for a gain of 1.1 or 1/1.1); infinite when a gain is negative (a reversed
+        channel) or zero."""
+        g = np.concatenate([(self.output_gain[:, None] * self.input_gain[None, :]).ravel(), self.reaction_gain])
         if np.any(g <= 0):
             return float("inf")
         return float(np.max(np.abs(np.log(g))))
 
-    def describe(self, outputs: list[str], inputs: list[str], n_show: int = 3) -> str:
+    def describe(self, outputs: list[str], inputs: list[str], n_show: int = 3,
+                 reactions: list[str] | None = None) -> str:
         """The gains farthest from 1 (on a log scale), e.g. ``"output '4+Z' x 1000"``: the
-        measured FRFs of that channel over the model's."""
+        measured FRFs of that channel over the model's; ``"load cell '8+Z' x 1.25"``: that
+        load cell's reading over the force."""
         every = self.output_gain[:, None] * self.input_gain[None, :]
         common = float(np.median(every))
-        if np.all(np.abs(every / common - 1) <= COMMON_RTOL):
+        # A force gauge reading beta times the force scales every FRF and every reaction per
+        # unit input by 1/beta: the load cells then come out at the common factor too.
+        cells_agree = all(min(abs(g - 1), abs(g / common - 1)) <= COMMON_RTOL for g in self.reaction_gain)
+        if np.all(np.abs(every / common - 1) <= COMMON_RTOL) and cells_agree:
             # One factor for all: a force gauge (or a common amplifier gain) or the model's
             # overall mass scale; the FRFs alone cannot tell which.
             return (f"every FRF x {common:.4g} (one factor for all channels: a force gauge's "
@@ -84,26 +155,32 @@ class ChannelGains:
         gains = [("output", lbl, g) for lbl, g in zip(outputs, self.output_gain)]
         if len(inputs) > 1:
             gains += [("input", lbl, g) for lbl, g in zip(inputs, self.input_gain)]
+        gains += [("load cell", lbl, g) for lbl, g in zip(reactions or [], self.reaction_gain)]
         far = sorted(gains, key=lambda t: -abs(np.log(max(abs(t[2]), 1e-300))) - (t[2] < 0))
         return ", ".join(f"{kind} {lbl!r} x {g:.4g}" for kind, lbl, g in far[:n_show])
 
 
-def fit_channel_gains(H_meas: np.ndarray, H_model: np.ndarray, W: np.ndarray,
+def fit_channel_gains(H_meas: np.ndarray, H_model: np.ndarray | ModelParts, W: np.ndarray,
                       iterations: int = 100, rtol: float = 1e-10) -> ChannelGains:
-    """Real gains ``a`` (outputs) and ``b`` (inputs) minimising ``sum |W (H_meas - a b H_model)|^2``.
+    """Real gains ``a`` (outputs), ``b`` (inputs) and, on a stand, ``g`` (load cells) minimising
+    ``sum |W (H_meas - a_i (b_j H0 + sum_r g_r H_r))|^2`` (the module docstring).
 
-    Alternating least squares: with ``b`` fixed each ``a_i`` is a one-parameter linear fit
-    (and vice versa), so each half-step lowers the cost and the pair converges to a
-    stationary point; starting from ``a = b = 1`` (the model as it is) it finds the gains
-    nearest the nominal calibration, sign errors included. (Written out rather than handed
-    to ``scipy.optimize.least_squares``: each half-step is a closed-form ratio of sums over
-    the data already in memory, where a general solver would form an (n_values x n_gains)
-    Jacobian.)
+    Alternating least squares: with ``b`` and ``g`` fixed each ``a_i`` is a one-parameter
+    linear fit, and with ``a`` fixed ``b`` and ``g`` are a small linear least-squares problem
+    (without reactions each ``b_j`` on its own), so each half-step lowers the cost and the
+    sweeps converge to a stationary point; starting from all gains 1 (the model as it is) they
+    find the gains nearest the nominal calibration, sign errors included. (Written out rather
+    than handed to ``scipy.optimize.least_squares``: each half-step is a closed-form solve on
+    sums over the data already in memory, where a general solver would form an
+    (n_values x n_gains) Jacobian.)
 
     Parameters
     ----------
-    H_meas, H_model : (n_freq, n_out, n_in) complex
-        Measured and modelled accelerances (the model under the test's loads).
+    H_meas : (n_freq, n_out, n_in) complex
+        Measured accelerances.
+    H_model : (n_freq, n_out, n_in) complex or ModelParts
+        The model's accelerances under the test's loads; :class:`ModelParts` to fit the load
+        cells' gains too.
     W : (n_freq, n_out, n_in) float
         Weights ``1/sigma``, 0 where a value is not valid.
     iterations, rtol : int, float
@@ -113,14 +190,17 @@ def fit_channel_gains(H_meas: np.ndarray, H_model: np.ndarray, W: np.ndarray,
     -------
     ChannelGains
     """
+    parts = H_model if isinstance(H_model, ModelParts) else ModelParts.plain(H_model)
+    H0, Hr = parts.H_inputs, parts.H_reactions
     w2 = np.asarray(W, float) ** 2
-    cross = w2 * np.real(np.conj(H_model) * H_meas)  # (n_freq, n_out, n_in)
-    power = w2 * np.abs(H_model) ** 2
-    n_out, n_in = H_model.shape[1], H_model.shape[2]
-    a, b = np.ones(n_out), np.ones(n_in)
+    n_out, n_in, n_r = H0.shape[1], H0.shape[2], Hr.shape[0]
+    a, b, g = np.ones(n_out), np.ones(n_in), np.ones(n_r)
+
+    def model() -> np.ndarray:
+        return b[None, None, :] * H0 + np.einsum("r,rkij->kij", g, Hr)
 
     def cost() -> float:
-        return float(np.sum(w2 * np.abs(H_meas - a[None, :, None] * b[None, None, :] * H_model) ** 2))
+        return float(np.sum(w2 * np.abs(H_meas - a[None, :, None] * model()) ** 2))
 
     def fit(num: np.ndarray, den: np.ndarray, keep: np.ndarray) -> np.ndarray:
         # A channel the weights do not see keeps its gain.
@@ -128,8 +208,19 @@ def fit_channel_gains(H_meas: np.ndarray, H_model: np.ndarray, W: np.ndarray,
 
     last = cost()
     for _ in range(iterations):
-        a = fit(np.einsum("kij,j->i", cross, b), np.einsum("kij,j->i", power, b**2), a)
-        b = fit(np.einsum("kij,i->j", cross, a), np.einsum("kij,i->j", power, a**2), b)
+        P = model()
+        a = fit(np.einsum("kij->i", w2 * np.real(np.conj(P) * H_meas)), np.einsum("kij->i", w2 * np.abs(P) ** 2), a)
+        aH0 = a[None, :, None] * H0
+        if n_r == 0:
+            b = fit(np.einsum("kij->j", w2 * np.real(np.conj(aH0) * H_meas)), np.einsum("kij->j", w2 * np.abs(aH0) ** 2), b)
+        else:
+            # Basis of the (b, g) fit: a_i H0 in input j's column alone, then a_i H_r.
+            basis = np.concatenate([np.eye(n_in)[:, None, None, :] * aH0[None], a[None, None, :, None] * Hr])
+            weighted = w2[None] * np.conj(basis)
+            normal = np.real(np.einsum("pkij,qkij->pq", weighted, basis))
+            rhs = np.real(np.einsum("pkij,kij->p", weighted, H_meas))
+            x = np.linalg.lstsq(normal, rhs, rcond=None)[0]
+            b, g = x[:n_in], x[n_in:]
         now = cost()
         if last - now <= rtol * max(last, 1e-300):
             last = now
@@ -137,19 +228,24 @@ def fit_channel_gains(H_meas: np.ndarray, H_model: np.ndarray, W: np.ndarray,
         last = now
     if np.all(b != 0):
         common = float(np.exp(np.mean(np.log(np.abs(b)))))
-        a, b = a * common, b / common
-    return ChannelGains(a, b, last, n_out + n_in - 1)
+        a, b, g = a * common, b / common, g / common
+    with np.errstate(divide="ignore"):
+        gamma = np.where(g != 0, 1.0 / np.where(g != 0, g, 1.0), np.inf)
+    return ChannelGains(a, b, last, n_out + n_in + n_r - 1, gamma)
 
 
-def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray, H_upd: np.ndarray,
-                        W: np.ndarray, effects: list[Effect], data: FRFData) -> dict:
+def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray | ModelParts,
+                        H_upd: np.ndarray | ModelParts, W: np.ndarray, effects: list[Effect],
+                        data: FRFData) -> dict:
     """Channel gains against the effects, by the search's own EBIC; the workflow's
     ``info["calibration"]`` (``docs/discrepancy.md``, section 8).
 
     Two questions: do gains alone explain the data better than any effect (a calibration
     error and no structural change), and do gains still pay for their parameters on top of
     the effects added (a calibration error beside a real effect, whose parameters were then
-    fitted to miscalibrated data)?
+    fitted to miscalibrated data)? ``H_nom``, ``H_upd``: the nominal and updated models'
+    FRFs, as :class:`ModelParts` when the model is loaded by measured reactions (the load
+    cells' gains are then fitted too).
     """
     n_eff = sum(e.n_parameters for e in effects)
     alone = fit_channel_gains(H, H_nom, W)
@@ -157,7 +253,8 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray, 
     on_top, d_top, rss_upd = alone, d_alone, search.rss0
     if effects:
         on_top = fit_channel_gains(H, H_upd, W)
-        rss_upd = float(np.sum(W**2 * np.abs(H - H_upd) ** 2))
+        H_upd_total = H_upd.total() if isinstance(H_upd, ModelParts) else H_upd
+        rss_upd = float(np.sum(W**2 * np.abs(H - H_upd_total) ** 2))
         d_top = float(search.criterion(on_top.rss, n_eff + on_top.n_parameters)
                       - search.criterion(rss_upd, n_eff))
     # Significant is not enough: a few per cent of gain can stand in for a model that is
@@ -168,7 +265,8 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray, 
     gains, basis = (alone, "nominal") if explains_better or not pays_on_top else (on_top, "updated")
     gap = float(np.sqrt(gains.rss / search.n_valid))
     gap0 = float(np.sqrt((search.rss0 if basis == "nominal" else rss_upd) / search.n_valid))
-    which = gains.describe(data.outputs, data.inputs)
+    reactions = list(data.reactions or []) if gains.reaction_gain.size else []
+    which = gains.describe(data.outputs, data.inputs, reactions=reactions)
     cause = "a sensitivity entered wrong, a unit (g for m/s^2, lbf for N) or a reversed sensor?"
     if explains_better:
         text = (f"channel gains explain the data better than any effect of the library (gap {gap0:.3g} "
@@ -189,10 +287,14 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray, 
         "basis": basis,
         "output_gain": dict(zip(data.outputs, map(float, gains.output_gain))),
         "input_gain": dict(zip(data.inputs, map(float, gains.input_gain))),
+        "reaction_gain": dict(zip(reactions, map(float, gains.reaction_gain))),
         "gap_with_gains": gap,
         "delta_criterion_alone": d_alone,
         "delta_criterion_on_top": d_top,
         "model": "H_meas[k, i, j] ~ a_i b_j H_model[k, i, j], one real gain per output and per "
                  "input (a factor common to all is given to the outputs); H_model the nominal "
-                 "model's (basis nominal) or the updated one's (basis updated)",
+                 "model's (basis nominal) or the updated one's (basis updated); under measured "
+                 "reactions H_meas ~ a_i (b_j H0 + sum_r H_r / gamma_r), H0 and H_r the parts of "
+                 "H_model the unit input forces and each reaction carry, gamma_r (reaction_gain) "
+                 "the load cell's reading over the force",
     }

@@ -31,7 +31,7 @@ from ..errors import InputError
 from ..frf import AppliedLoads, FRFData, require_response
 from ..io import Model
 from ..reaction_loads import choose_reactions, model_frf_under_loads, weights_with_reaction_noise
-from .calibration import check_channel_gains, fit_channel_gains
+from .calibration import ModelParts, check_channel_gains, fit_channel_gains, model_parts
 from .effects import Effect, apply_effect_to_model, effect_dynamic_stiffness
 from .report import (
     LOG_GAP_METRIC,
@@ -261,7 +261,11 @@ def find_discrepancy(
     gap_before = noise_gap(H, H_nom, W)
     gap_after = noise_gap(H, H_upd, W)
     residual = _residual_statement(second, effects, gap_after, noise["source"] == "H_var")
-    calibration = check_channel_gains(search, H, H_nom, H_upd, W, effects, data)
+    if loads is None:
+        parts_nom, parts_upd = H_nom, H_upd
+    else:  # the load cells' gains are fitted too
+        parts_nom, parts_upd = _model_parts(nominal, data, loads), _model_parts(updated, data, loads)
+    calibration = check_channel_gains(search, H, parts_nom, parts_upd, W, effects, data)
     if calibration["flagged"]:
         fix = _search_gains_corrected(nominal, omega, H, W, out_idx, in_idx, T, data, loads, calibration)
         calibration["with_gains_corrected"] = fix
@@ -322,31 +326,56 @@ def _search_gains_corrected(nominal: Model, omega, H, W, out_idx, in_idx, T, dat
 
     Gains fitted against the nominal model may hold part of a real effect, and an effect
     fitted to miscalibrated data part of the gains: each sweep corrects the data by the
-    current gains (a value's noise scales with it), searches, and refits the gains against
-    the model with the effect found. None when a gain is too small to divide by.
+    current gains (a value's noise scales with it; the measured reactions per unit input by
+    their load cells' and force gauges' gains), searches, and refits the gains against the
+    model with the effect found. None when a gain is too small to divide by.
     """
     a = np.array([calibration["output_gain"][o] for o in data.outputs])
     b = np.array([calibration["input_gain"][i] for i in data.inputs])
+    # Load cells have gains only when their reactions load the model.
+    gamma = (np.zeros(0) if loads is None
+             else np.array([calibration["reaction_gain"].get(r, 1.0) for r in (data.reactions or [])]))
     for _ in range(sweeps):
         g = a[None, :, None] * b[None, None, :]
-        if np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))):
+        if np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))) or np.any(~np.isfinite(gamma)):
             return None
         Hc, Wc = H / g, W * np.abs(g)
-        found = _search(nominal, nominal.C, omega, Hc, Wc, out_idx, in_idx, T)
+        loads_c = _loads_corrected(loads, data, b, gamma)
+        found = _search(nominal, nominal.C, omega, Hc, Wc, out_idx, in_idx, None if loads_c is None else loads_c.T)
         _validate(found)
         updated = nominal if found.best.name == "none" else apply_effect_to_model(nominal, found.best.effect)
-        gains = fit_channel_gains(H, _model_frf(updated, data, loads), W)
+        gains = fit_channel_gains(H, _model_parts(updated, data, loads) if loads is not None
+                                  else _model_frf(updated, data, loads), W)
         a, b = gains.output_gain, gains.input_gain
+        if gains.reaction_gain.size:
+            gamma = gains.reaction_gain
     eff = found.best.effect
     g = a[None, :, None] * b[None, None, :]
-    before = noise_gap(H / g, found.nominal.H, W * np.abs(g))
-    after = noise_gap(H / g, _model_frf(updated, data, loads), W * np.abs(g))
+    if np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))) or np.any(~np.isfinite(gamma)):
+        return None
+    loads_c = _loads_corrected(loads, data, b, gamma)
+    before = noise_gap(H / g, _model_frf(nominal, data, loads_c), W * np.abs(g))
+    after = noise_gap(H / g, _model_frf(updated, data, loads_c), W * np.abs(g))
     named = "no effect" if eff.name == "none" else eff.describe()
     return {"effect": eff.name, "dofs": list(eff.dofs), "parameters": dict(eff.parameters),
             "output_gain": dict(zip(data.outputs, map(float, a))),
             "input_gain": dict(zip(data.inputs, map(float, b))),
+            "reaction_gain": dict(zip(data.reactions or [] if gamma.size else [], map(float, gamma))),
             "gap_before": before, "gap_after": after,
             "text": f"with the gains corrected, the search names {named} (gap {before:.3g} -> {after:.3g})"}
+
+
+def _loads_corrected(loads: AppliedLoads | None, data: FRFData, b: np.ndarray,
+                     gamma: np.ndarray) -> AppliedLoads | None:
+    """The loads with each measured reaction per unit input put right: read by a load cell
+    ``gamma_r`` times the force and divided by a force gauge reading ``1 / b_j`` times it,
+    ``R / F`` was ``gamma_r b_j`` times the truth (``ssid.discrepancy.calibration``)."""
+    if loads is None or not gamma.size or data.H_reaction is None:
+        return loads
+    T = loads.T.copy()
+    for r, lbl in enumerate(data.reactions or []):
+        T[:, loads.dofs.index(lbl), :] += data.H_reaction[:, r, :] * (1.0 / (b[None, :] * gamma[r]) - 1.0)
+    return AppliedLoads(loads.dofs, T, loads.var)
 
 
 def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx, in_idx, T,
@@ -373,6 +402,10 @@ def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx
 
 def _model_frf(model: Model, data: FRFData, loads: AppliedLoads | None) -> np.ndarray:
     return model_frf_under_loads(model.M, model.C, model.K, model.dofs, data, loads)
+
+
+def _model_parts(model: Model, data: FRFData, loads: AppliedLoads | None) -> ModelParts:
+    return model_parts(model.M, model.C, model.K, model.dofs, data, loads)
 
 
 def _round_json(search: SearchResult, H, valid, dofs) -> dict:

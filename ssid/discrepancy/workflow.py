@@ -221,6 +221,7 @@ def find_discrepancy(
     T = None if loads is None else loads.T
     out_idx = np.array([model.dofs.index(d) for d in data.outputs])
     in_idx = np.array([model.dofs.index(d) for d in (data.inputs if loads is None else loads.dofs)])
+    W_meas = W  # the accelerances' own noise; the reactions' is added through the model
     if loads is not None and loads.var is not None:
         W = weights_with_reaction_noise(W, model.M, model.C, model.K, model.dofs, data, loads)
         noise = {**noise, "reactions": "the measured reactions' stated variance, through the nominal "
@@ -267,7 +268,7 @@ def find_discrepancy(
         parts_nom, parts_upd = _model_parts(nominal, data, loads), _model_parts(updated, data, loads)
     calibration = check_channel_gains(search, H, parts_nom, parts_upd, W, effects, data)
     if calibration["flagged"]:
-        fix = _search_gains_corrected(nominal, omega, H, W, out_idx, in_idx, T, data, loads, calibration)
+        fix = _search_gains_corrected(nominal, omega, H, W, W_meas, out_idx, in_idx, data, loads, calibration)
         calibration["with_gains_corrected"] = fix
         if fix is not None:
             calibration["text"] += f"; {fix['text']}"
@@ -320,16 +321,25 @@ def find_discrepancy(
     return DiscrepancyResult(first, effects, gap_before, gap_after, cands, updated, info, arrays)
 
 
-def _search_gains_corrected(nominal: Model, omega, H, W, out_idx, in_idx, T, data: FRFData,
+def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx, data: FRFData,
                             loads: AppliedLoads | None, calibration: dict, sweeps: int = 2) -> dict | None:
     """The effect search again on the data divided by the channel gains, alternating.
 
     Gains fitted against the nominal model may hold part of a real effect, and an effect
     fitted to miscalibrated data part of the gains: each sweep corrects the data by the
-    current gains (a value's noise scales with it; the measured reactions per unit input by
-    their load cells' and force gauges' gains), searches, and refits the gains against the
-    model with the effect found. None when a gain is too small to divide by.
+    current gains (a value's noise scales with it; the measured reactions per unit input,
+    and their noise, by their load cells' and force gauges' gains), searches, and refits the
+    gains against the model with the effect found. ``W``: the weights of the data as
+    measured (the gains are fitted to them); ``W_meas``: those of the accelerances alone.
+    None when a gain is too small to divide by.
     """
+
+    def corrected_weights(g, loads_c):
+        Wc = W_meas * np.abs(g)
+        if loads_c is None or loads_c.var is None:
+            return Wc
+        return weights_with_reaction_noise(Wc, nominal.M, nominal.C, nominal.K, nominal.dofs, data, loads_c)
+
     a = np.array([calibration["output_gain"][o] for o in data.outputs])
     b = np.array([calibration["input_gain"][i] for i in data.inputs])
     # Load cells have gains only when their reactions load the model.
@@ -339,8 +349,8 @@ def _search_gains_corrected(nominal: Model, omega, H, W, out_idx, in_idx, T, dat
         g = a[None, :, None] * b[None, None, :]
         if np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))) or np.any(~np.isfinite(gamma)):
             return None
-        Hc, Wc = H / g, W * np.abs(g)
         loads_c = _loads_corrected(loads, data, b, gamma)
+        Hc, Wc = H / g, corrected_weights(g, loads_c)
         found = _search(nominal, nominal.C, omega, Hc, Wc, out_idx, in_idx, None if loads_c is None else loads_c.T)
         _validate(found)
         updated = nominal if found.best.name == "none" else apply_effect_to_model(nominal, found.best.effect)
@@ -354,8 +364,9 @@ def _search_gains_corrected(nominal: Model, omega, H, W, out_idx, in_idx, T, dat
     if np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))) or np.any(~np.isfinite(gamma)):
         return None
     loads_c = _loads_corrected(loads, data, b, gamma)
-    before = noise_gap(H / g, _model_frf(nominal, data, loads_c), W * np.abs(g))
-    after = noise_gap(H / g, _model_frf(updated, data, loads_c), W * np.abs(g))
+    Wc = corrected_weights(g, loads_c)
+    before = noise_gap(H / g, _model_frf(nominal, data, loads_c), Wc)
+    after = noise_gap(H / g, _model_frf(updated, data, loads_c), Wc)
     named = "no effect" if eff.name == "none" else eff.describe()
     return {"effect": eff.name, "dofs": list(eff.dofs), "parameters": dict(eff.parameters),
             "output_gain": dict(zip(data.outputs, map(float, a))),
@@ -373,9 +384,13 @@ def _loads_corrected(loads: AppliedLoads | None, data: FRFData, b: np.ndarray,
     if loads is None or not gamma.size or data.H_reaction is None:
         return loads
     T = loads.T.copy()
+    var = None if loads.var is None else loads.var.copy()
     for r, lbl in enumerate(data.reactions or []):
-        T[:, loads.dofs.index(lbl), :] += data.H_reaction[:, r, :] * (1.0 / (b[None, :] * gamma[r]) - 1.0)
-    return AppliedLoads(loads.dofs, T, loads.var)
+        row, factor = loads.dofs.index(lbl), 1.0 / (b[None, :] * gamma[r])
+        T[:, row, :] += data.H_reaction[:, r, :] * (factor - 1.0)
+        if var is not None:  # the unit input forces carry none: the row's variance is the reaction's
+            var[:, row, :] *= factor**2
+    return AppliedLoads(loads.dofs, T, var)
 
 
 def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx, in_idx, T,

@@ -345,23 +345,25 @@ def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx
     # Load cells have gains only when their reactions load the model.
     gamma = (np.zeros(0) if loads is None
              else np.array([calibration["reaction_gain"].get(r, 1.0) for r in (data.reactions or [])]))
+    def cannot_divide(g) -> bool:
+        return bool(np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))) or np.any(~np.isfinite(gamma)))
+
     for _ in range(sweeps):
         g = a[None, :, None] * b[None, None, :]
-        if np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))) or np.any(~np.isfinite(gamma)):
+        if cannot_divide(g):
             return None
         loads_c = _loads_corrected(loads, data, b, gamma)
         Hc, Wc = H / g, corrected_weights(g, loads_c)
         found = _search(nominal, nominal.C, omega, Hc, Wc, out_idx, in_idx, None if loads_c is None else loads_c.T)
         _validate(found)
         updated = nominal if found.best.name == "none" else apply_effect_to_model(nominal, found.best.effect)
-        gains = fit_channel_gains(H, _model_parts(updated, data, loads) if loads is not None
-                                  else _model_frf(updated, data, loads), W)
+        gains = fit_channel_gains(H, _model_parts(updated, data, loads), W)
         a, b = gains.output_gain, gains.input_gain
         if gains.reaction_gain.size:
             gamma = gains.reaction_gain
     eff = found.best.effect
     g = a[None, :, None] * b[None, None, :]
-    if np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))) or np.any(~np.isfinite(gamma)):
+    if cannot_divide(g):
         return None
     loads_c = _loads_corrected(loads, data, b, gamma)
     Wc = corrected_weights(g, loads_c)

@@ -56,8 +56,10 @@ from .response import NominalResponse, nominal_response, receptance_entries
 __all__ = [
     "CRITERION_NAME",
     "Candidate",
+    "adopt_parameters",
     "SearchResult",
     "candidate_frf",
+    "candidate_location",
     "cross_validated_gain",
     "rerank_none",
     "search_round",
@@ -244,6 +246,26 @@ def demote(search: SearchResult, cand: Candidate) -> None:
     _rank(search.candidates)
 
 
+def adopt_parameters(search: SearchResult, cand: Candidate, effect: Effect) -> None:
+    """Give the validated leader ``cand`` the parameters of ``effect`` (same effect and DOFs,
+    refitted elsewhere) and keep it first.
+
+    Its RSS and criterion become those of the new parameters under the search's weights,
+    from the compressed data of its location; the others' ``delta_criterion`` are relative
+    to it (negative for one that the search's weights alone would now rank higher).
+    """
+    loc, j = candidate_location(search, cand)
+    a = effect_a(effect_dynamic_stiffness(effect, search.nominal.omega), loc.g[:, j])
+    rss = search.rss0 - float(loc.explained[j]) + float(np.sum(loc.c[:, j] * np.abs(a - loc.astar[:, j]) ** 2))
+    cand.effect, cand.rss = effect, rss
+    cand.criterion = float(search.criterion(rss, effect.n_parameters))
+    _rank(search.candidates)
+    search.candidates.remove(cand)
+    search.candidates.insert(0, cand)
+    for c in search.candidates:
+        c.delta_criterion = c.criterion - cand.criterion
+
+
 def _oscillators(omega, search: SearchResult, best_so_far: float) -> OscillatorFit:
     """Fit oscillators where they could win, in order of their screened cost.
 
@@ -269,7 +291,8 @@ def _oscillators(omega, search: SearchResult, best_so_far: float) -> OscillatorF
     return total
 
 
-def _location(search: SearchResult, cand: Candidate) -> tuple[Locations, int]:
+def candidate_location(search: SearchResult, cand: Candidate) -> tuple[Locations, int]:
+    """The compressed data of ``cand``'s location and its index in them (``cand`` not none)."""
     kind, j = cand.location
     return (search.singles if kind == "dof" else search.pairs), j
 
@@ -284,7 +307,7 @@ def cross_validated_gain(search: SearchResult, cand: Candidate) -> float:
     """
     if cand.location is None:
         return 0.0
-    loc, j = _location(search, cand)
+    loc, j = candidate_location(search, cand)
     one = loc.subset(np.array([j]))
     omega = search.nominal.omega
     lines = np.arange(omega.size)
@@ -311,7 +334,7 @@ def candidate_frf(search: SearchResult, cand: Candidate) -> np.ndarray:
     nom = search.nominal
     if cand.location is None:
         return nom.H.copy()
-    loc, j = _location(search, cand)
+    loc, j = candidate_location(search, cand)
     p, q = loc.index[j]
     if q < 0:
         g_o, g_i = nom.G_out[:, :, p], nom.G_in[:, p, :]

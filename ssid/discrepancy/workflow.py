@@ -45,11 +45,13 @@ from .search import (
     CRITERION_NAME,
     Candidate,
     SearchResult,
+    adopt_parameters,
     candidate_frf,
     cross_validated_gain,
     demote,
     search_round,
 )
+from .stand_noise import StandNoise, stand_noise_check
 from .undamped import search_undamped
 from .weights import noise_weights
 
@@ -127,7 +129,7 @@ def _listed(search: SearchResult) -> list[Candidate]:
         best = search.best_of(name)
         if best is not None and best not in keep:
             keep.append(best)
-    return sorted(keep, key=lambda c: c.criterion)
+    return sorted(keep, key=search.candidates.index)  # the search's order: a validated leader stays first
 
 
 def _localisation(search: SearchResult, dofs: list[str], n_top: int = 10) -> dict:
@@ -148,22 +150,35 @@ def _search(model: Model, C, omega, H, W, out_idx, in_idx, T) -> SearchResult:
     return search_round(model.M, C, model.K, model.dofs, omega, H, W, out_idx, in_idx, T=T)
 
 
-def _validate(search: SearchResult, tries: int = 3) -> list[dict]:
-    """Cross-validate the leader (``search.cross_validated_gain``); demote it below none if it fails.
+def _validate(search: SearchResult, stand: StandNoise | None = None, tries: int = 3) -> list[dict]:
+    """Validate the leader; demote it below none if it fails, and try the next.
 
-    Returns the checks made (effect, DOFs, held-out gain, passed), leader first.
+    A leader must lower the held-out residual (``search.cross_validated_gain``) and, on a
+    test stand with stated reaction noise (``stand``), still beat the nominal model once that
+    noise is modelled exactly (``stand_noise.stand_noise_check``). If none of ``tries``
+    leaders passes, none wins: a candidate that was never checked is not named.
+
+    Returns the checks made (effect, DOFs, held-out gain, the stand check, passed), leader first.
     """
     checks = []
     for _ in range(tries):
         best = search.best
         if best.name == "none":
-            break
+            return checks
         gain = cross_validated_gain(search, best)
-        checks.append({"effect": best.name, "dofs": list(best.effect.dofs), "heldout_gain": gain,
-                       "passed": gain > 0})
-        if gain > 0:
-            break
+        check = {"effect": best.name, "dofs": list(best.effect.dofs), "heldout_gain": gain, "passed": gain > 0}
+        if gain > 0 and stand is not None:
+            check["stand_noise"] = stand_noise_check(stand, search, best)
+            check["passed"] = check["stand_noise"]["passed"]
+        checks.append(check)
+        if check["passed"]:
+            if "stand_noise" in check:  # the exact likelihood's estimate, not the search's
+                adopt_parameters(search, best, Effect(best.name, best.effect.dofs,
+                                                      check["stand_noise"]["parameters"]))
+            return checks
         demote(search, best)
+    for cand in search.candidates[:search.candidates.index(search.none())]:
+        demote(search, cand)
     return checks
 
 
@@ -225,7 +240,9 @@ def find_discrepancy(
     if loads is not None and loads.var is not None:
         W = weights_with_reaction_noise(W, model.M, model.C, model.K, model.dofs, data, loads)
         noise = {**noise, "reactions": "the measured reactions' stated variance, through the nominal "
-                 "model, added to each value's"}
+                 "model, added to each value's; the leader is also tested with it modelled exactly "
+                 "(errors in variables)"}
+    stand = StandNoise.build(H, W_meas, loads, data.outputs, model.dofs)
     warnings: list[str] = []
 
     C, damping = model.C, "model C"
@@ -235,7 +252,7 @@ def find_discrepancy(
             lambda C_: _search(model, C_, omega, H, W, out_idx, in_idx, T), T)
     else:
         search = _search(model, C, omega, H, W, out_idx, in_idx, T)
-    validation = _validate(search)
+    validation = _validate(search, stand)
     t_search = time.perf_counter() - t0
 
     nominal = Model(M=model.M, K=model.K, C=C, dofs=list(model.dofs), attrs=dict(model.attrs))
@@ -251,10 +268,10 @@ def find_discrepancy(
     second = None
     if second_round and effects:
         second = _search(updated, updated.C, omega, H, W, out_idx, in_idx, T)
-        _validate(second)
+        _validate(second, stand)
         rounds.append(_round_json(second, H, valid, updated.dofs))
         if second.best.name != "none" and max_effects >= 2:
-            effects = _backfit(nominal, effects[0], second.best.effect, omega, H, W, out_idx, in_idx, T)
+            effects = _backfit(nominal, effects[0], second.best.effect, omega, H, W, out_idx, in_idx, T, stand)
             updated = nominal
             for eff in effects:
                 updated = apply_effect_to_model(updated, eff)
@@ -355,7 +372,7 @@ def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx
         loads_c = _loads_corrected(loads, data, b, gamma)
         Hc, Wc = H / g, corrected_weights(g, loads_c)
         found = _search(nominal, nominal.C, omega, Hc, Wc, out_idx, in_idx, None if loads_c is None else loads_c.T)
-        _validate(found)
+        _validate(found, StandNoise.build(Hc, W_meas * np.abs(g), loads_c, data.outputs, nominal.dofs))
         updated = nominal if found.best.name == "none" else apply_effect_to_model(nominal, found.best.effect)
         gains = fit_channel_gains(H, _model_parts(updated, data, loads), W)
         a, b = gains.output_gain, gains.input_gain
@@ -396,7 +413,7 @@ def _loads_corrected(loads: AppliedLoads | None, data: FRFData, b: np.ndarray,
 
 
 def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx, in_idx, T,
-             sweeps: int = 2) -> list[Effect]:
+             stand: StandNoise | None = None, sweeps: int = 2) -> list[Effect]:
     """Two effects refitted in turn, each with the other in place (backfitting).
 
     The first round fitted its effect with the second one missing, so it may have absorbed
@@ -411,7 +428,7 @@ def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx
         for k in (0, 1):
             base = apply_effect_to_model(nominal, effects[1 - k])
             found = _search(base, base.C, omega, H, W, out_idx, in_idx, T)
-            _validate(found)
+            _validate(found, stand)
             if found.best.name != "none" and all(d in nominal.dofs for d in found.best.effect.dofs):
                 effects[k] = found.best.effect
     return effects

@@ -41,7 +41,7 @@ from scipy.optimize import nnls
 
 from ..frf import FRFData
 
-__all__ = ["neighbour_power", "noise_weights", "roughness_level", "two_level_variance"]
+__all__ = ["neighbour_power", "noise_weights", "reaction_variance", "roughness_level", "two_level_variance"]
 
 #: Bin edges (quantiles of S) of the two-level roughness fit: finer at the low end, where the
 #: floor shows (antiresonances are few lines).
@@ -156,6 +156,31 @@ def _variance_shape(frf: FRFData, H: np.ndarray, valid: np.ndarray) -> tuple[np.
     return np.fmax(var, _running_median(var, 5)), source, needs_level
 
 
+def _filled(s2: np.ndarray) -> np.ndarray:
+    """``s2`` with NaN replaced by its median and raised to 1e-12 of its largest value."""
+    fill = float(np.nanmedian(s2)) if np.isfinite(s2).any() else 1.0
+    s2 = np.where(np.isfinite(s2), s2, fill)
+    return np.maximum(s2, 1e-12 * np.max(s2))
+
+
+def reaction_variance(frf: FRFData, valid: np.ndarray) -> np.ndarray | None:
+    """Variance of each measured reaction value, (n_freq, n_react, n_in), from its roughness.
+
+    For a file with reactions but no ``H_reaction_var`` (a UFF exchange, an older run): the
+    same two-level model as the accelerances' without coherence, relative plus floor per
+    reaction FRF (module docstring). A line counts where any of its accelerances is valid.
+    None without reactions.
+    """
+    if frf.H_reaction is None:
+        return None
+    Hr = np.asarray(frf.H_reaction)
+    vr = np.broadcast_to(valid.any(axis=1, keepdims=True), Hr.shape) & np.isfinite(Hr)
+    Hr = np.where(vr, Hr, 0)
+    var = two_level_variance(Hr, vr, np.fmax(neighbour_power(Hr, vr), np.abs(Hr) ** 2))
+    var = np.where(vr & np.isfinite(var) & (var > 0), var, np.nan)
+    return _filled(np.fmax(var, _running_median(var, 5)))
+
+
 def noise_weights(frf: FRFData, valid: np.ndarray) -> tuple[np.ndarray, dict]:
     """Weights ``1/sigma`` (n_freq, n_out, n_in), 0 where not valid, and a description.
 
@@ -177,9 +202,7 @@ def noise_weights(frf: FRFData, valid: np.ndarray) -> tuple[np.ndarray, dict]:
         source, needs_level = "H_var", False
     else:
         s2, source, needs_level = _variance_shape(frf, H, valid)
-    fill = float(np.nanmedian(s2)) if np.isfinite(s2).any() else 1.0
-    s2 = np.where(np.isfinite(s2), s2, fill)
-    s2 = np.maximum(s2, 1e-12 * np.max(s2))
+    s2 = _filled(s2)
     kappa = np.ones(H.shape[1:])
     if needs_level:
         kappa = roughness_level(H, s2, valid)

@@ -22,13 +22,14 @@ is written with it.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
 
 from ..correlate_frf import frf_gap
 from ..errors import InputError
-from ..frf import AppliedLoads, FRFData, require_response
+from ..frf import AppliedLoads, FRFData, applied_loads, require_response
 from ..io import Model
 from ..reaction_loads import choose_reactions, model_frf_under_loads, weights_with_reaction_noise
 from .calibration import ModelParts, check_channel_gains, fit_channel_gains, model_parts
@@ -53,7 +54,7 @@ from .search import (
 )
 from .stand_noise import StandNoise, stand_noise_check
 from .undamped import search_undamped
-from .weights import noise_weights
+from .weights import noise_weights, reaction_variance
 
 __all__ = ["find_discrepancy"]
 
@@ -154,8 +155,8 @@ def _validate(search: SearchResult, stand: StandNoise | None = None, tries: int 
     """Validate the leader; demote it below none if it fails, and try the next.
 
     A leader must lower the held-out residual (``search.cross_validated_gain``) and, on a
-    test stand with stated reaction noise (``stand``), still beat the nominal model once that
-    noise is modelled exactly (``stand_noise.stand_noise_check``). If none of ``tries``
+    test stand (``stand``), still beat the nominal model once the reactions' noise is
+    modelled exactly (``stand_noise.stand_noise_check``). If none of ``tries``
     leaders passes, none wins: a candidate that was never checked is not named.
 
     Returns the checks made (effect, DOFs, held-out gain, the stand check, passed), leader first.
@@ -237,11 +238,15 @@ def find_discrepancy(
     out_idx = np.array([model.dofs.index(d) for d in data.outputs])
     in_idx = np.array([model.dofs.index(d) for d in (data.inputs if loads is None else loads.dofs)])
     W_meas = W  # the accelerances' own noise; the reactions' is added through the model
-    if loads is not None and loads.var is not None:
+    if loads is not None:
+        stated = loads.var is not None
+        if not stated:  # a file without H_reaction_var: the reactions are noisy all the same
+            loads = applied_loads(dataclasses.replace(data, H_reaction_var=reaction_variance(data, valid)))
         W = weights_with_reaction_noise(W, model.M, model.C, model.K, model.dofs, data, loads)
-        noise = {**noise, "reactions": "the measured reactions' stated variance, through the nominal "
-                 "model, added to each value's; the leader is also tested with it modelled exactly "
-                 "(errors in variables)"}
+        noise = {**noise, "reactions": ("the measured reactions' stated variance" if stated else
+                                        "the measured reactions' variance from their roughness (the file "
+                                        "states none)") + ", through the nominal model, added to each "
+                 "value's; the leader is also tested with it modelled exactly (errors in variables)"}
     stand = StandNoise.build(H, W_meas, loads, data.outputs, model.dofs)
     warnings: list[str] = []
 

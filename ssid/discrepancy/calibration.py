@@ -40,8 +40,10 @@ from ..frf import AppliedLoads, FRFData
 from ..reaction_loads import model_frf_under_loads
 from .effects import Effect
 from .search import SearchResult
+from .stand_noise import StandNoise, refine_channel_gains
 
-__all__ = ["ChannelGains", "ModelParts", "check_channel_gains", "fit_channel_gains", "model_parts"]
+__all__ = ["ChannelGains", "ExactStandNoise", "ModelParts", "check_channel_gains", "fit_channel_gains",
+           "model_parts"]
 
 #: Gains within this fraction of their median are described as one common factor.
 COMMON_RTOL = 0.02
@@ -234,9 +236,28 @@ def fit_channel_gains(H_meas: np.ndarray, H_model: np.ndarray | ModelParts, W: n
     return ChannelGains(a, b, last, n_out + n_in + n_r - 1, gamma)
 
 
+@dataclass
+class ExactStandNoise:
+    """What the gains need on a test stand to be scored with the reactions' noise modelled
+    exactly (``ssid.discrepancy.stand_noise``): the data as measured and the nominal and
+    updated models' accelerances from the load DOFs, (n_freq, n_out, n_load)."""
+
+    stand: StandNoise
+    H_load_nominal: np.ndarray
+    H_load_updated: np.ndarray
+
+
+def _refit_exact(gains: ChannelGains, exact: ExactStandNoise, H_load: np.ndarray,
+                 data: FRFData) -> ChannelGains:
+    """``gains`` refitted on the errors-in-variables cost; their ``rss`` is that cost."""
+    a, b, gamma, cost = refine_channel_gains(exact.stand, H_load, data.inputs, list(data.reactions or []),
+                                             gains.output_gain, gains.input_gain, gains.reaction_gain)
+    return ChannelGains(a, b, cost, gains.n_parameters, gamma)
+
+
 def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray | ModelParts,
                         H_upd: np.ndarray | ModelParts, W: np.ndarray, effects: list[Effect],
-                        data: FRFData) -> dict:
+                        data: FRFData, exact: ExactStandNoise | None = None) -> dict:
     """Channel gains against the effects, by the search's own EBIC; the workflow's
     ``info["calibration"]`` (``docs/discrepancy.md``, section 8).
 
@@ -246,15 +267,32 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray |
     fitted to miscalibrated data)? ``H_nom``, ``H_upd``: the nominal and updated models'
     FRFs, as :class:`ModelParts` when the model is loaded by measured reactions (the load
     cells' gains are then fitted too).
+
+    ``exact`` (a stand, reactions applied): the gains are refitted, and gains and models
+    scored, on the errors-in-variables cost instead of the per-value weighted RSS. A gain
+    that scales the noise the reactions bring in (an output at a held DOF, a load cell)
+    otherwise pays by shrinking that noise: without stated variances, every null stand case
+    flagged the held DOF's accelerometer at about x 0.15.
     """
     n_eff = sum(e.n_parameters for e in effects)
     alone = fit_channel_gains(H, H_nom, W)
-    d_alone = float(search.criterion(alone.rss, alone.n_parameters)) - float(search.best.criterion)
-    on_top, d_top, rss_upd = alone, d_alone, search.rss0
+    exact = exact if exact is not None and alone.reaction_gain.size else None
+    if exact is None:
+        rss_nom, rss_best, k_best = search.rss0, search.best.rss, search.best.effect.n_parameters
+    else:
+        alone = _refit_exact(alone, exact, exact.H_load_nominal, data)
+        rss_nom = exact.stand.cost(exact.H_load_nominal)
+        rss_best, k_best = (exact.stand.cost(exact.H_load_updated), n_eff) if effects else (rss_nom, 0)
+    d_alone = float(search.criterion(alone.rss, alone.n_parameters) - search.criterion(rss_best, k_best))
+    on_top, d_top, rss_upd = alone, d_alone, rss_nom
     if effects:
         on_top = fit_channel_gains(H, H_upd, W)
-        H_upd_total = H_upd.total() if isinstance(H_upd, ModelParts) else H_upd
-        rss_upd = float(np.sum(W**2 * np.abs(H - H_upd_total) ** 2))
+        if exact is None:
+            H_upd_total = H_upd.total() if isinstance(H_upd, ModelParts) else H_upd
+            rss_upd = float(np.sum(W**2 * np.abs(H - H_upd_total) ** 2))
+        else:
+            on_top = _refit_exact(on_top, exact, exact.H_load_updated, data)
+            rss_upd = rss_best
         d_top = float(search.criterion(on_top.rss, n_eff + on_top.n_parameters)
                       - search.criterion(rss_upd, n_eff))
     # Significant is not enough: a few per cent of gain can stand in for a model that is
@@ -262,9 +300,12 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray |
     large = np.log1p(GAIN_TOLERANCE)
     explains_better = d_alone < 0 and alone.largest_deviation() > large
     pays_on_top = bool(effects) and d_top < 0 and on_top.largest_deviation() > large
-    gains, basis = (alone, "nominal") if explains_better or not pays_on_top else (on_top, "updated")
+    # The gains reported: against the nominal model when they stand in for the effect, else
+    # against the model with the effect added (against the nominal model they would absorb
+    # part of it: a load cell at x 0.13 beside a 0.43 kg mass that is named right).
+    gains, basis = (alone, "nominal") if explains_better or not effects else (on_top, "updated")
     gap = float(np.sqrt(gains.rss / search.n_valid))
-    gap0 = float(np.sqrt((search.rss0 if basis == "nominal" else rss_upd) / search.n_valid))
+    gap0 = float(np.sqrt((rss_nom if basis == "nominal" else rss_upd) / search.n_valid))
     reactions = list(data.reactions or []) if gains.reaction_gain.size else []
     which = gains.describe(data.outputs, data.inputs, reactions=reactions)
     cause = "a sensitivity entered wrong, a unit (g for m/s^2, lbf for N) or a reversed sensor?"
@@ -291,6 +332,8 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray |
         "gap_with_gains": gap,
         "delta_criterion_alone": d_alone,
         "delta_criterion_on_top": d_top,
+        "scored": "errors in variables (the reactions' noise modelled exactly)" if exact is not None
+                  else "per-value weighted residual",
         "model": "H_meas[k, i, j] ~ a_i b_j H_model[k, i, j], one real gain per output and per "
                  "input (a factor common to all is given to the outputs); H_model the nominal "
                  "model's (basis nominal) or the updated one's (basis updated); under measured "

@@ -43,14 +43,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize, minimize_scalar
+from scipy.optimize import least_squares, minimize, minimize_scalar
 
 from ..frf import AppliedLoads
 from .effects import PARAMETER_KEYS, Effect, effect_dynamic_stiffness, oscillator_shape, unit_shape
 from .fit import OSC_ZETA_BOUNDS, effect_a, min_oscillator_damping
 from .search import NONNEGATIVE, Candidate, SearchResult, candidate_location
 
-__all__ = ["StandNoise", "eiv_cost", "stand_noise_check"]
+__all__ = ["StandNoise", "eiv_cost", "refine_channel_gains", "stand_noise_check", "whitened_residual"]
 
 #: One-parameter refit: the parameter is searched over this range of multiples of the
 #: search's value (0 is the nominal model), on a grid and then by Brent in the best cell.
@@ -87,6 +87,26 @@ def eiv_cost(H: np.ndarray, W2: np.ndarray, H_load: np.ndarray, T: np.ndarray, v
     quad = np.sum(np.conj(r) * Pr).real
     corr = np.sum(np.conj(s) * np.linalg.solve(A, s[..., None])[..., 0]).real
     return float(quad - corr)
+
+
+def whitened_residual(H: np.ndarray, W: np.ndarray, H_load: np.ndarray, T: np.ndarray,
+                      var_T: np.ndarray) -> np.ndarray:
+    """Real vector ``e`` with ``||e||^2 = eiv_cost``: each line's residual times ``Sigma^-1/2``.
+
+    With ``U = P^1/2 B = Q S V^H`` (thin SVD, ``P^1/2 = diag(W)``),
+    ``Sigma^-1 = P^1/2 (I + U U^H)^-1 P^1/2`` and ``(I + U U^H)^-1/2 = I - Q diag(1 - (1 +
+    s^2)^-1/2) Q^H``, so ``e = u - Q diag(1 - (1 + s^2)^-1/2) Q^H u`` with ``u = W r``. Only
+    the load rows with a variance enter the SVD. Arguments as :func:`eiv_cost`, with ``W``
+    (``1/sigma``, 0 where invalid) in place of ``W2``; returns (2 n_freq n_in n_out,).
+    """
+    u = (W * np.where(W > 0, H - np.einsum("kol,kli->koi", H_load, T), 0)).transpose(0, 2, 1)  # (k, i, o)
+    rows = np.flatnonzero(np.any(var_T > 0, axis=(0, 2)))
+    if rows.size:
+        U = (W[:, :, None, :] * H_load[:, :, rows, None] * np.sqrt(var_T[:, None, rows, :])).transpose(0, 3, 1, 2)
+        Q, sv, _ = np.linalg.svd(U, full_matrices=False)  # Q: (k, i, o, l)
+        shrink = 1 - 1 / np.sqrt(1 + sv**2)
+        u = u - np.einsum("kiol,kil->kio", Q, shrink * np.einsum("kiol,kio->kil", Q.conj(), u))
+    return np.concatenate([u.real.ravel(), u.imag.ravel()])
 
 
 @dataclass
@@ -237,3 +257,63 @@ def stand_noise_check(stand: StandNoise, search: SearchResult, cand: Candidate) 
     delta = float(search.criterion(cost_eff, k) - search.criterion(cost_none, 0))
     return {"cost_none": cost_none, "cost_effect": cost_eff, "n_values": search.n_valid,
             "delta_criterion": delta, "parameters": dict(refit.parameters), "passed": delta < 0}
+
+
+def refine_channel_gains(stand: StandNoise, H_load: np.ndarray, inputs: list[str], reactions: list[str],
+                         a: np.ndarray, b: np.ndarray,
+                         gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Channel gains refitted on the errors-in-variables cost, from the per-value fit's.
+
+    The gains of ``ssid.discrepancy.calibration`` (``a_i`` outputs, ``b_j`` inputs,
+    ``gamma_r`` load cells) are fitted with per-value weights, and so carry the bias this
+    module is about: a load cell's gain scales the noise its reaction brings in. Data
+    corrected by them were left with a residual that an effect at a held DOF explained (on
+    the bench, a 117 N/m coupling spring or a -12 g mass where nothing was hidden). Here the
+    prediction ``a_i (b_j H0 + sum_r H_r / gamma_r)`` is scored with its own noise: the
+    accelerances' ``var_H`` and the reactions' ``var_T / gamma_r^2`` carried by
+    ``a_i H_L[i, r]``. Least squares on :func:`whitened_residual` (``b_0`` held: a factor
+    common to every gain cannot be told apart), then the same normalisation as the
+    per-value fit: the inputs' gains have geometric mean magnitude 1.
+
+    Parameters
+    ----------
+    stand : StandNoise
+        The measured data and loads as recorded (not corrected).
+    H_load : (n_freq, n_out, n_load) complex
+        The model's accelerance from the load DOFs (``AppliedLoads.model_accelerance``).
+    inputs, reactions : list of str
+        The FRF file's input and reaction labels (their rows in ``stand.loads.dofs``).
+    a, b, gamma : (n_out,), (n_in,), (n_react,) float
+        Start values.
+
+    Returns
+    -------
+    a, b, gamma refitted, and the errors-in-variables cost they leave.
+    """
+    loads = stand.loads
+    T_unit = np.zeros(loads.T.shape)
+    for j, lbl in enumerate(inputs):
+        T_unit[:, loads.dofs.index(lbl), j] = 1.0
+    T_react = loads.T - T_unit
+    react_rows = np.array([loads.dofs.index(lbl) for lbl in reactions], dtype=int)
+    W = np.sqrt(stand.W2)
+    n_out, n_in = a.size, b.size
+
+    def unpack(x):
+        b_ = np.concatenate([b[:1], x[n_out:n_out + n_in - 1]])
+        g_rows = np.ones(loads.T.shape[1])
+        g_rows[react_rows] = x[n_out + n_in - 1:]
+        return x[:n_out], b_, g_rows
+
+    def resid(x):
+        a_, b_, g_rows = unpack(x)
+        T = T_unit * b_[None, None, :] + T_react * g_rows[None, :, None]
+        return whitened_residual(stand.H, W, a_[None, :, None] * H_load, T, loads.var * g_rows[None, :, None] ** 2)
+
+    x0 = np.concatenate([a, b[1:], 1.0 / gamma])
+    cost0 = float(np.sum(resid(x0) ** 2))
+    res = least_squares(resid, x0, method="trf", x_scale="jac")
+    x, cost = (res.x, 2 * float(res.cost)) if 2 * res.cost <= cost0 else (x0, cost0)
+    a_, b_, g_rows = unpack(x)
+    common = float(np.exp(np.mean(np.log(np.abs(b_)))))
+    return a_ * common, b_ / common, common / g_rows[react_rows], cost

@@ -32,7 +32,7 @@ from ..errors import InputError
 from ..frf import AppliedLoads, FRFData, applied_loads, require_response
 from ..io import Model
 from ..reaction_loads import choose_reactions, model_frf_under_loads, weights_with_reaction_noise
-from .calibration import ModelParts, check_channel_gains, fit_channel_gains, model_parts
+from .calibration import ExactStandNoise, ModelParts, check_channel_gains, fit_channel_gains, model_parts
 from .effects import Effect, apply_effect_to_model, effect_dynamic_stiffness
 from .report import (
     LOG_GAP_METRIC,
@@ -52,7 +52,7 @@ from .search import (
     demote,
     search_round,
 )
-from .stand_noise import StandNoise, stand_noise_check
+from .stand_noise import StandNoise, refine_channel_gains, stand_noise_check
 from .undamped import search_undamped
 from .weights import noise_weights, reaction_variance
 
@@ -288,9 +288,16 @@ def find_discrepancy(
         parts_nom, parts_upd = H_nom, H_upd
     else:  # the load cells' gains are fitted too
         parts_nom, parts_upd = _model_parts(nominal, data, loads), _model_parts(updated, data, loads)
-    calibration = check_channel_gains(search, H, parts_nom, parts_upd, W, effects, data)
+    exact = None
+    if stand is not None:
+        def H_load(m: Model) -> np.ndarray:
+            return stand.loads.model_accelerance(m.M, m.C, m.K, m.dofs, omega, data.outputs)
+        exact = ExactStandNoise(stand, H_load(nominal), H_load(updated))
+    calibration = check_channel_gains(search, H, parts_nom, parts_upd, W, effects, data, exact)
     if calibration["flagged"]:
-        fix = _search_gains_corrected(nominal, omega, H, W, W_meas, out_idx, in_idx, data, loads, calibration)
+        basis = updated if calibration["basis"] == "updated" else nominal
+        fix = _search_gains_corrected(nominal, omega, H, W, W_meas, out_idx, in_idx, data, loads, calibration,
+                                      stand, basis)
         calibration["with_gains_corrected"] = fix
         if fix is not None:
             calibration["text"] += f"; {fix['text']}"
@@ -344,7 +351,8 @@ def find_discrepancy(
 
 
 def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx, data: FRFData,
-                            loads: AppliedLoads | None, calibration: dict, sweeps: int = 2) -> dict | None:
+                            loads: AppliedLoads | None, calibration: dict, stand: StandNoise | None = None,
+                            basis: Model | None = None, sweeps: int = 2) -> dict | None:
     """The effect search again on the data divided by the channel gains, alternating.
 
     Gains fitted against the nominal model may hold part of a real effect, and an effect
@@ -353,8 +361,17 @@ def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx
     and their noise, by their load cells' and force gauges' gains), searches, and refits the
     gains against the model with the effect found. ``W``: the weights of the data as
     measured (the gains are fitted to them); ``W_meas``: those of the accelerances alone.
-    None when a gain is too small to divide by.
+    On a test stand (``stand``, the data as measured) the gains, once fitted, are refitted
+    with the reactions' noise modelled exactly (``stand_noise.refine_channel_gains``), against
+    ``basis`` (the model the calibration check fitted them to) at first. None when a gain is
+    too small to divide by.
     """
+
+    def refined(model: Model, a, b, gamma):
+        if stand is None or not gamma.size or not np.all(np.isfinite(gamma) & (gamma != 0)):
+            return a, b, gamma
+        H_load = stand.loads.model_accelerance(model.M, model.C, model.K, model.dofs, omega, data.outputs)
+        return refine_channel_gains(stand, H_load, data.inputs, data.reactions, a, b, gamma)[:3]
 
     def corrected_weights(g, loads_c):
         Wc = W_meas * np.abs(g)
@@ -370,6 +387,7 @@ def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx
     def cannot_divide(g) -> bool:
         return bool(np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))) or np.any(~np.isfinite(gamma)))
 
+    a, b, gamma = refined(basis or nominal, a, b, gamma)
     for _ in range(sweeps):
         g = a[None, :, None] * b[None, None, :]
         if cannot_divide(g):
@@ -383,6 +401,7 @@ def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx
         a, b = gains.output_gain, gains.input_gain
         if gains.reaction_gain.size:
             gamma = gains.reaction_gain
+        a, b, gamma = refined(updated, a, b, gamma)
     eff = found.best.effect
     g = a[None, :, None] * b[None, None, :]
     if cannot_divide(g):

@@ -9,7 +9,8 @@ its JSON keys in ``../shared/contract.md``. Modules:
 - ``response``: the nominal receptance at the lines, and fitted modal damping;
 - ``localise``: the residual compressed per candidate location, and its localisation;
 - ``fit``: the parameters of every effect at every location;
-- ``search``: one round of fitting and EBIC ranking;
+- ``search``: one round of fitting and EBIC ranking; ``search_json`` its JSON;
+- ``stand_noise``: on a test stand, the reactions' noise modelled exactly (errors in variables);
 - ``workflow``: :func:`find_discrepancy`;
 - ``report``: gaps by band and FRF, paired modes, :class:`DiscrepancyResult`;
 - ``plots``: PNG figures; ``cases``: seeded test cases with hidden effects.

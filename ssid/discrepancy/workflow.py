@@ -44,14 +44,13 @@ from .report import (
 )
 from .search import (
     CRITERION_NAME,
-    Candidate,
     SearchResult,
     adopt_parameters,
-    candidate_frf,
     cross_validated_gain,
     demote,
     search_round,
 )
+from .search_json import candidate_json, listed_candidates, localisation_json, round_json
 from .stand_noise import StandNoise, refine_channel_gains, stand_noise_check
 from .undamped import search_undamped
 from .weights import noise_weights, reaction_variance
@@ -60,8 +59,6 @@ __all__ = ["find_discrepancy"]
 
 #: Fewest valid lines the workflow accepts.
 MIN_LINES = 8
-#: Candidates listed in the JSON besides the best of each effect and ``none``.
-N_LISTED = 20
 #: Largest gap said to be "within the stated noise". A model as good as the truth has a gap
 #: equal to the RMS of the measurement's errors in units of their stated standard
 #: deviations, 1 only if those were exact. They are estimates (each line's fit noise and the
@@ -107,44 +104,6 @@ def _valid_mask(frf: FRFData) -> np.ndarray:
     if lines < MIN_LINES:
         raise InputError(f"only {lines} frequency lines with valid values, at least {MIN_LINES} needed")
     return valid
-
-
-def _candidate_json(search: SearchResult, cand: Candidate, H_meas: np.ndarray, valid: np.ndarray) -> dict:
-    return {
-        "effect": cand.name,
-        "dofs": list(cand.effect.dofs),
-        "parameters": dict(cand.effect.parameters),
-        "gap_after": float(np.sqrt(cand.rss / search.n_valid)),
-        "gap_after_log_ratio": frf_gap(H_meas, candidate_frf(search, cand), valid),
-        "criterion": cand.criterion,
-        "delta_criterion": cand.delta_criterion,
-        "n_parameters": cand.effect.n_parameters,
-        "rss": cand.rss,
-    }
-
-
-def _listed(search: SearchResult) -> list[Candidate]:
-    """The best N_LISTED candidates, plus the best of every effect (and none), in rank order."""
-    keep = list(search.candidates[:N_LISTED])
-    for name in {c.name for c in search.candidates}:
-        best = search.best_of(name)
-        if best is not None and best not in keep:
-            keep.append(best)
-    return sorted(keep, key=search.candidates.index)  # the search's order: a validated leader stays first
-
-
-def _localisation(search: SearchResult, dofs: list[str], n_top: int = 10) -> dict:
-    s, p = search.singles, search.pairs
-    tot = max(search.rss0, 1e-300)
-    top_s = np.argsort(-s.explained)[:n_top]
-    top_p = np.argsort(-p.explained)[:n_top] if p.n else np.zeros(0, int)
-    return {
-        "measure": "share of the weighted residual RSS_0 that one change of the dynamic "
-                   "stiffness at the DOF (or between the pair) can remove, E / RSS_0",
-        "dofs": [{"dof": dofs[s.index[j, 0]], "explained_fraction": s.explained[j] / tot} for j in top_s],
-        "pairs": [{"dofs": [dofs[p.index[j, 0]], dofs[p.index[j, 1]]],
-                   "explained_fraction": p.explained[j] / tot} for j in top_p],
-    }
 
 
 def _search(model: Model, C, omega, H, W, out_idx, in_idx, T) -> SearchResult:
@@ -269,12 +228,12 @@ def find_discrepancy(
     H_nom = search.nominal.H
     H_upd = _model_frf(updated, data, loads)
 
-    rounds = [_round_json(search, H, valid, model.dofs)]
+    rounds = [round_json(search, H, valid, model.dofs)]
     second = None
     if second_round and effects:
         second = _search(updated, updated.C, omega, H, W, out_idx, in_idx, T)
         _validate(second, stand)
-        rounds.append(_round_json(second, H, valid, updated.dofs))
+        rounds.append(round_json(second, H, valid, updated.dofs))
         if second.best.name != "none" and max_effects >= 2:
             effects = _backfit(nominal, effects[0], second.best.effect, omega, H, W, out_idx, in_idx, T, stand)
             updated = nominal
@@ -295,9 +254,8 @@ def find_discrepancy(
         exact = ExactStandNoise(stand, H_load(nominal), H_load(updated))
     calibration = check_channel_gains(search, H, parts_nom, parts_upd, W, effects, data, exact)
     if calibration["flagged"]:
-        basis = updated if calibration["basis"] == "updated" else nominal
         fix = _search_gains_corrected(nominal, omega, H, W, W_meas, out_idx, in_idx, data, loads, calibration,
-                                      stand, basis)
+                                      stand)
         calibration["with_gains_corrected"] = fix
         if fix is not None:
             calibration["text"] += f"; {fix['text']}"
@@ -326,7 +284,7 @@ def find_discrepancy(
         "residual": residual,
         "calibration": calibration,
         "tried": search.tried,
-        "localisation": _localisation(search, model.dofs),
+        "localisation": localisation_json(search, model.dofs),
         "gap_by_band": gap_by_band(data.freq_hz, H, {"nominal": H_nom, "updated": H_upd}, W, n_bands),
         "gap_by_frf": {"outputs": list(data.outputs), "inputs": list(data.inputs),
                        "nominal": gap_by_frf(H, H_nom, W), "updated": gap_by_frf(H, H_upd, W)},
@@ -345,14 +303,14 @@ def find_discrepancy(
               "delta_dofs": [model.dofs[i] for i in loc.index[best_loc[1]] if i >= 0],
               "explained": search.singles.explained / max(search.rss0, 1e-300),
               "explained_dofs": [model.dofs[i] for i in search.singles.index[:, 0]]}
-    cands = [_candidate_json(search, c, H, valid) for c in _listed(search)]
+    cands = [candidate_json(search, c, H, valid) for c in listed_candidates(search)]
     first = effects[0] if effects else chosen.effect
     return DiscrepancyResult(first, effects, gap_before, gap_after, cands, updated, info, arrays)
 
 
 def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx, data: FRFData,
                             loads: AppliedLoads | None, calibration: dict, stand: StandNoise | None = None,
-                            basis: Model | None = None, sweeps: int = 2) -> dict | None:
+                            sweeps: int = 2) -> dict | None:
     """The effect search again on the data divided by the channel gains, alternating.
 
     Gains fitted against the nominal model may hold part of a real effect, and an effect
@@ -361,10 +319,10 @@ def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx
     and their noise, by their load cells' and force gauges' gains), searches, and refits the
     gains against the model with the effect found. ``W``: the weights of the data as
     measured (the gains are fitted to them); ``W_meas``: those of the accelerances alone.
-    On a test stand (``stand``, the data as measured) the gains, once fitted, are refitted
-    with the reactions' noise modelled exactly (``stand_noise.refine_channel_gains``), against
-    ``basis`` (the model the calibration check fitted them to) at first. None when a gain is
-    too small to divide by.
+    On a test stand (``stand``, the data as measured) the gains refitted after each search
+    are refitted again with the reactions' noise modelled exactly
+    (``stand_noise.refine_channel_gains``), as the calibration check's own were. None when a
+    gain is too small to divide by.
     """
 
     def refined(model: Model, a, b, gamma):
@@ -387,7 +345,6 @@ def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx
     def cannot_divide(g) -> bool:
         return bool(np.any(np.abs(g) < 1e-6 * np.median(np.abs(g))) or np.any(~np.isfinite(gamma)))
 
-    a, b, gamma = refined(basis or nominal, a, b, gamma)
     for _ in range(sweeps):
         g = a[None, :, None] * b[None, None, :]
         if cannot_divide(g):
@@ -464,21 +421,6 @@ def _model_frf(model: Model, data: FRFData, loads: AppliedLoads | None) -> np.nd
 
 def _model_parts(model: Model, data: FRFData, loads: AppliedLoads | None) -> ModelParts:
     return model_parts(model.M, model.C, model.K, model.dofs, data, loads)
-
-
-def _round_json(search: SearchResult, H, valid, dofs) -> dict:
-    best = search.best
-    runner = next((c for c in search.candidates[1:] if c.name != best.name or c.effect.dofs != best.effect.dofs), None)
-    return {
-        "best": {"effect": best.name, "dofs": list(best.effect.dofs), "parameters": best.effect.parameters,
-                 "criterion": best.criterion},
-        "runner_up": None if runner is None else {
-            "effect": runner.name, "dofs": list(runner.effect.dofs),
-            "parameters": runner.effect.parameters, "delta_criterion": runner.delta_criterion},
-        "none_delta_criterion": search.none().delta_criterion,
-        "gap_before": float(np.sqrt(search.rss0 / search.n_valid)),
-        "gap_best": float(np.sqrt(best.rss / search.n_valid)),
-    }
 
 
 def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_after: float,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -80,12 +81,18 @@ def test_example_demo_end_to_end(tmp_path):
 
 
 def test_lab_demo_end_to_end(tmp_path):
-    """The main job: simulated lab, stepped sine, SSID with reactions, correlation."""
-    p = run("demo", "--out", str(tmp_path / "lab"))
+    """The main job, README line 1, as written: the installed ``ssidlab`` command (the
+    console script beside this interpreter, as ``pip install .`` makes it) runs the simulated
+    lab, stepped sine, SSID with reactions, correlation and discrepancy. ``.ci/run`` relies
+    on this test for that line instead of running the demo a second time."""
+    script = Path(sys.executable).with_name("ssidlab")
+    assert script.exists(), f"no ssidlab console script beside {sys.executable}: install the project (pip install .)"
+    p = subprocess.run([str(script), "demo", "--out", str(tmp_path / "lab")], capture_output=True, text=True,
+                       timeout=600)
     assert p.returncode == 0, p.stderr
     out = tmp_path / "lab"
     for name in ("frf.h5", "model.h5", "result.json", "summary.json", "correlation.json",
-                 "frf_overlay.png", "mac.png"):
+                 "frf_overlay.png", "mac.png", "discrepancy.json", "updated_model.h5"):
         assert (out / name).stat().st_size > 0, name
     from ssid.io import read_frf
 

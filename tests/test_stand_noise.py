@@ -22,9 +22,9 @@ from ssid.discrepancy.effects import Effect, apply_effect
 from ssid.discrepancy.stand_noise import StandNoise, _GainsCost, eiv_cost
 from ssid.frf import applied_loads
 from ssid.io import Model
-from ssid.models import example_system
+from ssid.models import example_system, frf_on_test_stand
 
-from test_reaction_loads import REACTIONS, _noisy, _on_stand, _substructure, _with_load_cell_gain
+from test_reaction_loads import INPUTS, REACTIONS, _noisy, _on_stand, _substructure, _with_load_cell_gain
 
 
 def _brute_force_cost(H, W2, H_load, T, var_T) -> float:
@@ -174,3 +174,14 @@ def test_with_a_wrong_load_cell_and_nothing_hidden_the_corrected_search_names_no
     assert fix["effect"] == "none", fix["text"]
     assert fix["reaction_gain"][REACTIONS[r]] == pytest.approx(gain, rel=0.002)
     assert fix["reaction_gain"][REACTIONS[1 - r]] == pytest.approx(1.0, rel=0.002)
+
+
+def test_a_record_too_short_to_estimate_the_reactions_noise_says_it_takes_them_as_exact():
+    # 40 lines: fewer than the two-level roughness fit needs (4 per bin, 14 bins). A made-up
+    # level would set the reactions' noise against the accelerances' at random.
+    M, C, K, dofs = _substructure()
+    frf = _noisy(frf_on_test_stand(M, C, K, dofs, INPUTS, REACTIONS, np.linspace(3.0, 400.0, 40)), 0.01, 1)
+    res = find_discrepancy(Model(M=M, C=C, K=K, dofs=dofs), dataclasses.replace(frf, H_var=None, H_reaction_var=None))
+    assert res.info["noise"]["reactions"].startswith("taken as exact")
+    assert all("stand_noise" not in c for c in res.info["cross_validation"]["checks"])
+    assert res.info["calibration"]["scored"] == "per-value weighted residual"

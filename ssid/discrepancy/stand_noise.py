@@ -341,5 +341,6 @@ def refine_channel_gains(stand: StandNoise, H_load: np.ndarray, inputs: list[str
     res = minimize(fun, x0, jac=True, method="L-BFGS-B", options={"maxiter": 500})
     x, cost = (res.x, float(res.fun)) if res.fun <= cost0 else (x0, cost0)
     a_, b_, g_ = unpack(x)
-    common = float(np.exp(np.mean(np.log(np.abs(b_)))))
-    return a_ * common, b_ / common, common / g_, cost
+    common = float(np.exp(np.mean(np.log(np.abs(b_))))) if np.all(b_ != 0) else 1.0
+    with np.errstate(divide="ignore"):  # a load cell whose reaction drops out: gamma infinite
+        return a_ * common, b_ / common, common / g_, cost

@@ -169,7 +169,9 @@ def reaction_variance(frf: FRFData, valid: np.ndarray) -> np.ndarray | None:
     For a file with reactions but no ``H_reaction_var`` (a UFF exchange, an older run): the
     same two-level model as the accelerances' without coherence, relative plus floor per
     reaction FRF (module docstring). A line counts where any of its accelerances is valid.
-    None without reactions.
+    None without reactions, or when no reaction FRF has the lines to estimate it from (the
+    accelerances' weights may take an arbitrary common level, the reactions' may not: it is
+    their noise relative to the accelerances' that matters).
     """
     if frf.H_reaction is None:
         return None
@@ -178,6 +180,8 @@ def reaction_variance(frf: FRFData, valid: np.ndarray) -> np.ndarray | None:
     Hr = np.where(vr, Hr, 0)
     var = two_level_variance(Hr, vr, np.fmax(neighbour_power(Hr, vr), np.abs(Hr) ** 2))
     var = np.where(vr & np.isfinite(var) & (var > 0), var, np.nan)
+    if not np.isfinite(var).any():
+        return None
     return _filled(np.fmax(var, _running_median(var, 5)))
 
 

@@ -201,11 +201,15 @@ def find_discrepancy(
         stated = loads.var is not None
         if not stated:  # a file without H_reaction_var: the reactions are noisy all the same
             loads = applied_loads(dataclasses.replace(data, H_reaction_var=reaction_variance(data, valid)))
-        W = weights_with_reaction_noise(W, model.M, model.C, model.K, model.dofs, data, loads)
-        noise = {**noise, "reactions": ("the measured reactions' stated variance" if stated else
-                                        "the measured reactions' variance from their roughness (the file "
-                                        "states none)") + ", through the nominal model, added to each "
-                 "value's; the leader is also tested with it modelled exactly (errors in variables)"}
+        if loads.var is None:
+            noise = {**noise, "reactions": "taken as exact: the file states no variance for them and "
+                     "their lines are too few to estimate one from"}
+        else:
+            W = weights_with_reaction_noise(W, model.M, model.C, model.K, model.dofs, data, loads)
+            noise = {**noise, "reactions": ("the measured reactions' stated variance" if stated else
+                                            "the measured reactions' variance from their roughness (the "
+                                            "file states none)") + ", through the nominal model, added to "
+                     "each value's; the leader is also tested with it modelled exactly (errors in variables)"}
     stand = StandNoise.build(H, W_meas, loads, data.outputs, model.dofs)
     warnings: list[str] = []
 

@@ -42,8 +42,8 @@ from .effects import Effect
 from .search import SearchResult
 from .stand_noise import StandNoise, refine_channel_gains
 
-__all__ = ["ChannelGains", "ExactStandNoise", "ModelParts", "check_channel_gains", "fit_channel_gains",
-           "model_parts"]
+__all__ = ["ChannelGains", "ModelParts", "check_channel_gains", "fit_channel_gains", "model_parts",
+           "refit_gains_exact"]
 
 #: Gains within this fraction of their median are described as one common factor.
 COMMON_RTOL = 0.02
@@ -67,10 +67,14 @@ class ModelParts:
     H_reactions : (n_react, n_freq, n_out, n_in) complex
         The part each measured reaction carries (its column of the loads times the model's
         accelerance from its DOF); n_react = 0 when no reactions are applied.
+    H_load : (n_freq, n_out, n_load) complex or None
+        The model's accelerance from the load DOFs that both come from (None off a stand),
+        for the gains' errors-in-variables refit.
     """
 
     H_inputs: np.ndarray
     H_reactions: np.ndarray
+    H_load: np.ndarray | None = None
 
     @classmethod
     def plain(cls, H_model: np.ndarray) -> ModelParts:
@@ -99,7 +103,7 @@ def model_parts(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: list[s
     H_inputs = H_load[:, :, rows]
     H_reactions = np.stack([H_load[:, :, loads.dofs.index(lbl), None] * frf.H_reaction[:, r, None, :]
                             for r, lbl in enumerate(frf.reactions)])
-    return ModelParts(H_inputs, H_reactions)
+    return ModelParts(H_inputs, H_reactions, H_load)
 
 
 @dataclass
@@ -236,28 +240,17 @@ def fit_channel_gains(H_meas: np.ndarray, H_model: np.ndarray | ModelParts, W: n
     return ChannelGains(a, b, last, n_out + n_in + n_r - 1, gamma)
 
 
-@dataclass
-class ExactStandNoise:
-    """What the gains need on a test stand to be scored with the reactions' noise modelled
-    exactly (``ssid.discrepancy.stand_noise``): the data as measured and the nominal and
-    updated models' accelerances from the load DOFs, (n_freq, n_out, n_load)."""
-
-    stand: StandNoise
-    H_load_nominal: np.ndarray
-    H_load_updated: np.ndarray
-
-
-def _refit_exact(gains: ChannelGains, exact: ExactStandNoise, H_load: np.ndarray,
-                 data: FRFData) -> ChannelGains:
-    """``gains`` refitted on the errors-in-variables cost; their ``rss`` is that cost."""
-    a, b, gamma, cost = refine_channel_gains(exact.stand, H_load, data.inputs, list(data.reactions or []),
+def refit_gains_exact(gains: ChannelGains, stand: StandNoise, parts: ModelParts, data: FRFData) -> ChannelGains:
+    """``gains`` refitted on the errors-in-variables cost against the model of ``parts``
+    (``stand_noise.refine_channel_gains``); their ``rss`` is that cost."""
+    a, b, gamma, cost = refine_channel_gains(stand, parts.H_load, data.inputs, list(data.reactions or []),
                                              gains.output_gain, gains.input_gain, gains.reaction_gain)
     return ChannelGains(a, b, cost, gains.n_parameters, gamma)
 
 
 def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray | ModelParts,
                         H_upd: np.ndarray | ModelParts, W: np.ndarray, effects: list[Effect],
-                        data: FRFData, exact: ExactStandNoise | None = None) -> dict:
+                        data: FRFData, stand: StandNoise | None = None) -> dict:
     """Channel gains against the effects, by the search's own EBIC; the workflow's
     ``info["calibration"]`` (``docs/discrepancy.md``, section 8).
 
@@ -268,30 +261,30 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray |
     FRFs, as :class:`ModelParts` when the model is loaded by measured reactions (the load
     cells' gains are then fitted too).
 
-    ``exact`` (a stand, reactions applied): the gains are refitted, and gains and models
+    ``stand`` (a test stand, reactions applied): the gains are refitted, and gains and models
     scored, on the errors-in-variables cost instead of the per-value weighted RSS. A gain
     that scales the noise the reactions bring in (an output at a held DOF, a load cell)
     otherwise pays by shrinking that noise: without stated variances, every null stand case
-    flagged the held DOF's accelerometer at about x 0.15.
+    tried flagged the held DOF's accelerometer at x 0.09-0.14.
     """
     n_eff = sum(e.n_parameters for e in effects)
     alone = fit_channel_gains(H, H_nom, W)
-    exact = exact if exact is not None and alone.reaction_gain.size else None
-    if exact is None:
+    exact = stand is not None and alone.reaction_gain.size > 0
+    if not exact:
         rss_nom, rss_best, k_best = search.rss0, search.best.rss, search.best.effect.n_parameters
     else:
-        alone = _refit_exact(alone, exact, exact.H_load_nominal, data)
-        rss_nom = exact.stand.cost(exact.H_load_nominal)
-        rss_best, k_best = (exact.stand.cost(exact.H_load_updated), n_eff) if effects else (rss_nom, 0)
+        alone = refit_gains_exact(alone, stand, H_nom, data)
+        rss_nom = stand.cost(H_nom.H_load)
+        rss_best, k_best = (stand.cost(H_upd.H_load), n_eff) if effects else (rss_nom, 0)
     d_alone = float(search.criterion(alone.rss, alone.n_parameters) - search.criterion(rss_best, k_best))
     on_top, d_top, rss_upd = alone, d_alone, rss_nom
     if effects:
         on_top = fit_channel_gains(H, H_upd, W)
-        if exact is None:
+        if not exact:
             H_upd_total = H_upd.total() if isinstance(H_upd, ModelParts) else H_upd
             rss_upd = float(np.sum(W**2 * np.abs(H - H_upd_total) ** 2))
         else:
-            on_top = _refit_exact(on_top, exact, exact.H_load_updated, data)
+            on_top = refit_gains_exact(on_top, stand, H_upd, data)
             rss_upd = rss_best
         d_top = float(search.criterion(on_top.rss, n_eff + on_top.n_parameters)
                       - search.criterion(rss_upd, n_eff))
@@ -332,7 +325,7 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray |
         "gap_with_gains": gap,
         "delta_criterion_alone": d_alone,
         "delta_criterion_on_top": d_top,
-        "scored": "errors in variables (the reactions' noise modelled exactly)" if exact is not None
+        "scored": "errors in variables (the reactions' noise modelled exactly)" if exact
                   else "per-value weighted residual",
         "model": "H_meas[k, i, j] ~ a_i b_j H_model[k, i, j], one real gain per output and per "
                  "input (a factor common to all is given to the outputs); H_model the nominal "

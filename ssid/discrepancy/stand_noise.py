@@ -79,14 +79,22 @@ def eiv_cost(H: np.ndarray, W2: np.ndarray, H_load: np.ndarray, T: np.ndarray, v
     float: the cost, about the number of valid complex values at the true model.
     """
     r = np.where(W2 > 0, H - np.einsum("kol,kli->koi", H_load, T), 0)
+    z = _sigma_inv(r, W2, H_load[:, :, :, None] * np.sqrt(var_T)[:, None, :, :])
+    return float(np.sum(np.conj(r) * z).real)
+
+
+def _sigma_inv(r: np.ndarray, W2: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``z = Sigma^-1 r`` line by line and input by input, ``Sigma = diag(1 / W2) + B B^H``.
+
+    Woodbury: ``z = P r - P B (I + B^H P B)^-1 B^H P r`` with ``P = diag(W2)``, which holds
+    for ``W2 = 0`` too (a blanked value's infinite variance). ``r``, ``W2``: (k, o, i);
+    ``B``: (k, o, c, i), ``c`` noise columns (the loads).
+    """
     Pr = W2 * r
-    B = H_load[:, :, :, None] * np.sqrt(var_T)[:, None, :, :]  # (k, o, l, i)
-    s = np.einsum("koli,koi->kil", B.conj(), Pr)
-    A = np.einsum("koli,koi,komi->kilm", B.conj(), W2, B)
-    A = A + np.eye(A.shape[-1])
-    quad = np.sum(np.conj(r) * Pr).real
-    corr = np.sum(np.conj(s) * np.linalg.solve(A, s[..., None])[..., 0]).real
-    return float(quad - corr)
+    s = np.einsum("koci,koi->kic", B.conj(), Pr)
+    A = np.einsum("koci,koi,kodi->kicd", B.conj(), W2, B) + np.eye(B.shape[2])
+    w = np.linalg.solve(A, s[..., None])[..., 0]
+    return Pr - W2 * np.einsum("koci,kic->koi", B, w)
 
 
 @dataclass
@@ -203,11 +211,10 @@ def _refit_oscillator(stand: StandNoise, search: SearchResult, cand: Candidate) 
 
     res = minimize(cost, x0, method="Nelder-Mead", options={"maxfev": OSC_REFIT_EVALS, "xatol": 1e-4,
                                                              "fatol": 1e-6})
-    x = res.x if res.fun <= cost(x0) else x0
-    m, wo, zo = clipped(x)
+    m, wo, zo = clipped(res.x)
     eff = Effect(cand.name, cand.effect.dofs,
                  {"mass_kg": m, "stiffness_n_per_m": m * wo**2, "damping_n_s_per_m": 2 * zo * m * wo})
-    return min(float(res.fun), cost(x0)), eff
+    return float(res.fun), eff
 
 
 def stand_noise_check(stand: StandNoise, search: SearchResult, cand: Candidate) -> dict:
@@ -278,11 +285,7 @@ class _GainsCost:
         r = np.where(self.W2 > 0, self.H - a[None, :, None] * M, 0)
         Ca = self.C0 * g[None, None, :, None]  # C / a
         C = a[None, :, None, None] * Ca
-        Pr = self.W2 * r
-        s = np.einsum("korj,koj->kjr", C.conj(), Pr)
-        A = np.einsum("korj,koj,kosj->kjrs", C.conj(), self.W2, C) + np.eye(g.size)
-        w = np.linalg.solve(A, s[..., None])[..., 0]  # (k, j, r)
-        z = Pr - self.W2 * np.einsum("korj,kjr->koj", C, w)
+        z = _sigma_inv(r, self.W2, C)
         cost = float(np.sum(np.conj(r) * z).real)
         if not grad:
             return cost

@@ -142,11 +142,11 @@ def two_level_variance(H: np.ndarray, valid: np.ndarray, P: np.ndarray) -> np.nd
     return out
 
 
-def _variance_shape(frf: FRFData, H: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, str, bool]:
+def _variance_shape(coherence: np.ndarray | None, H: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, str, bool]:
     """Variance (n_freq, n_out, n_in), where it came from, and whether its level still needs setting."""
     P = np.fmax(neighbour_power(H, valid), np.abs(H) ** 2)
-    if frf.coherence is not None:
-        g2 = np.clip(np.asarray(frf.coherence, dtype=float), COHERENCE_FLOOR, 1.0)
+    if coherence is not None:
+        g2 = np.clip(np.asarray(coherence, dtype=float), COHERENCE_FLOOR, 1.0)
         var = np.maximum(1 - g2, COHERENCE_FLOOR) / g2 * P
         source, needs_level = "coherence; level per FRF from roughness", True
     else:
@@ -177,12 +177,8 @@ def reaction_variance(frf: FRFData, valid: np.ndarray) -> np.ndarray | None:
         return None
     Hr = np.asarray(frf.H_reaction)
     vr = np.broadcast_to(valid.any(axis=1, keepdims=True), Hr.shape) & np.isfinite(Hr)
-    Hr = np.where(vr, Hr, 0)
-    var = two_level_variance(Hr, vr, np.fmax(neighbour_power(Hr, vr), np.abs(Hr) ** 2))
-    var = np.where(vr & np.isfinite(var) & (var > 0), var, np.nan)
-    if not np.isfinite(var).any():
-        return None
-    return _filled(np.fmax(var, _running_median(var, 5)))
+    var = _variance_shape(None, np.where(vr, Hr, 0), vr)[0]
+    return _filled(var) if np.isfinite(var).any() else None
 
 
 def noise_weights(frf: FRFData, valid: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -205,7 +201,7 @@ def noise_weights(frf: FRFData, valid: np.ndarray) -> tuple[np.ndarray, dict]:
         s2 = np.where(np.isfinite(s2) & (s2 > 0), s2, np.nan)
         source, needs_level = "H_var", False
     else:
-        s2, source, needs_level = _variance_shape(frf, H, valid)
+        s2, source, needs_level = _variance_shape(frf.coherence, H, valid)
     s2 = _filled(s2)
     kappa = np.ones(H.shape[1:])
     if needs_level:

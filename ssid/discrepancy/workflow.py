@@ -32,7 +32,7 @@ from ..errors import InputError
 from ..frf import AppliedLoads, FRFData, applied_loads, require_response
 from ..io import Model
 from ..reaction_loads import choose_reactions, model_frf_under_loads, weights_with_reaction_noise
-from .calibration import ExactStandNoise, ModelParts, check_channel_gains, fit_channel_gains, model_parts
+from .calibration import ModelParts, check_channel_gains, fit_channel_gains, model_parts, refit_gains_exact
 from .effects import Effect, apply_effect_to_model, effect_dynamic_stiffness
 from .report import (
     LOG_GAP_METRIC,
@@ -51,7 +51,7 @@ from .search import (
     search_round,
 )
 from .search_json import candidate_json, listed_candidates, localisation_json, round_json
-from .stand_noise import StandNoise, refine_channel_gains, stand_noise_check
+from .stand_noise import StandNoise, stand_noise_check
 from .undamped import search_undamped
 from .weights import noise_weights, reaction_variance
 
@@ -251,12 +251,7 @@ def find_discrepancy(
         parts_nom, parts_upd = H_nom, H_upd
     else:  # the load cells' gains are fitted too
         parts_nom, parts_upd = _model_parts(nominal, data, loads), _model_parts(updated, data, loads)
-    exact = None
-    if stand is not None:
-        def H_load(m: Model) -> np.ndarray:
-            return stand.loads.model_accelerance(m.M, m.C, m.K, m.dofs, omega, data.outputs)
-        exact = ExactStandNoise(stand, H_load(nominal), H_load(updated))
-    calibration = check_channel_gains(search, H, parts_nom, parts_upd, W, effects, data, exact)
+    calibration = check_channel_gains(search, H, parts_nom, parts_upd, W, effects, data, stand)
     if calibration["flagged"]:
         fix = _search_gains_corrected(nominal, omega, H, W, W_meas, out_idx, in_idx, data, loads, calibration,
                                       stand)
@@ -329,12 +324,6 @@ def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx
     gain is too small to divide by.
     """
 
-    def refined(model: Model, a, b, gamma):
-        if stand is None or not gamma.size or not np.all(np.isfinite(gamma) & (gamma != 0)):
-            return a, b, gamma
-        H_load = stand.loads.model_accelerance(model.M, model.C, model.K, model.dofs, omega, data.outputs)
-        return refine_channel_gains(stand, H_load, data.inputs, data.reactions, a, b, gamma)[:3]
-
     def corrected_weights(g, loads_c):
         Wc = W_meas * np.abs(g)
         if loads_c is None or loads_c.var is None:
@@ -358,11 +347,13 @@ def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx
         found = _search(nominal, nominal.C, omega, Hc, Wc, out_idx, in_idx, None if loads_c is None else loads_c.T)
         _validate(found, StandNoise.build(Hc, W_meas * np.abs(g), loads_c, data.outputs, nominal.dofs))
         updated = nominal if found.best.name == "none" else apply_effect_to_model(nominal, found.best.effect)
-        gains = fit_channel_gains(H, _model_parts(updated, data, loads), W)
+        parts = _model_parts(updated, data, loads)
+        gains = fit_channel_gains(H, parts, W)
+        if stand is not None and gains.reaction_gain.size and np.all(np.isfinite(gains.reaction_gain)):
+            gains = refit_gains_exact(gains, stand, parts, data)
         a, b = gains.output_gain, gains.input_gain
         if gains.reaction_gain.size:
             gamma = gains.reaction_gain
-        a, b, gamma = refined(updated, a, b, gamma)
     eff = found.best.effect
     g = a[None, :, None] * b[None, None, :]
     if cannot_divide(g):

@@ -13,6 +13,7 @@ import os
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import h5py
@@ -97,7 +98,19 @@ def test_writes_past_the_limit_are_dropped_counted_and_said():
         pump = OutputPump(limit_chars=10 * PAGE).start()
 
         def write_lines():
-            for ln in lines:
+            # Fill the pipe first and wait until the pump's writer has filled it: nobody reads,
+            # so it writes no more, and the limit then counts from a fixed point. Without the
+            # wait, a writer thread scheduled late (a loaded 2-core machine) filled the pipe
+            # only after the dropping had begun, and freed room for a later line (seen: lines
+            # 0-405, then 1895 on).
+            first = PAGE // len(lines[0]) + 5
+            for ln in lines[:first]:
+                print(ln, flush=True)
+            for _ in range(1000):
+                if pump._chars_out >= PAGE - len(lines[0]):
+                    break
+                time.sleep(0.01)
+            for ln in lines[first:]:
                 print(ln, flush=True)
 
         writer = threading.Thread(target=write_lines, daemon=True)

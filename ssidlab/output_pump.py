@@ -9,8 +9,9 @@ limits, for as long as the reader waits (seen: a run blocked for 20 s in an even
 :class:`OutputPump` takes ``sys.stdout`` and ``sys.stderr`` over for the length of a run:
 their writes go on one queue (so the two keep their order), and one daemon thread writes
 them out. The run never waits for its reader. If the reader falls more than
-``limit_chars`` behind, further text is dropped and counted, and a line says so once the
-reader catches up: the run file, not the printout, is the record. When the run ends,
+``limit_chars`` behind, further text is dropped and counted, and a line in the printout,
+where the gap is, says how many lines are missing: the run file, not the printout, is the
+record. When the run ends,
 :meth:`OutputPump.close` waits a bounded time for the rest to be read, so a reader that
 never reads again cannot keep the process (its instruments already safe) from exiting.
 
@@ -81,6 +82,7 @@ class OutputPump:
         self._chars_in = 0
         self._chars_out = 0
         self.n_dropped_lines = 0
+        self._n_said_dropped = 0  # dropped lines a queued note already counts
         self._at_line_start, self._dropping = True, False
         self._broken: BrokenPipeError | None = None
         self._saved: tuple[TextIO, TextIO] | None = None
@@ -115,6 +117,7 @@ class OutputPump:
             return True
         sys.stdout, sys.stderr = self._saved
         self._saved = None
+        self._note_dropped()  # the gap at the end of the run's output
         self._queue.put(_CLOSE)
         assert self._thread is not None
         self._thread.join(timeout_s)
@@ -148,6 +151,8 @@ class OutputPump:
         # Whole lines are kept or dropped (print writes a line's text and its newline apart).
         if self._at_line_start:
             self._dropping = self._chars_in - self._chars_out > self.limit_chars
+            if not self._dropping:
+                self._note_dropped()  # the reader caught up: say so where the lines are missing
         self._at_line_start = s.endswith("\n")
         if self._dropping:
             self.n_dropped_lines += s.count("\n")
@@ -155,13 +160,23 @@ class OutputPump:
         self._chars_in += len(s)
         self._queue.put((target, s))
 
+    def _note_dropped(self) -> None:
+        """Queue a line counting the lines dropped since the last such line, if any."""
+        n = self.n_dropped_lines - self._n_said_dropped
+        if n <= 0:
+            return
+        self._n_said_dropped = self.n_dropped_lines
+        note = (f"ssidlab: {n} output line(s) dropped here while the output was not read "
+                f"(the run file holds every measured line)\n")
+        self._chars_in += len(note)
+        self._queue.put((self._notes, note))
+
     def _raise_if_broken(self) -> None:
         if self._broken is not None:
             raise BrokenPipeError(self._broken.errno, self._broken.strerror)
 
     # --------------------------------------------------------------------- the writer
     def _write_out(self) -> None:
-        said_dropped = 0
         while True:
             item = self._queue.get()
             if item is _CLOSE:
@@ -170,10 +185,6 @@ class OutputPump:
             if self._broken is None:
                 self._write(target, s)
             self._chars_out += len(s)
-            if self.n_dropped_lines > said_dropped and self._chars_out >= self._chars_in:
-                n, said_dropped = self.n_dropped_lines - said_dropped, self.n_dropped_lines
-                self._write(self._notes, f"ssidlab: {n} output line(s) dropped while the output was not read "
-                            f"(the run file holds every measured line)\n")
 
     def _write(self, target: TextIO, s: str) -> None:
         encoding = getattr(target, "encoding", None) or "utf-8"

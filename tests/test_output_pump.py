@@ -91,6 +91,24 @@ def std_streams_on_a_small_pipe():
                 pass
 
 
+def fill_the_pipe(pump: OutputPump, lines: list[str]) -> int:
+    """Print the first of ``lines`` until the pump's writer has filled the pipe; return how many.
+
+    Nobody reads, so the writer writes no more, and the pump's limit then counts from a fixed
+    point. Without the wait, a writer thread scheduled late (a loaded 2-core machine) filled
+    the pipe only after the dropping had begun, and freed room for a later line (seen: lines
+    0-405, then 1895 on).
+    """
+    first = PAGE // len(lines[0]) + 5
+    for ln in lines[:first]:
+        print(ln, flush=True)
+    for _ in range(1000):
+        if pump._chars_out >= PAGE - len(lines[0]):
+            break
+        time.sleep(0.01)
+    return first
+
+
 def test_writes_past_the_limit_are_dropped_counted_and_said():
     lines = [f"line {i:04d} " + "x" * 90 for i in range(2000)]  # 200 KB against a 4 KB pipe
     got: list[bytes] = []
@@ -98,18 +116,7 @@ def test_writes_past_the_limit_are_dropped_counted_and_said():
         pump = OutputPump(limit_chars=10 * PAGE).start()
 
         def write_lines():
-            # Fill the pipe first and wait until the pump's writer has filled it: nobody reads,
-            # so it writes no more, and the limit then counts from a fixed point. Without the
-            # wait, a writer thread scheduled late (a loaded 2-core machine) filled the pipe
-            # only after the dropping had begun, and freed room for a later line (seen: lines
-            # 0-405, then 1895 on).
-            first = PAGE // len(lines[0]) + 5
-            for ln in lines[:first]:
-                print(ln, flush=True)
-            for _ in range(1000):
-                if pump._chars_out >= PAGE - len(lines[0]):
-                    break
-                time.sleep(0.01)
+            first = fill_the_pipe(pump, lines)
             for ln in lines[first:]:
                 print(ln, flush=True)
 
@@ -125,11 +132,45 @@ def test_writes_past_the_limit_are_dropped_counted_and_said():
     assert written_unread, "the writes waited for the reader"
     assert closed and pump.n_dropped_lines > 0
     text = got[0].decode().splitlines()
-    note = f"ssidlab: {pump.n_dropped_lines} output line(s) dropped while the output was not read"
+    note = f"ssidlab: {pump.n_dropped_lines} output line(s) dropped here while the output was not read"
     assert text[-1].startswith(note)
     kept = text[:-1]
     # What was kept is the run's first lines, in order and whole; the rest was dropped.
     assert kept == lines[:len(kept)] and 0 < len(kept) == len(lines) - pump.n_dropped_lines
+
+
+def test_lines_dropped_mid_run_are_said_where_they_are_missing():
+    """A reader that stops, then reads again: the printout says at the gap how many lines it
+    lacks, and goes on with the lines written after the reader caught up."""
+    lines = [f"line {i:04d} " + "x" * 90 for i in range(400)]
+    burst = 300  # 30 KB: the pipe's 4 KB, the queue's 16 KB, then dropped lines
+    got: list[bytes] = []
+    with std_streams_on_a_small_pipe() as (r, w):
+        pump = OutputPump(limit_chars=4 * PAGE).start()
+        for ln in lines[fill_the_pipe(pump, lines):burst]:
+            print(ln, flush=True)
+        assert pump.n_dropped_lines > 0
+        n_gap = pump.n_dropped_lines
+        reader = threading.Thread(target=lambda: got.append(read_all(r)), daemon=True)
+        reader.start()
+        for _ in range(3000):  # the reader reads again; wait until it has caught up
+            if pump._chars_out >= pump._chars_in:
+                break
+            time.sleep(0.01)
+        for ln in lines[burst:]:
+            print(ln, flush=True)
+        closed = pump.close(timeout_s=30)
+        os.close(w)
+        reader.join(30)
+    assert closed and pump.n_dropped_lines == n_gap, "nothing is dropped once the reader reads"
+    text = got[0].decode().splitlines()
+    notes = [i for i, ln in enumerate(text) if ln.startswith("ssidlab:")]
+    assert len(notes) == 1, text[-3:]
+    gap = notes[0]
+    assert text[gap].startswith(f"ssidlab: {n_gap} output line(s) dropped here")
+    before, after = text[:gap], text[gap + 1:]
+    assert before == lines[:len(before)] and len(before) == burst - n_gap
+    assert after == lines[burst:]
 
 
 def test_a_reader_gone_is_a_broken_pipe_for_the_run():

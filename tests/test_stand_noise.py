@@ -117,12 +117,12 @@ def test_with_nothing_hidden_on_a_stand_and_stated_variances_no_effect_is_named(
 
 
 def test_without_stated_variances_the_reactions_noise_is_estimated_and_mostly_no_effect_is_named():
-    # A UFF exchange states no variances: both are estimated from roughness, the reactions'
-    # less well (their relative level about half the truth here, their floor a tenth where a
-    # reaction is below it). At this commit 8 of the seeds 1-12 give none; before the
-    # reactions' noise was estimated, none of them did (an effect at a held DOF every time),
-    # and the calibration check flagged the held DOF's accelerometer on each of the seeds
-    # 1-6 (x 0.09-0.14); scored with the reactions' noise modelled exactly, on none.
+    # A UFF exchange states no variances: both are estimated from roughness. 11 of the seeds
+    # 1-12 give none. With the roughness binned by the power of the second difference's own
+    # lines, a reaction's floor came out a tenth of the truth where it is below it, and 8 did;
+    # before the reactions' noise was estimated, none of them did (an effect at a held DOF
+    # every time), and the calibration check flagged the held DOF's accelerometer on each of
+    # the seeds 1-6 (x 0.09-0.14); scored with the reactions' noise modelled exactly, on none.
     named = []
     for seed in range(1, 13):
         model, frf = _null_case(seed)
@@ -131,7 +131,7 @@ def test_without_stated_variances_the_reactions_noise_is_estimated_and_mostly_no
         assert not res.info["calibration"]["flagged"], res.info["calibration"]["text"]
         assert res.info["calibration"]["scored"].startswith("errors in variables")
         named.append(res.effect.name)
-    assert named.count("none") >= 7, named
+    assert named.count("none") >= 10, named
 
 
 @pytest.mark.parametrize("truth", [

@@ -134,27 +134,40 @@ def test_without_stated_variances_the_reactions_noise_is_estimated_and_mostly_no
     assert named.count("none") >= 10, named
 
 
-@pytest.mark.parametrize("truth", [
-    Effect("grounded_spring", ("13",), {"stiffness_n_per_m": 2e5}),
-    Effect("added_mass", ("0",), {"mass_kg": 0.1}),
-    Effect("coupling_spring", ("12", "13"), {"stiffness_n_per_m": 2000.0}),
-], ids=lambda e: e.name)
-def test_an_effect_at_a_held_dof_is_found_with_the_errors_in_variables_estimate(truth):
+@pytest.mark.parametrize("truth, seed", [
+    (Effect("grounded_spring", ("13",), {"stiffness_n_per_m": 2e5}), 4),
+    (Effect("added_mass", ("0",), {"mass_kg": 0.1}), 4),
+    (Effect("coupling_spring", ("12", "13"), {"stiffness_n_per_m": 2000.0}), 4),
+    # The search's per-value ranking put an oscillator tuned below the band first on this
+    # seed (0.99 kg, 3010 N/m, 20.6 N s/m: a damper there); only the leader was checked, and
+    # it passed. Of the three first candidates checked, the damper is the better under the
+    # exact noise model (at 20 and 50 N s/m, seeds 1-6: the oscillator had been named on 6
+    # of 12, the damper now on 12, at 16-26 and 46-56 N s/m).
+    (Effect("grounded_damper", ("13",), {"damping_n_s_per_m": 20.0}), 1),
+], ids=lambda x: x.name if isinstance(x, Effect) else str(x))
+def test_an_effect_at_a_held_dof_is_found_with_the_errors_in_variables_estimate(truth, seed):
     M, C, K, dofs = _substructure()
     Mt, Ct, Kt, _ = apply_effect(M, C, K, dofs, truth)
-    frf = _noisy(_on_stand(Mt, Ct, Kt, dofs), 0.01, 4)
+    frf = _noisy(_on_stand(Mt, Ct, Kt, dofs), 0.01, seed)
     res = find_discrepancy(Model(M=M, C=C, K=K, dofs=dofs), frf)
     assert res.effect.name == truth.name and set(res.effect.dofs) == set(truth.dofs), res.effect.describe()
-    check = res.info["cross_validation"]["checks"][-1]
+    named = [c for c in res.info["cross_validation"]["checks"] if c["named"]]
+    assert len(named) == 1
+    check = named[0]
     assert check["passed"] and check["stand_noise"]["delta_criterion"] < 0
+    assert all(c["stand_noise"]["delta_criterion"] >= check["stand_noise"]["delta_criterion"]
+               for c in res.info["cross_validation"]["checks"] if c["passed"])
     # The named parameters are the refit's, and the listed winner agrees with the result.
     assert res.effect.parameters == check["stand_noise"]["parameters"]
     first = res.candidates[0]
     assert first["parameters"] == res.effect.parameters
     assert first["gap_after"] == pytest.approx(res.gap_after, rel=1e-6)
-    # Seeds 1-6 gave 0.2-1.2 % off for these three.
+    # Seeds 1-6 gave 0.2-1.2 % off for the spring, the mass and the coupling spring; the
+    # damper is seen far less (the stand's own damping and the reactions' noise at its DOF:
+    # 16-26 N s/m for 20 on seeds 1-6; 21.1 on this one).
     (key, value), = truth.parameters.items()
-    assert res.effect.parameters[key] == pytest.approx(value, rel=0.03)
+    rel = 0.1 if truth.name == "grounded_damper" else 0.03
+    assert res.effect.parameters[key] == pytest.approx(value, rel=rel)
 
 
 @pytest.mark.parametrize("seed, gain", [(10002, 1 / 9.80665), (10012, 1 / 9.80665), (10018, -1.0)])

@@ -44,6 +44,7 @@ from .report import (
 )
 from .search import (
     CRITERION_NAME,
+    Candidate,
     SearchResult,
     adopt_parameters,
     cross_validated_gain,
@@ -118,25 +119,38 @@ def _validate(search: SearchResult, stand: StandNoise | None = None, tries: int 
     modelled exactly (``stand_noise.stand_noise_check``). If none of ``tries``
     leaders passes, none wins: a candidate that was never checked is not named.
 
-    Returns the checks made (effect, DOFs, held-out gain, the stand check, passed), leader first.
+    On a stand the first ``tries`` candidates are all checked, and of those that pass the
+    one with the lowest criterion under the exact noise model is named: the search's
+    per-value ranking has the bias the check corrects (an effect at a held DOF shrinks the
+    reactions' noise there), and it favours the effect with the more parameters to shrink it
+    with (an oscillator tuned below the band over the damper it acts as there).
+
+    Returns the checks made (effect, DOFs, held-out gain, the stand check, passed, and
+    ``named`` for the one named), in the order made.
     """
-    checks = []
-    for _ in range(tries):
-        best = search.best
-        if best.name == "none":
-            return checks
-        gain = cross_validated_gain(search, best)
-        check = {"effect": best.name, "dofs": list(best.effect.dofs), "heldout_gain": gain, "passed": gain > 0}
+    checks: list[dict] = []
+    passed: list[tuple[Candidate, dict]] = []
+    for cand in list(search.candidates[:tries]):
+        if cand.name == "none" or (passed and stand is None):
+            break
+        gain = cross_validated_gain(search, cand)
+        check = {"effect": cand.name, "dofs": list(cand.effect.dofs), "heldout_gain": gain,
+                 "passed": gain > 0, "named": False}
         if gain > 0 and stand is not None:
-            check["stand_noise"] = stand_noise_check(stand, search, best)
+            check["stand_noise"] = stand_noise_check(stand, search, cand)
             check["passed"] = check["stand_noise"]["passed"]
         checks.append(check)
         if check["passed"]:
-            if "stand_noise" in check:  # the exact likelihood's estimate, not the search's
-                adopt_parameters(search, best, Effect(best.name, best.effect.dofs,
-                                                      check["stand_noise"]["parameters"]))
-            return checks
-        demote(search, best)
+            passed.append((cand, check))
+        else:
+            demote(search, cand)
+    if passed:
+        best, check = min(passed, key=lambda cc: cc[1].get("stand_noise", {}).get("delta_criterion", 0.0))
+        check["named"] = True
+        if "stand_noise" in check:  # the exact likelihood's estimate, not the search's
+            adopt_parameters(search, best, Effect(best.name, best.effect.dofs,
+                                                  check["stand_noise"]["parameters"]))
+        return checks
     for cand in search.candidates[:search.candidates.index(search.none())]:
         demote(search, cand)
     return checks

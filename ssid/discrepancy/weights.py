@@ -55,19 +55,20 @@ N_BINS = BIN_QUANTILES.size - 1
 COHERENCE_FLOOR = 1e-6
 
 
-def neighbour_power(H: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Mean of ``|H|^2`` at the valid neighbouring lines ``k-1`` and ``k+1``, (n_freq, ...).
+def neighbour_power(H: np.ndarray, valid: np.ndarray, offsets: tuple[int, ...] = (1,)) -> np.ndarray:
+    """Mean of ``|H|^2`` at the valid lines ``k +- d``, ``d`` in ``offsets``, (n_freq, ...).
 
-    NaN where neither neighbour is valid.
+    NaN where none of those lines is valid. The default is the two neighbouring lines.
     """
     P = np.where(valid, np.abs(np.where(valid, H, 0)) ** 2, 0.0)
     v = valid.astype(float)
     s = np.zeros_like(P)
     n = np.zeros_like(P)
-    s[1:] += P[:-1]
-    n[1:] += v[:-1]
-    s[:-1] += P[1:]
-    n[:-1] += v[1:]
+    for d in offsets:
+        s[d:] += P[:-d]
+        n[d:] += v[:-d]
+        s[:-d] += P[d:]
+        n[:-d] += v[d:]
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > 0, s / np.where(n > 0, n, 1.0), np.nan)
 
@@ -113,20 +114,6 @@ def roughness_level(H: np.ndarray, s2: np.ndarray, valid: np.ndarray) -> np.ndar
     return out
 
 
-def _far_power(H: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Mean ``|H|^2`` of the valid lines ``k +- 2`` and ``k +- 3``, NaN where none is valid."""
-    P = np.where(valid, np.abs(np.where(valid, H, 0)) ** 2, 0.0)
-    s = np.zeros_like(P)
-    n = np.zeros_like(P)
-    for d in (2, 3):
-        s[d:] += P[:-d]
-        n[d:] += valid[:-d]
-        s[:-d] += P[d:]
-        n[:-d] += valid[d:]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 0, s / np.where(n > 0, n, 1.0), np.nan)
-
-
 def two_level_variance(H: np.ndarray, valid: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Variance ``alpha P + beta`` of each value, both levels per FRF from roughness.
 
@@ -137,7 +124,7 @@ def two_level_variance(H: np.ndarray, valid: np.ndarray, P: np.ndarray) -> np.nd
     Hz = np.where(valid, H, 0)
     Pz = np.where(np.isfinite(P), P, 0.0)
     d2 = np.abs(Hz[:-2] - 2 * Hz[1:-1] + Hz[2:]) ** 2
-    Pf = _far_power(H, valid)[1:-1]
+    Pf = neighbour_power(H, valid, offsets=(2, 3))[1:-1]
     S = 6 * np.where(np.isfinite(Pf), Pf, 0.0)
     ok = valid[:-2] & valid[1:-1] & valid[2:] & np.isfinite(Pf)
     for idx in np.ndindex(*H.shape[1:]):

@@ -11,9 +11,9 @@ their writes go on one queue (so the two keep their order), and one daemon threa
 them out. The run never waits for its reader. If the reader falls more than
 ``limit_chars`` behind, further text is dropped and counted, and a line in the printout,
 where the gap is, says how many lines are missing: the run file, not the printout, is the
-record. When the run ends,
-:meth:`OutputPump.close` waits a bounded time for the rest to be read, so a reader that
-never reads again cannot keep the process (its instruments already safe) from exiting.
+record. When the run ends, :meth:`OutputPump.close` waits a bounded time for the rest to be
+read, so a reader that never reads again cannot keep the process (its instruments already
+safe) from exiting.
 
 Written by hand because the standard library's ``logging.handlers.QueueHandler`` covers
 log records only, not prints, and its listener writes through the stream's buffered layer,
@@ -152,7 +152,7 @@ class OutputPump:
         if self._at_line_start:
             self._dropping = self._chars_in - self._chars_out > self.limit_chars
             if not self._dropping:
-                self._note_dropped()  # the reader caught up: say so where the lines are missing
+                self._note_dropped()  # back under the limit: the note goes where lines are missing
         self._at_line_start = s.endswith("\n")
         if self._dropping:
             self.n_dropped_lines += s.count("\n")

@@ -14,11 +14,22 @@ compared with depends on what the model is:
 The file cannot say which; the data can: the two hypotheses differ at every line below the
 stand's modes, far more than a missing effect changes the response. ``auto`` takes the one
 whose prediction reproduces the measured FRFs better, and says so with both gaps.
+
+A load cell whose sensitivity is far off (entered in mV/kN for mV/N: it reads 1000 times the
+force) makes the substructure model loaded by the reactions as measured worse than not loaded
+at all, and ``auto`` would take it for the structure on its stand. So when the reactions as
+measured lose, one real factor per load cell is fitted (the prediction is linear in them);
+if at least one load cell then reads as measured (factor within ``AS_MEASURED``) and the
+others' reactions, divided by what they read, make the model beat the unloaded one, the
+reactions are applied so corrected, and the choice names each load cell and its factor (a
+model of the structure on its stand fits factors near 0 instead: the reactions are internal
+forces there).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,8 +37,8 @@ from .correlate_frf import frf_gap
 from .errors import InputError
 from .frf import AppliedLoads, FRFData, accelerance_from_model, applied_loads
 
-__all__ = ["REACTION_CHOICES", "ReactionChoice", "choose_reactions", "model_frf_under_loads",
-           "weights_with_reaction_noise"]
+__all__ = ["REACTION_CHOICES", "ReactionChoice", "choose_reactions", "fit_load_cell_factors",
+           "model_frf_under_loads", "weights_with_reaction_noise"]
 
 #: ``reactions=`` values: decide from the data, apply them, or leave them out.
 REACTION_CHOICES = ("auto", "apply", "ignore")
@@ -35,6 +46,18 @@ REACTION_CHOICES = ("auto", "apply", "ignore")
 #: Modal damping ratio given a model without C for the choice and the reactions' noise only
 #: (the two hypotheses differ by far more than any damping does).
 CHOICE_ZETA = 0.02
+
+#: A load cell whose fitted factor lies in this range reads its force as measured (its small
+#: gain errors are the calibration check's, ``ssid.discrepancy.calibration``).
+AS_MEASURED = (0.5, 1.5)
+
+#: Factors a sensitivity entered in the wrong unit gives a load cell: kN for N, kgf (g) or
+#: lbf for N and their inverses, either sign (a cell also mounted reversed). No two lie within
+#: a factor 2 of each other, so the snap below cannot pick the wrong one.
+UNIT_SLIPS = np.array([sign * u for sign in (1, -1)
+                       for u in (1.0, 1e3, 1e-3, 9.80665, 1 / 9.80665, 4.4482216, 1 / 4.4482216)])
+#: A fitted factor within this relative distance of a unit slip is taken to be that slip.
+UNIT_SLIP_RTOL = 0.05
 
 
 @dataclass(frozen=True)
@@ -54,6 +77,9 @@ class ReactionChoice:
         each way, where both were computed (``auto``).
     text : str
         One line for the engineer; empty when the file has no reactions.
+    load_cell_factor : dict
+        Reaction DOF -> how many times the force its load cell read, for the load cells whose
+        reactions are applied divided by it (``auto`` only; empty: every reaction as measured).
     """
 
     loads: AppliedLoads | None
@@ -62,14 +88,68 @@ class ReactionChoice:
     gap_applied: float | None = None
     gap_ignored: float | None = None
     text: str = ""
+    load_cell_factor: dict[str, float] = field(default_factory=dict)
 
     @property
     def applied(self) -> bool:
         return self.loads is not None
 
+    def corrected(self, frf: FRFData) -> FRFData:
+        """``frf`` with each of ``load_cell_factor``'s reactions divided by its factor."""
+        return _reactions_scaled(frf, {r: 1.0 / f for r, f in self.load_cell_factor.items()})
+
     def to_json_dict(self) -> dict:
         return {"in_file": list(self.reactions), "applied": self.applied, "choice": self.how,
-                "gap_applied": self.gap_applied, "gap_ignored": self.gap_ignored, "text": self.text}
+                "gap_applied": self.gap_applied, "gap_ignored": self.gap_ignored, "text": self.text,
+                "load_cell_factor": dict(self.load_cell_factor)}
+
+
+def _reactions_scaled(frf: FRFData, scale: dict[str, float]) -> FRFData:
+    """``frf`` with the reactions at the DOFs of ``scale`` multiplied by it (variances by its square)."""
+    if not scale:
+        return frf
+    R = np.array(frf.H_reaction, dtype=complex)
+    var = None if frf.H_reaction_var is None else np.array(frf.H_reaction_var, dtype=float)
+    for r, lbl in enumerate(frf.reactions):
+        if lbl in scale:
+            R[:, r, :] *= scale[lbl]
+            if var is not None:
+                var[:, r, :] *= scale[lbl] ** 2
+    return dataclasses.replace(frf, H_reaction=R, H_reaction_var=var)
+
+
+def _unit_slip(factor: float) -> float:
+    """The unit slip (``UNIT_SLIPS``) within ``UNIT_SLIP_RTOL`` of ``factor``, else ``factor``.
+
+    The fit's factor carries the nominal model's errors and the noise (0.2-1.2 % off a factor
+    1000 on the stand cases); dividing a held DOF's large reaction by a factor that much off
+    leaves a coherent error the search then explains by a spring there. A sensitivity
+    entered in the wrong unit is off by one of a few exact factors.
+    """
+    rel = np.abs(UNIT_SLIPS / factor - 1.0)
+    k = int(np.argmin(rel))
+    return float(UNIT_SLIPS[k]) if rel[k] <= UNIT_SLIP_RTOL else float(factor)
+
+
+def fit_load_cell_factors(M: np.ndarray, C: np.ndarray, K: np.ndarray, dofs: list[str], frf: FRFData,
+                          loads: AppliedLoads, valid: np.ndarray) -> np.ndarray:
+    """Real factors ``c_r`` (n_react,) with which the reactions best load the model, in relative terms.
+
+    The prediction ``sum_j H_L[:, in_j] + sum_r c_r H_L[:, r] R_r`` is linear in ``c``; each
+    value is weighted by ``1/|H|`` as the log-ratio gap weighs it. ``c_r = 1/gamma_r`` when
+    load cell ``r`` read ``gamma_r`` times its force; about 0 when the model holds the
+    reactions itself (the structure on its stand).
+    """
+    H_L = loads.model_accelerance(M, C, K, dofs, frf.omega, frf.outputs)  # (k, o, load)
+    in_rows = [loads.dofs.index(lbl) for lbl in frf.inputs]
+    r_rows = [loads.dofs.index(lbl) for lbl in frf.reactions]
+    P_in = np.stack([H_L[:, :, row] for row in in_rows], axis=2)
+    H_r = [H_L[:, :, row, None] * np.asarray(frf.H_reaction)[:, None, r, :] for r, row in enumerate(r_rows)]
+    w = np.where(valid, 1.0 / np.maximum(np.abs(frf.H), 1e-300), 0.0)
+    A = np.stack([(w * h).ravel() for h in H_r], axis=1)
+    b = (w * np.where(valid, frf.H - P_in, 0)).ravel()
+    c, *_ = np.linalg.lstsq(np.concatenate([A.real, A.imag]), np.concatenate([b.real, b.imag]), rcond=None)
+    return c
 
 
 def model_frf_under_loads(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: list[str],
@@ -140,6 +220,25 @@ def choose_reactions(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: l
                               f"measured reactions at {where} applied: the model reproduces the data "
                               f"as the substructure alone, loaded as the test article was ({both}; "
                               "--reactions ignore if it includes the stand)")
+    c = fit_load_cell_factors(M, Cc, K, dofs, frf, loads, valid)
+    lo, hi = AS_MEASURED
+    off = {lbl: float(x) for lbl, x in zip(react, c) if not lo <= x <= hi and x != 0}
+    if off and len(off) < len(react):
+        fixed = applied_loads(_reactions_scaled(frf, off))
+        g_fix = frf_gap(frf.H, model_frf_under_loads(M, Cc, K, dofs, frf, fixed), valid)
+        if g_fix < g_off:
+            factor = {lbl: _unit_slip(1.0 / x) for lbl, x in off.items()}
+            if any(factor[lbl] != 1.0 / x for lbl, x in off.items()):
+                fixed = applied_loads(_reactions_scaled(frf, {lbl: 1.0 / f for lbl, f in factor.items()}))
+                g_fix = frf_gap(frf.H, model_frf_under_loads(M, Cc, K, dofs, frf, fixed), valid)
+            cells = ", ".join(f"{lbl} x {f:.6g} (fitted {1.0 / off[lbl]:.4g})" for lbl, f in factor.items())
+            return ReactionChoice(fixed, react, how, g_fix, g_off,
+                                  f"measured reactions at {where} applied, with the load cell(s) at {cells} "
+                                  f"taken to read that many times the force (divided by it): check their "
+                                  f"sensitivity. The model reproduces the data as the substructure alone only "
+                                  f"so (gap {g_on:.3g} with the reactions as measured, {g_fix:.3g} so, "
+                                  f"{g_off:.3g} without; --reactions ignore if it includes the stand)",
+                                  factor)
     return ReactionChoice(None, react, how, g_on, g_off,
                           f"measured reactions at {where} not applied: the model reproduces the data "
                           f"as the structure on its stand ({both}; --reactions apply if it is the "

@@ -76,6 +76,7 @@ def test_a_model_that_includes_the_stand_is_compared_without_the_reactions():
     choice = choose_reactions(Mc, Cc, Kc, dofs_c, frf)
     assert not choice.applied and choice.gap_ignored < 1e-9 < 0.1 < choice.gap_applied, choice
     assert "not applied" in choice.text and "structure on its stand" in choice.text
+    assert choice.load_cell_factor == {}  # no load cell taken for wrong: the reactions are internal here
     # Asked, each way is done as told.
     assert choose_reactions(Mc, Cc, Kc, dofs_c, frf, "apply").applied
     assert not choose_reactions(M, C, K, dofs, frf, "ignore").applied
@@ -189,7 +190,7 @@ def test_the_commands_say_which_way_they_compared(tmp_path, capsys):
     assert json.loads(open(out).read())["reactions"] == {
         "in_file": ["0", "13"], "applied": False, "choice": "ignore", "gap_applied": None,
         "gap_ignored": None, "text": "measured reactions at 0, 13 not applied (--reactions ignore: "
-                                     "the model includes the stand)"}
+                                     "the model includes the stand)", "load_cell_factor": {}}
 
 
 def _with_load_cell_gain(frf: FRFData, r: int, gain: float) -> FRFData:
@@ -245,6 +246,34 @@ def test_a_wrong_load_cell_beside_a_hidden_mass_leaves_the_mass_to_the_corrected
     fix = cal["with_gains_corrected"]
     assert (fix["effect"], fix["dofs"]) == ("added_mass", ["5"]), fix
     assert fix["parameters"]["mass_kg"] == pytest.approx(0.3, rel=0.01) and fix["gap_after"] < 1.1
+
+
+@pytest.mark.parametrize("seed, mass", [(1, 0.0), (3, 0.3)])
+def test_a_load_cell_read_a_thousand_times_too_high_is_found_by_the_reactions_choice(seed, mass):
+    """The load cell at 13 entered in mV/kN for mV/N (1 % noise; a 0.3 kg mass hidden at
+    DOF 5 on seed 3). Applied as measured, its reactions made the substructure model worse
+    than none at all, so they were not applied, the calibration check flagged other channels
+    and the effect named was wrong (4 of 4 such bench cases). One factor per load cell is
+    fitted, linear in the prediction (1/988 on seed 1: the nominal model's and the noise's
+    error), and taken as the unit slip it is within 5 % of."""
+    M, C, K, dofs = _substructure()
+    Mt, Ct, Kt, _ = apply_effect(M, C, K, dofs, Effect("added_mass", ("5",), {"mass_kg": mass}))
+    frf = _with_load_cell_gain(_noisy(_on_stand(Mt, Ct, Kt, dofs), 0.01, seed), 1, 1000.0)
+    choice = choose_reactions(M, C, K, dofs, frf)
+    assert choice.applied and choice.load_cell_factor == {"13": 1000.0}, choice.text
+    assert choice.gap_applied < choice.gap_ignored
+    assert "13 x 1000" in choice.text and "check their sensitivity" in choice.text
+    res = find_discrepancy(Model(M=M, C=C, K=K, dofs=dofs), frf)
+    assert res.info["reactions"]["load_cell_factor"] == {"13": 1000.0}
+    assert choice.text in res.info["warnings"]
+    # Divided by what it read, the data are those of right load cells.
+    cal = res.info["calibration"]
+    assert not cal["flagged"] and abs(cal["reaction_gain"]["13"] - 1) < 0.01, cal["text"]
+    if mass:
+        assert (res.effect.name, res.effect.dofs) == ("added_mass", ("5",)), res.effect.describe()
+        assert res.effect.parameters["mass_kg"] == pytest.approx(mass, rel=0.01)
+    else:
+        assert res.effect.name == "none", res.effect.describe()
 
 
 @pytest.mark.parametrize("seed, mass", [(1, 0.0), (3, 0.0), (1, 0.3), (3, 0.3)])

@@ -206,6 +206,7 @@ def find_discrepancy(
     H = np.where(valid, data.H, 0)
     omega = data.omega
     choice = choose_reactions(model.M, model.C, model.K, model.dofs, data, reactions)
+    data = choice.corrected(data)  # a load cell the choice found far off, divided by what it read
     loads = choice.loads
     T = None if loads is None else loads.T
     out_idx = np.array([model.dofs.index(d) for d in data.outputs])
@@ -225,7 +226,7 @@ def find_discrepancy(
                                             "file states none)") + ", through the nominal model, added to "
                      "each value's; the leader is also tested with it modelled exactly (errors in variables)"}
     stand = StandNoise.build(H, W_meas, loads, data.outputs, model.dofs)
-    warnings: list[str] = []
+    warnings: list[str] = [choice.text] if choice.load_cell_factor else []
 
     C, damping = model.C, "model C"
     if model.C is None:

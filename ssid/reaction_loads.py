@@ -37,8 +37,8 @@ from .correlate_frf import frf_gap
 from .errors import InputError
 from .frf import AppliedLoads, FRFData, accelerance_from_model, applied_loads
 
-__all__ = ["REACTION_CHOICES", "ReactionChoice", "choose_reactions", "fit_load_cell_factors",
-           "model_frf_under_loads", "weights_with_reaction_noise"]
+__all__ = ["REACTION_CHOICES", "ModelParts", "ReactionChoice", "choose_reactions", "fit_load_cell_factors",
+           "model_frf_under_loads", "model_parts", "weights_with_reaction_noise"]
 
 #: ``reactions=`` values: decide from the data, apply them, or leave them out.
 REACTION_CHOICES = ("auto", "apply", "ignore")
@@ -135,19 +135,15 @@ def fit_load_cell_factors(M: np.ndarray, C: np.ndarray, K: np.ndarray, dofs: lis
                           loads: AppliedLoads, valid: np.ndarray) -> np.ndarray:
     """Real factors ``c_r`` (n_react,) with which the reactions best load the model, in relative terms.
 
-    The prediction ``sum_j H_L[:, in_j] + sum_r c_r H_L[:, r] R_r`` is linear in ``c``; each
-    value is weighted by ``1/|H|`` as the log-ratio gap weighs it. ``c_r = 1/gamma_r`` when
-    load cell ``r`` read ``gamma_r`` times its force; about 0 when the model holds the
-    reactions itself (the structure on its stand).
+    The prediction ``H_inputs + sum_r c_r H_reactions[r]`` (:func:`model_parts`) is linear in
+    ``c``; each value is weighted by ``1/|H|`` as the log-ratio gap weighs it. ``c_r =
+    1/gamma_r`` when load cell ``r`` read ``gamma_r`` times its force; about 0 when the model
+    holds the reactions itself (the structure on its stand).
     """
-    H_L = loads.model_accelerance(M, C, K, dofs, frf.omega, frf.outputs)  # (k, o, load)
-    in_rows = [loads.dofs.index(lbl) for lbl in frf.inputs]
-    r_rows = [loads.dofs.index(lbl) for lbl in frf.reactions]
-    P_in = np.stack([H_L[:, :, row] for row in in_rows], axis=2)
-    H_r = [H_L[:, :, row, None] * np.asarray(frf.H_reaction)[:, None, r, :] for r, row in enumerate(r_rows)]
+    parts = model_parts(M, C, K, dofs, frf, loads)
     w = np.where(valid, 1.0 / np.maximum(np.abs(frf.H), 1e-300), 0.0)
-    A = np.stack([(w * h).ravel() for h in H_r], axis=1)
-    b = (w * np.where(valid, frf.H - P_in, 0)).ravel()
+    A = np.stack([(w * h).ravel() for h in parts.H_reactions], axis=1)
+    b = (w * np.where(valid, frf.H - parts.H_inputs, 0)).ravel()
     c, *_ = np.linalg.lstsq(np.concatenate([A.real, A.imag]), np.concatenate([b.real, b.imag]), rcond=None)
     return c
 
@@ -162,6 +158,56 @@ def model_frf_under_loads(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, do
     if loads is None:
         return accelerance_from_model(M, C, K, dofs, frf.freq_hz, frf.outputs, frf.inputs).H
     return loads.predict(loads.model_accelerance(M, C, K, dofs, frf.omega, frf.outputs))
+
+
+@dataclass
+class ModelParts:
+    """A model's FRFs under the test's loads, split by the measured quantity that carries each part.
+
+    Attributes
+    ----------
+    H_inputs : (n_freq, n_out, n_in) complex
+        The part the unit input forces carry ((m/s^2)/N); the whole FRF off a stand.
+    H_reactions : (n_react, n_freq, n_out, n_in) complex
+        The part each measured reaction carries (its column of the loads times the model's
+        accelerance from its DOF); n_react = 0 when no reactions are applied.
+    H_load : (n_freq, n_out, n_load) complex or None
+        The model's accelerance from the load DOFs that both come from (None off a stand),
+        for the gains' errors-in-variables refit.
+    """
+
+    H_inputs: np.ndarray
+    H_reactions: np.ndarray
+    H_load: np.ndarray | None = None
+
+    @classmethod
+    def plain(cls, H_model: np.ndarray) -> ModelParts:
+        """No reactions applied: the FRF is the inputs' part alone."""
+        H = np.asarray(H_model)
+        return cls(H, np.zeros((0, *H.shape), dtype=complex))
+
+    def total(self) -> np.ndarray:
+        """The model's FRFs, (n_freq, n_out, n_in)."""
+        return self.H_inputs + self.H_reactions.sum(axis=0)
+
+
+def model_parts(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: list[str], frf: FRFData,
+                loads: AppliedLoads | None) -> ModelParts:
+    """:class:`ModelParts` of the model ``(M, C, K, dofs)`` for ``frf``'s test.
+
+    ``loads`` None (no reactions, or a model that includes the stand): the plain FRF. Else
+    the loads are the unit input forces plus ``frf.H_reaction`` at the reaction DOFs
+    (:func:`ssid.frf.applied_loads`), and each of the two is carried through the model's
+    accelerance from the load DOFs apart.
+    """
+    if loads is None or frf.H_reaction is None or not frf.reactions:
+        return ModelParts.plain(model_frf_under_loads(M, C, K, dofs, frf, None))
+    H_load = loads.model_accelerance(M, C, K, dofs, frf.omega, frf.outputs)  # (n_freq, n_out, n_load)
+    rows = [loads.dofs.index(d) for d in frf.inputs]
+    H_inputs = H_load[:, :, rows]
+    H_reactions = np.stack([H_load[:, :, loads.dofs.index(lbl), None] * frf.H_reaction[:, r, None, :]
+                            for r, lbl in enumerate(frf.reactions)])
+    return ModelParts(H_inputs, H_reactions, H_load)
 
 
 def _modal_c(M: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -36,8 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..frf import AppliedLoads, FRFData
-from ..reaction_loads import model_frf_under_loads
+from ..frf import FRFData
+from ..reaction_loads import ModelParts, model_parts  # re-exported: the gains' fit works on them
 from .effects import Effect
 from .search import SearchResult
 from .stand_noise import StandNoise, refine_channel_gains
@@ -54,56 +54,6 @@ COMMON_RTOL = 0.02
 #: (``bench/discrepancy_accuracy.py --model-error 0.005``); a calibration sheet's own
 #: uncertainty is 1-2 %.
 GAIN_TOLERANCE = 0.05
-
-
-@dataclass
-class ModelParts:
-    """A model's FRFs under the test's loads, split by the measured quantity that carries each part.
-
-    Attributes
-    ----------
-    H_inputs : (n_freq, n_out, n_in) complex
-        The part the unit input forces carry ((m/s^2)/N); the whole FRF off a stand.
-    H_reactions : (n_react, n_freq, n_out, n_in) complex
-        The part each measured reaction carries (its column of the loads times the model's
-        accelerance from its DOF); n_react = 0 when no reactions are applied.
-    H_load : (n_freq, n_out, n_load) complex or None
-        The model's accelerance from the load DOFs that both come from (None off a stand),
-        for the gains' errors-in-variables refit.
-    """
-
-    H_inputs: np.ndarray
-    H_reactions: np.ndarray
-    H_load: np.ndarray | None = None
-
-    @classmethod
-    def plain(cls, H_model: np.ndarray) -> ModelParts:
-        """No reactions applied: the FRF is the inputs' part alone."""
-        H = np.asarray(H_model)
-        return cls(H, np.zeros((0, *H.shape), dtype=complex))
-
-    def total(self) -> np.ndarray:
-        """The model's FRFs, (n_freq, n_out, n_in)."""
-        return self.H_inputs + self.H_reactions.sum(axis=0)
-
-
-def model_parts(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: list[str], frf: FRFData,
-                loads: AppliedLoads | None) -> ModelParts:
-    """:class:`ModelParts` of the model ``(M, C, K, dofs)`` for ``frf``'s test.
-
-    ``loads`` None (no reactions, or a model that includes the stand): the plain FRF. Else
-    the loads are the unit input forces plus ``frf.H_reaction`` at the reaction DOFs
-    (:func:`ssid.frf.applied_loads`), and each of the two is carried through the model's
-    accelerance from the load DOFs apart.
-    """
-    if loads is None or frf.H_reaction is None or not frf.reactions:
-        return ModelParts.plain(model_frf_under_loads(M, C, K, dofs, frf, None))
-    H_load = loads.model_accelerance(M, C, K, dofs, frf.omega, frf.outputs)  # (n_freq, n_out, n_load)
-    rows = [loads.dofs.index(d) for d in frf.inputs]
-    H_inputs = H_load[:, :, rows]
-    H_reactions = np.stack([H_load[:, :, loads.dofs.index(lbl), None] * frf.H_reaction[:, r, None, :]
-                            for r, lbl in enumerate(frf.reactions)])
-    return ModelParts(H_inputs, H_reactions, H_load)
 
 
 @dataclass

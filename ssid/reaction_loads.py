@@ -23,7 +23,8 @@ if at least one load cell then reads as measured (factor within ``AS_MEASURED``)
 others' reactions, divided by what they read, make the model beat the unloaded one, the
 reactions are applied so corrected, and the choice names each load cell and its factor (a
 model of the structure on its stand fits factors near 0 instead: the reactions are internal
-forces there).
+forces there). A factor within 5 % of a unit slip (``UNIT_SLIPS``: kN for N, g, the
+pound-force, a sign) is taken as that slip.
 """
 
 from __future__ import annotations
@@ -270,13 +271,10 @@ def choose_reactions(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: l
     lo, hi = AS_MEASURED
     off = {lbl: float(x) for lbl, x in zip(react, c) if not lo <= x <= hi and x != 0}
     if off and len(off) < len(react):
-        fixed = applied_loads(_reactions_scaled(frf, off))
+        factor = {lbl: _unit_slip(1.0 / x) for lbl, x in off.items()}
+        fixed = applied_loads(_reactions_scaled(frf, {lbl: 1.0 / f for lbl, f in factor.items()}))
         g_fix = frf_gap(frf.H, model_frf_under_loads(M, Cc, K, dofs, frf, fixed), valid)
         if g_fix < g_off:
-            factor = {lbl: _unit_slip(1.0 / x) for lbl, x in off.items()}
-            if any(factor[lbl] != 1.0 / x for lbl, x in off.items()):
-                fixed = applied_loads(_reactions_scaled(frf, {lbl: 1.0 / f for lbl, f in factor.items()}))
-                g_fix = frf_gap(frf.H, model_frf_under_loads(M, Cc, K, dofs, frf, fixed), valid)
             cells = ", ".join(f"{lbl} x {f:.6g} (fitted {1.0 / off[lbl]:.4g})" for lbl, f in factor.items())
             return ReactionChoice(fixed, react, how, g_fix, g_off,
                                   f"measured reactions at {where} applied, with the load cell(s) at {cells} "

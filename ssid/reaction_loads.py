@@ -132,19 +132,17 @@ def _unit_slip(factor: float) -> float:
     return float(UNIT_SLIPS[k]) if rel[k] <= UNIT_SLIP_RTOL else float(factor)
 
 
-def fit_load_cell_factors(M: np.ndarray, C: np.ndarray, K: np.ndarray, dofs: list[str], frf: FRFData,
-                          loads: AppliedLoads, valid: np.ndarray) -> np.ndarray:
+def fit_load_cell_factors(H: np.ndarray, parts: ModelParts, valid: np.ndarray) -> np.ndarray:
     """Real factors ``c_r`` (n_react,) with which the reactions best load the model, in relative terms.
 
-    The prediction ``H_inputs + sum_r c_r H_reactions[r]`` (:func:`model_parts`) is linear in
-    ``c``; each value is weighted by ``1/|H|`` as the log-ratio gap weighs it. ``c_r =
+    The prediction ``parts.total(c)`` is linear in ``c``; each value of the measured ``H``
+    (n_freq, n_out, n_in) is weighted by ``1/|H|`` as the log-ratio gap weighs it. ``c_r =
     1/gamma_r`` when load cell ``r`` read ``gamma_r`` times its force; about 0 when the model
     holds the reactions itself (the structure on its stand).
     """
-    parts = model_parts(M, C, K, dofs, frf, loads)
-    w = np.where(valid, 1.0 / np.maximum(np.abs(frf.H), 1e-300), 0.0)
+    w = np.where(valid, 1.0 / np.maximum(np.abs(H), 1e-300), 0.0)
     A = np.stack([(w * h).ravel() for h in parts.H_reactions], axis=1)
-    b = (w * np.where(valid, frf.H - parts.H_inputs, 0)).ravel()
+    b = (w * np.where(valid, H - parts.H_inputs, 0)).ravel()
     c, *_ = np.linalg.lstsq(np.concatenate([A.real, A.imag]), np.concatenate([b.real, b.imag]), rcond=None)
     return c
 
@@ -187,9 +185,12 @@ class ModelParts:
         H = np.asarray(H_model)
         return cls(H, np.zeros((0, *H.shape), dtype=complex))
 
-    def total(self) -> np.ndarray:
-        """The model's FRFs, (n_freq, n_out, n_in)."""
-        return self.H_inputs + self.H_reactions.sum(axis=0)
+    def total(self, reaction_scale: np.ndarray | None = None) -> np.ndarray:
+        """The model's FRFs, (n_freq, n_out, n_in); ``reaction_scale`` (n_react,) multiplies
+        each reaction's part (None: as measured)."""
+        if reaction_scale is None:
+            return self.H_inputs + self.H_reactions.sum(axis=0)
+        return self.H_inputs + np.einsum("r,rkoj->koj", reaction_scale, self.H_reactions)
 
 
 def model_parts(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: list[str], frf: FRFData,
@@ -259,7 +260,9 @@ def choose_reactions(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: l
                               "(--reactions apply: the model is the substructure alone)")
     Cc = _modal_c(M, K) if C is None else C
     valid = frf.valid_mask()
-    g_on = frf_gap(frf.H, model_frf_under_loads(M, Cc, K, dofs, frf, loads), valid)
+    # One accelerance from the load DOFs serves the reactions as measured and rescaled.
+    parts = model_parts(M, Cc, K, dofs, frf, loads)
+    g_on = frf_gap(frf.H, parts.total(), valid)
     g_off = frf_gap(frf.H, model_frf_under_loads(M, Cc, K, dofs, frf, None), valid)
     both = f"gap {g_on:.3g} with them, {g_off:.3g} without"
     if g_on < g_off:
@@ -267,14 +270,15 @@ def choose_reactions(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: l
                               f"measured reactions at {where} applied: the model reproduces the data "
                               f"as the substructure alone, loaded as the test article was ({both}; "
                               "--reactions ignore if it includes the stand)")
-    c = fit_load_cell_factors(M, Cc, K, dofs, frf, loads, valid)
+    c = fit_load_cell_factors(frf.H, parts, valid)
     lo, hi = AS_MEASURED
     off = {lbl: float(x) for lbl, x in zip(react, c) if not lo <= x <= hi and x != 0}
     if off and len(off) < len(react):
         factor = {lbl: _unit_slip(1.0 / x) for lbl, x in off.items()}
-        fixed = applied_loads(_reactions_scaled(frf, {lbl: 1.0 / f for lbl, f in factor.items()}))
-        g_fix = frf_gap(frf.H, model_frf_under_loads(M, Cc, K, dofs, frf, fixed), valid)
+        scale = np.array([1.0 / factor.get(lbl, 1.0) for lbl in react])
+        g_fix = frf_gap(frf.H, parts.total(scale), valid)
         if g_fix < g_off:
+            fixed = applied_loads(_reactions_scaled(frf, dict(zip(react, scale))))
             cells = ", ".join(f"{lbl} x {f:.6g} (fitted {1.0 / off[lbl]:.4g})" for lbl, f in factor.items())
             return ReactionChoice(fixed, react, how, g_fix, g_off,
                                   f"measured reactions at {where} applied, with the load cell(s) at {cells} "

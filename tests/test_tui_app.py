@@ -266,6 +266,7 @@ def sub_lines(app: LabApp) -> int:
     return sum(len(v) for v in app.live.sub_lines.values()) if app.live else 0
 
 
+@pytest.mark.serial  # the simulated lab in its own process, on the amplifier's 1 s watchdog
 def test_lab_hardware_pause_resume_abort_then_resume_from_the_ui(tmp_path):
     """With the switch off the TUI runs the setup's own instruments. Pause leaves the
     generator off and the amplifiers disabled until resume; abort mid-run leaves them so for
@@ -342,6 +343,7 @@ def test_new_setup_from_the_example(tmp_path):
     assert target.read_text(encoding="utf-8") == EXAMPLE.read_text(encoding="utf-8")
 
 
+@pytest.mark.serial  # the simulated lab in its own process, on the amplifier's 1 s watchdog
 def test_end_of_input_stops_a_controlled_run_safely(tmp_path):
     """What happens when the TUI dies however it dies: the run's stdin reaches end of input,
     and ``ssidlab acquire --control-stdin`` stops safely - read on the instruments."""
@@ -417,6 +419,7 @@ def test_a_range_too_small_stops_the_run_and_f5_resumes_with_the_edited_range(tm
     assert read_frf(out).n_avg == 4
 
 
+@pytest.mark.serial  # the simulated lab in its own process, on the amplifier's 1 s watchdog
 def test_an_instrument_not_reached_stops_the_run_and_f5_resumes_at_its_new_address(tmp_path):
     """Lab hardware (switch off) whose generator does not answer where the setup says: the
     run stops, and the status says to put the instrument's new address in the setup file
@@ -445,6 +448,7 @@ def test_an_instrument_not_reached_stops_the_run_and_f5_resumes_at_its_new_addre
     assert run_file_state(out) == "complete"
 
 
+@pytest.mark.serial  # the simulated lab in its own process, on the amplifier's 1 s watchdog
 def test_a_replaced_generator_stops_f5_and_ctrl_r_resumes_with_it(tmp_path):
     """An aborted lab-hardware run; the lab comes back with another generator serial (a
     replaced unit). F5 stops before driving, and the status offers Ctrl+R, which resumes
@@ -483,6 +487,7 @@ def test_a_replaced_generator_stops_f5_and_ctrl_r_resumes_with_it(tmp_path):
     assert run_file_state(out) == "complete"
 
 
+@pytest.mark.serial  # the simulated lab in its own process, on the amplifier's 1 s watchdog
 def test_an_amplifier_trip_stops_the_run_and_ctrl_f_resets_it_for_f5(tmp_path):
     """Lab hardware whose door is opened mid-run: amp0 trips and the run stops; the status
     says to reset the latched fault once its cause is gone. With the door closed, Ctrl+F

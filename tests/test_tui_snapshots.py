@@ -20,6 +20,7 @@ pytest.importorskip("pytest_textual_snapshot")
 from daq.setup import load_setup  # noqa: E402
 from daq.simlab import build_world  # noqa: E402
 from ssid.io import write_frf  # noqa: E402
+from textual.widgets import Input  # noqa: E402
 from tui.app import LabApp  # noqa: E402
 from tui.results import analyse_run  # noqa: E402
 
@@ -35,13 +36,22 @@ def exact_frf(setup, n_lines: int = 60, spacing: str = "log"):
     return build_world(setup).frf(freq, outputs=setup.outputs, inputs=setup.inputs)
 
 
+async def steady_cursors(pilot) -> None:
+    """Stop the text cursors blinking: a focused Input shows its cursor for 0.5 s, then hides
+    it for 0.5 s, so a screen taken more than half a second after mounting (a loaded CI machine,
+    two test workers) would differ from one taken sooner. Stopped, the cursor stays shown."""
+    await pilot.pause()
+    for field in pilot.app.query(Input):
+        field.cursor_blink = False
+
+
 @pytest.fixture
 def in_root(monkeypatch):
     monkeypatch.chdir(ROOT)
 
 
 def test_setup_screen(snap_compare, in_root):
-    assert snap_compare(LabApp(EXAMPLE, out="run.h5"), terminal_size=SIZE)
+    assert snap_compare(LabApp(EXAMPLE, out="run.h5"), terminal_size=SIZE, run_before=steady_cursors)
 
 
 def test_run_screen_with_lines_arriving(snap_compare, in_root):
@@ -52,7 +62,7 @@ def test_run_screen_with_lines_arriving(snap_compare, in_root):
     async def feed(pilot):
         from tui.session import LiveRun
 
-        await pilot.pause()
+        await steady_cursors(pilot)
         app = pilot.app
         app.live = LiveRun(setup.outputs, setup.inputs)
         app._event({"event": "instruments", "simulated": True,
@@ -89,7 +99,7 @@ def test_results_screen(snap_compare, in_root, tmp_path):
     assert results.discrepancy is not None and results.discrepancy["effect"] == "added_mass"
 
     async def show(pilot):
-        await pilot.pause()
+        await steady_cursors(pilot)
         app = pilot.app
         results.path = Path("run.h5")  # the name shown, not the temporary folder
         app._show_results(results, results.description.replace(str(tmp_path) + "/", ""))

@@ -26,7 +26,19 @@ def _pin_openblas_kernels() -> None:
         os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
 
 
+def _one_blas_thread() -> None:
+    """One OpenBLAS thread per test process (and the commands it runs, which inherit it).
+
+    The suite runs two workers on two cores; each worker's OpenBLAS would start a thread per
+    core, four busy threads on two cores, and the workers' matrix solves then wait on each
+    other's threads. One thread each also gives the same digits whether the tests run one or
+    two at a time. Like the kernel pin, it must be set before numpy is imported.
+    """
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 _pin_openblas_kernels()
+_one_blas_thread()
 
 import numpy as np  # noqa: E402  (after the kernel pin above)
 import pytest

@@ -17,10 +17,11 @@ import pytest
 
 pytest.importorskip("pytest_textual_snapshot")
 
+from textual.widgets import Input  # noqa: E402
+
 from daq.setup import load_setup  # noqa: E402
 from daq.simlab import build_world  # noqa: E402
 from ssid.io import write_frf  # noqa: E402
-from textual.widgets import Input  # noqa: E402
 from tui.app import LabApp  # noqa: E402
 from tui.results import analyse_run  # noqa: E402
 

@@ -223,11 +223,9 @@ def test_blanked_values_and_noise_weights_are_respected():
 def test_relative_noise_and_floor_are_read_from_roughness_not_from_the_frfs_curvature(seed):
     """Noise model: circular complex Gaussian, variance (1 % of |H|)^2 plus (1e-4 of the FRF's
     largest |H|)^2, on 400 lines of the 8-DOF chain's accelerances (2 % damping, resonances a
-    few lines wide). The two-level estimate must be right at the typical line (0.94-1.02 times
-    the truth). At resonances the second differences hold some of the FRF's own curvature,
-    read as noise: at one line in ten the estimate is 2.7-3.0 times the truth. (Fourth
-    differences cut that to 1.6-1.7, but their bins' medians, of lines whose powers differ
-    more, read relative noise low and named a tiny oscillator on a null case of the bench.)"""
+    few lines wide). The two-level estimate must be right at the typical line (0.88-1.01 times
+    the truth) and at most 2.05 times the truth at nine lines in ten. With second differences,
+    which hold some of the FRF's own curvature at resonances, it was 2.7-3.0 times there."""
     M, C, K, dofs = example_system(8, seed=3)
     frf = accelerance_from_model(M, C, K, dofs, np.linspace(5.0, 700.0, 400), dofs, [dofs[1], dofs[6]])
     var = (0.01 * np.abs(frf.H)) ** 2 + (1e-4 * np.abs(frf.H).max(axis=0)) ** 2
@@ -235,8 +233,8 @@ def test_relative_noise_and_floor_are_read_from_roughness_not_from_the_frfs_curv
     H = frf.H + np.sqrt(var / 2) * (rng.standard_normal(var.shape) + 1j * rng.standard_normal(var.shape))
     valid = np.ones(H.shape, bool)
     ratio = two_level_variance(H, valid, np.fmax(neighbour_power(H, valid), np.abs(H) ** 2)) / var
-    assert 0.8 < np.median(ratio) < 1.25
-    assert np.percentile(ratio, 90) < 4.0
+    assert 0.75 < np.median(ratio) < 1.25
+    assert np.percentile(ratio, 90) < 2.4
 
 
 def test_second_effect_is_reported_and_can_be_added():

@@ -117,9 +117,11 @@ def test_with_nothing_hidden_on_a_stand_and_stated_variances_no_effect_is_named(
 
 
 def test_without_stated_variances_the_reactions_noise_is_estimated_and_mostly_no_effect_is_named():
-    # A UFF exchange states no variances: both are estimated from roughness. 11 of the seeds
-    # 1-12 give none. With the roughness binned by the power of the second difference's own
-    # lines, a reaction's floor came out a tenth of the truth where it is below it, and 8 did;
+    # A UFF exchange states no variances: both are estimated from roughness. All 12 of the
+    # seeds 1-12 give none. With second differences (which hold some of the FRFs' curvature at
+    # resonances) 11 did, seed 12 naming a mass at a held DOF; with those binned by the power
+    # of their own lines, a reaction's floor came out a tenth of the truth where it is below
+    # it, and 8 did;
     # before the reactions' noise was estimated, none of them did (an effect at a held DOF
     # every time), and the calibration check flagged the held DOF's accelerometer on each of
     # the seeds 1-6 (x 0.09-0.14); scored with the reactions' noise modelled exactly, on none.
@@ -131,7 +133,7 @@ def test_without_stated_variances_the_reactions_noise_is_estimated_and_mostly_no
         assert not res.info["calibration"]["flagged"], res.info["calibration"]["text"]
         assert res.info["calibration"]["scored"].startswith("errors in variables")
         named.append(res.effect.name)
-    assert named.count("none") >= 10, named
+    assert named.count("none") >= 11, named
 
 
 @pytest.mark.parametrize("truth, seed", [

@@ -29,10 +29,10 @@ differences divided by ``ln 2`` (the median of an exponential variable with mean
 The median ignores the few lines at sharp resonances where the FRF itself curves. The
 two-level model needs more than a median can give: its relative level comes from the bins of
 highest power, which are the lines near resonances, where a second difference holds much of
-the FRF's own curvature, read as noise. It uses the fourth difference ``d4 = H[k-2] - 4 H[k-1] + 6 H[k]
-- 4 H[k+1] + H[k+2]`` instead, which cancels curvature up to cubic terms; for independent noise
-``E |d4_k|^2 = sum c_i^2 var_{k+i}`` (``sum c_i^2 = 70``), ``= alpha S_k + 70 beta`` with
-``S_k = sum c_i^2 |H[k+i]|^2``.
+the FRF's own curvature, read as noise. It uses the fourth difference
+``d4_k = H[k-2] - 4 H[k-1] + 6 H[k] - 4 H[k+1] + H[k+2]`` instead, which cancels curvature up
+to cubic terms. For independent noise ``E |d4_k|^2 = sum c_i^2 var_{k+i}`` (``sum c_i^2 =
+70``), that is ``alpha S_k + 70 beta`` with ``S_k = sum c_i^2 |H[k+i]|^2``.
 
 The lines are sorted into bins by ``P'_k``, the mean ``|H|^2`` of lines ``k +- 3`` and
 ``k +- 4``, which leaves out the five lines of the difference on purpose: sorted by a power of

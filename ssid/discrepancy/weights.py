@@ -142,7 +142,7 @@ def _two_levels(r: np.ndarray, s: np.ndarray, bins: list[np.ndarray], gain: floa
     """``alpha, beta >= 0`` with ``E r_k = alpha s_k + gain beta`` from the bins' medians of ``r``."""
     sb = np.array([np.median(s[b]) for b in bins])
     rn, alpha, beta = r, 0.0, 0.0
-    for _ in range(TWO_LEVEL_REFITS + 1):
+    for refit in range(TWO_LEVEL_REFITS + 1):
         m = np.array([np.median(rn[b]) for b in bins]) / np.log(2.0)
         good = m > 0
         if not good.any():
@@ -150,7 +150,7 @@ def _two_levels(r: np.ndarray, s: np.ndarray, bins: list[np.ndarray], gain: floa
         A = np.column_stack([sb, np.full(sb.size, gain)])[good] / m[good, None]
         (alpha, beta), _ = nnls(A, np.ones(int(good.sum())))
         mu = alpha * s + gain * beta
-        if not np.all(mu > 0):
+        if refit == TWO_LEVEL_REFITS or not np.all(mu > 0):
             break
         rn = r.copy()
         for b, s_bin in zip(bins, sb):

@@ -30,6 +30,14 @@ def _valid(H: np.ndarray, valid: np.ndarray | None) -> np.ndarray:
     return ok if valid is None else ok & np.asarray(valid, dtype=bool)
 
 
+def _ratios(H_test: np.ndarray, H_model: np.ndarray, valid: np.ndarray | None) -> np.ndarray:
+    """Model over test FRF at the valid values where both are finite and nonzero, flattened."""
+    H = np.asarray(H_test)
+    G = np.asarray(H_model)
+    ok = _valid(H, valid) & np.isfinite(G) & (np.abs(H) > 0) & (np.abs(G) > 0)
+    return G[ok] / H[ok]
+
+
 def frf_assurance(H_test: np.ndarray, H_model: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
     """Frequency response assurance criterion (FRAC) of each FRF, (n_out, n_in).
 
@@ -59,12 +67,9 @@ def frf_gap(H_test: np.ndarray, H_model: np.ndarray, valid: np.ndarray | None = 
     0.1 is about 10 % (0.87 dB) or 6 degrees everywhere. Values where either FRF is zero are
     skipped.
     """
-    H = np.asarray(H_test)
-    G = np.asarray(H_model)
-    ok = _valid(H, valid) & np.isfinite(G) & (np.abs(H) > 0) & (np.abs(G) > 0)
-    if not ok.any():
+    ratio = _ratios(H_test, H_model, valid)
+    if not ratio.size:
         return float("nan")
-    ratio = G[ok] / H[ok]
     return float(np.sqrt(np.mean(np.log(np.abs(ratio)) ** 2 + np.angle(ratio) ** 2)))
 
 
@@ -76,22 +81,18 @@ def frf_gap_median(H_test: np.ndarray, H_model: np.ndarray, valid: np.ndarray | 
     is large whatever the model, and a few such values decide the RMS; while fewer than half
     are, they do not move the median. Values where either FRF is zero are skipped.
     """
-    H = np.asarray(H_test)
-    G = np.asarray(H_model)
-    ok = _valid(H, valid) & np.isfinite(G) & (np.abs(H) > 0) & (np.abs(G) > 0)
-    if not ok.any():
+    ratio = _ratios(H_test, H_model, valid)
+    if not ratio.size:
         return float("nan")
-    return float(np.median(np.abs(np.log(G[ok] / H[ok]))))
+    return float(np.median(np.abs(np.log(ratio))))
 
 
 def frf_gap_db(H_test: np.ndarray, H_model: np.ndarray, valid: np.ndarray | None = None) -> float:
     """RMS magnitude difference in dB, ``sqrt(mean (20 log10 |g/h|)^2)`` over valid values."""
-    H = np.asarray(H_test)
-    G = np.asarray(H_model)
-    ok = _valid(H, valid) & np.isfinite(G) & (np.abs(H) > 0) & (np.abs(G) > 0)
-    if not ok.any():
+    ratio = _ratios(H_test, H_model, valid)
+    if not ratio.size:
         return float("nan")
-    return float(np.sqrt(np.mean((20 * np.log10(np.abs(G[ok] / H[ok]))) ** 2)))
+    return float(np.sqrt(np.mean((20 * np.log10(np.abs(ratio))) ** 2)))
 
 
 def cmif(H: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:

@@ -288,6 +288,8 @@ def correlate_with_frf(
     choice = choose_reactions(analysis.M, C, analysis.K, analysis.dofs, test, reactions)
     model = FRFData(test.freq_hz, model_frf_under_loads(analysis.M, C, analysis.K, analysis.dofs, test, choice.loads),
                     list(test.outputs), list(test.inputs))
+    if choice.to_check:
+        warnings.append(choice.text)
     if choice.applied:
         warnings.append("the test modes (CMIF peaks) are those of the structure on its stand, the "
                         "analysis modes the model's own: FRAC and the gap compare like with like "

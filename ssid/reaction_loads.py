@@ -114,6 +114,11 @@ class ReactionChoice:
     def applied(self) -> bool:
         return self.loads is not None
 
+    @property
+    def to_check(self) -> bool:
+        """The engineer should check the load cells: a factor was taken, or the choice was unclear."""
+        return bool(self.load_cell_factor) or self.unclear
+
     def corrected(self, frf: FRFData) -> FRFData:
         """``frf`` with each of ``load_cell_factor``'s reactions divided by its factor."""
         return _reactions_scaled(frf, {r: 1.0 / f for r, f in self.load_cell_factor.items()})

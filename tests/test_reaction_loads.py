@@ -133,6 +133,10 @@ def test_correlation_with_frfs_on_a_stand_compares_the_substructure_model_under_
     assert any("structure on its stand" in w for w in s["warnings"])
     free = correlate_with_frf(frf, Model(M=M, C=C, K=K, dofs=dofs), reactions="ignore").summary
     assert free["frf_gap"] > 0.1 and not free["reactions"]["applied"]
+    # A load cell found far off is a warning here too, as in the discrepancy workflow.
+    slipped = correlate_with_frf(_with_load_cell_gain(frf, 1, 1000.0), Model(M=M, C=C, K=K, dofs=dofs)).summary
+    assert slipped["reactions"]["load_cell_factor"] == {"13": 1000.0}
+    assert slipped["reactions"]["text"] in slipped["warnings"] and slipped["frf_gap"] < 1e-9
 
 
 def test_the_tui_results_load_an_engineers_payload_model_with_the_runs_reactions(tmp_path):

@@ -226,7 +226,7 @@ def find_discrepancy(
                                             "file states none)") + ", through the nominal model, added to "
                      "each value's; the leader is also tested with it modelled exactly (errors in variables)"}
     stand = StandNoise.build(H, W_meas, loads, data.outputs, model.dofs)
-    warnings: list[str] = [choice.text] if choice.load_cell_factor or choice.unclear else []
+    warnings: list[str] = [choice.text] if choice.to_check else []
 
     C, damping = model.C, "model C"
     if model.C is None:

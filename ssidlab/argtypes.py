@@ -17,8 +17,8 @@ import numpy as np
 from ssid.errors import InputError
 from ssid.jsonutil import to_jsonable
 
-__all__ = ["check_output_paths", "fe_normal_modes", "frequency_hz", "label_list",
-           "open_fraction", "parse_mode_list", "positive_number", "whole_number", "write_chart", "write_json"]
+__all__ = ["check_output_paths", "fe_normal_modes", "frequency_hz", "label_list", "open_fraction",
+           "parse_mode_list", "percentage", "positive_number", "whole_number", "write_chart", "write_json"]
 
 
 def frequency_hz(text: str) -> float:
@@ -53,6 +53,14 @@ def positive_number(text: str) -> float:
     value = _number(text)
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def percentage(text: str) -> float:
+    """argparse type for a percentage: finite and >= 0."""
+    value = _number(text)
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite percentage >= 0, got {text!r}")
     return value
 
 

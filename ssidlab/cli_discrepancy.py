@@ -3,7 +3,7 @@
     ssidlab discrepancy --model NOMINAL.h5 --measured FRF.h5 --json OUT.json
                         [--out UPDATED.h5] [--plots DIR] [--fmin HZ] [--fmax HZ]
                         [--max-effects 1|2] [--no-second-round] [--reactions auto|apply|ignore]
-                        [--quiet]
+                        [--negligible PERCENT] [--quiet]
 
 The JSON keys ``effect``, ``dofs``, ``parameters``, ``gap_before``, ``gap_after``,
 ``gap_metric`` and ``candidates`` are the contract's (``../shared/contract.md``); the others are
@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from ssid.errors import InputError
-from ssidlab.argtypes import check_output_paths, frequency_hz, write_chart
+from ssidlab.argtypes import check_output_paths, frequency_hz, percentage, write_chart
 
 __all__ = ["add_discrepancy_subcommand", "run_discrepancy", "summary_text"]
 
@@ -59,6 +59,10 @@ def add_discrepancy_subcommand(sub: Any) -> argparse.ArgumentParser:
                    "round finds one")
     p.add_argument("--no-second-round", action="store_true",
                    help="do not check whether one effect closes the gap (faster)")
+    p.add_argument("--negligible", type=percentage, metavar="PERCENT", default=0.1,
+                   help="an effect that changes no model FRF value by this many per cent of the "
+                   "value is negligible and not named (default 0.1, about 0.01 dB; 0 names any "
+                   "effect the data show)")
     p.add_argument("--quiet", action="store_true", help="do not print the summary")
     p.set_defaults(run=run_discrepancy)
     return p
@@ -103,7 +107,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
 
     result = find_discrepancy(model, frf, f_min_hz=args.fmin, f_max_hz=args.fmax,
                               max_effects=args.max_effects, second_round=not args.no_second_round,
-                              reactions=args.reactions)
+                              reactions=args.reactions, negligible_change=args.negligible / 100.0)
     if args.out is not None:
         try:
             write_model(args.out, result.updated_model)

@@ -21,7 +21,7 @@ from ssid.discrepancy import (
 )
 from ssid.discrepancy.cases import make_case
 from ssid.discrepancy.damping import peak_damping_ratios
-from ssid.discrepancy.search import candidate_frf, search_round
+from ssid.discrepancy.search import NEGLIGIBLE_CHANGE, candidate_frf, search_round
 from ssid.discrepancy.weights import neighbour_power, noise_weights, two_level_variance
 from ssid.errors import InputError
 from ssid.frf import FRFData, accelerance_from_model
@@ -334,6 +334,37 @@ def test_the_residual_line_says_whose_noise_it_is_within():
     text = _residual_statement(second, first, 0.5, stated=False)["text"]
     assert "within the estimated noise: the file states none" in text and "stated noise" not in text
     assert "within" not in _residual_statement(second, first, 3.0, stated=False)["text"]
+
+
+@pytest.mark.parametrize("mass_kg, named", [(1e-5, False), (3e-4, True)])
+def test_an_effect_the_data_show_but_too_small_to_matter_is_not_named(mass_kg, named):
+    """Noise of 1e-6 of each value (complex Gaussian, seeded, stated as H_var): a 10 mg mass
+    on the 8-DOF chain (masses of 0.5-2 kg) is clear in the data (gap 11, 1.0 with it) but
+    changes no model FRF value by more than 0.01 %, ten times less than ``NEGLIGIBLE_CHANGE``:
+    not named, and the residual says what the data show. At 0.3 g (0.3 %) it is named.
+    Before the floor the 10 mg mass was named like any other; so was the demo's 1e-7 kg
+    oscillator in its second round (5e-5 of any value)."""
+    M, C, K, dofs = example_system(8, seed=3)
+    hidden = Effect("added_mass", (dofs[3],), {"mass_kg": mass_kg})
+    Mt, Ct, Kt, _ = apply_effect(M, C, K, dofs, hidden)
+    frf = accelerance_from_model(Mt, Ct, Kt, dofs, np.geomspace(10.0, 700.0, 300), dofs, [dofs[1], dofs[6]])
+    frf.H = _noisy(frf.H, seed=5, eps=1e-6)
+    frf.H_var = (1e-6 * np.abs(frf.H)) ** 2
+    res = find_discrepancy(Model(M=M, C=C, K=K, dofs=dofs), frf)
+    residual = res.info["residual"]
+    assert residual["closed"] and not res.info["warnings"]
+    if named:
+        assert (res.effect.name, res.dofs) == ("added_mass", [dofs[3]])
+        assert res.effect.parameters["mass_kg"] == pytest.approx(mass_kg, rel=0.01)
+        assert residual["negligible_effect"] is None
+        return
+    assert res.effect.name == "none" and res.gap_before > 5.0
+    seen = residual["negligible_effect"]
+    assert (seen["effect"], seen["dofs"]) == ("added_mass", [dofs[3]]), seen
+    assert seen["frf_change"] < 0.2 * NEGLIGIBLE_CHANGE and seen["gap_with_it"] < 1.2
+    assert "negligible" in residual["text"] and "would lower the gap" in residual["text"]
+    check = res.info["cross_validation"]["checks"][0]
+    assert check["negligible"] and check["heldout_gain"] is None and not check["passed"]
 
 
 def test_no_effect_with_a_large_gap_is_not_called_agreement():

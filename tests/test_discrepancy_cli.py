@@ -53,6 +53,19 @@ def test_run_writes_contract_json_updated_model_and_plots(files, capsys):
     assert "effect: added_mass" in capsys.readouterr().out
 
 
+def test_the_negligible_floor_is_the_users_to_set(files):
+    # The hidden mass changes FRF values by far more than 0.1 %; with the floor set above
+    # any change it is seen, said to be negligible and not named.
+    d, case = files
+    args = _parse(["--model", str(d / "nominal.h5"), "--measured", str(d / "frf.h5"),
+                   "--json", str(d / "floor.json"), "--negligible", "1e6", "--quiet"])
+    assert args.run(args) == 0
+    data = json.loads((d / "floor.json").read_text())
+    seen = data["residual"]["negligible_effect"]
+    assert data["effect"] == "none" and (seen["effect"], set(seen["dofs"])) == (case.truth.name, set(case.truth.dofs))
+    assert 1e-3 < seen["frf_change"] < 1e4
+
+
 @pytest.mark.parametrize("extra,message", [
     (["--fmin", "50", "--fmax", "10"], "must be below"),
     (["--fmin", "1e6"], "no frequency lines"),
@@ -107,6 +120,10 @@ def test_main_gives_one_line_and_status_2_on_bad_input(files, tmp_path, capsys):
         ["--model", str(d / "nominal.h5"), "--measured", str(nan_file), "--json", str(tmp_path / "o.json")],
         ["--model", str(d / "nominal.h5"), "--measured", str(d / "frf.h5"), "--json", str(tmp_path / "o.json"), "--bogus"],
         ["--model", str(d / "nominal.h5"), "--json", str(tmp_path / "o.json")],
+        ["--model", str(d / "nominal.h5"), "--measured", str(d / "frf.h5"), "--json", str(tmp_path / "o.json"),
+         "--negligible", "nan"],
+        ["--model", str(d / "nominal.h5"), "--measured", str(d / "frf.h5"), "--json", str(tmp_path / "o.json"),
+         "--negligible", "-1"],
     ]
     for argv in cases:
         assert cli.main(["discrepancy", *argv]) == 2, argv

@@ -44,11 +44,13 @@ from .report import (
 )
 from .search import (
     CRITERION_NAME,
+    NEGLIGIBLE_CHANGE,
     Candidate,
     SearchResult,
     adopt_parameters,
     cross_validated_gain,
     demote,
+    frf_change,
     search_round,
 )
 from .search_json import candidate_json, listed_candidates, localisation_json, round_json
@@ -111,12 +113,14 @@ def _search(model: Model, C, omega, H, W, out_idx, in_idx, T) -> SearchResult:
     return search_round(model.M, C, model.K, model.dofs, omega, H, W, out_idx, in_idx, T=T)
 
 
-def _validate(search: SearchResult, stand: StandNoise | None = None, tries: int = 3) -> list[dict]:
+def _validate(search: SearchResult, stand: StandNoise | None = None, tries: int = 3,
+              negligible_change: float = NEGLIGIBLE_CHANGE) -> list[dict]:
     """Validate the leader; demote it below none if it fails, and try the next.
 
-    A leader must lower the held-out residual (``search.cross_validated_gain``) and, on a
-    test stand (``stand``), still beat the nominal model once the reactions' noise is
-    modelled exactly (``stand_noise.stand_noise_check``). If none of ``tries``
+    A leader must change some model FRF value by ``negligible_change`` of itself or more
+    (``search.frf_change``), lower the held-out residual (``search.cross_validated_gain``)
+    and, on a test stand (``stand``), still beat the nominal model once the reactions' noise
+    is modelled exactly (``stand_noise.stand_noise_check``). If none of ``tries``
     leaders passes, none wins: a candidate that was never checked is not named.
 
     On a stand the first ``tries`` candidates are all checked, and of those that pass the
@@ -125,18 +129,22 @@ def _validate(search: SearchResult, stand: StandNoise | None = None, tries: int 
     reactions' noise there), and it favours the effect with the more parameters to shrink it
     with (an oscillator tuned below the band over the damper it acts as there).
 
-    Returns the checks made (effect, DOFs, held-out gain, the stand check, passed, and
-    ``named`` for the one named), in the order made.
+    Returns the checks made (effect, DOFs, its largest FRF change, held-out gain, the stand
+    check, passed, and ``named`` for the one named), in the order made.
     """
     checks: list[dict] = []
     passed: list[tuple[Candidate, dict]] = []
     for cand in list(search.candidates[:tries]):
         if cand.name == "none" or (passed and stand is None):
             break
-        gain = cross_validated_gain(search, cand)
-        check = {"effect": cand.name, "dofs": list(cand.effect.dofs), "heldout_gain": gain,
-                 "passed": gain > 0, "named": False}
-        if gain > 0 and stand is not None:
+        change = frf_change(search, cand)
+        negligible = change < negligible_change  # not worth a cross-validation
+        gain = None if negligible else cross_validated_gain(search, cand)
+        check = {"effect": cand.name, "dofs": list(cand.effect.dofs), "described": cand.effect.describe(),
+                 "gap_with_it": float(np.sqrt(cand.rss / search.n_valid)), "frf_change": change,
+                 "negligible": negligible, "heldout_gain": gain,
+                 "passed": gain is not None and gain > 0, "named": False}
+        if check["passed"] and stand is not None:
             check["stand_noise"] = stand_noise_check(stand, search, cand)
             check["passed"] = check["stand_noise"]["passed"]
         checks.append(check)
@@ -166,6 +174,7 @@ def find_discrepancy(
     second_round: bool = True,
     n_bands: int = 8,
     reactions: str = "auto",
+    negligible_change: float = NEGLIGIBLE_CHANGE,
 ) -> DiscrepancyResult:
     """Find the effect missing from ``model`` that explains the measured ``frf``.
 
@@ -190,6 +199,9 @@ def find_discrepancy(
         model with them (a model of the substructure alone), ``ignore`` does not (a model
         that includes the stand), ``auto`` takes the one that reproduces the data better
         (:mod:`ssid.reaction_loads`).
+    negligible_change : float
+        An effect that changes no model FRF value by this fraction of the value or more is
+        not named (``search.NEGLIGIBLE_CHANGE``, 1e-3); 0 names any effect the data show.
 
     Returns
     -------
@@ -235,7 +247,7 @@ def find_discrepancy(
             lambda C_: _search(model, C_, omega, H, W, out_idx, in_idx, T), T)
     else:
         search = _search(model, C, omega, H, W, out_idx, in_idx, T)
-    validation = _validate(search, stand)
+    validation = _validate(search, stand, negligible_change=negligible_change)
     t_search = time.perf_counter() - t0
 
     nominal = Model(M=model.M, K=model.K, C=C, dofs=list(model.dofs), attrs=dict(model.attrs))
@@ -248,20 +260,25 @@ def find_discrepancy(
     H_upd = _model_frf(updated, data, loads)
 
     rounds = [round_json(search, H, valid, model.dofs)]
-    second = None
+    second, second_checks = None, []
     if second_round and effects:
         second = _search(updated, updated.C, omega, H, W, out_idx, in_idx, T)
-        _validate(second, stand)
+        second_checks = _validate(second, stand, negligible_change=negligible_change)
         rounds.append(round_json(second, H, valid, updated.dofs))
         if second.best.name != "none" and max_effects >= 2:
-            effects = _backfit(nominal, effects[0], second.best.effect, omega, H, W, out_idx, in_idx, T, stand)
+            effects = _backfit(nominal, effects[0], second.best.effect, omega, H, W, out_idx, in_idx, T, stand,
+                               negligible_change=negligible_change)
             updated = nominal
             for eff in effects:
                 updated = apply_effect_to_model(updated, eff)
             H_upd = _model_frf(updated, data, loads)
     gap_before = noise_gap(H, H_nom, W)
     gap_after = noise_gap(H, H_upd, W)
-    residual = _residual_statement(second, effects, gap_after, noise["source"] == "H_var")
+    # The leader of the round that decided (the second, or the first if it named none), if
+    # it was turned down as negligible.
+    deciding = second_checks if second is not None else ([] if effects else validation)
+    negligible = _negligible_leader(deciding)
+    residual = _residual_statement(second, effects, gap_after, noise["source"] == "H_var", negligible)
     if loads is None:
         parts_nom, parts_upd = H_nom, H_upd
     else:  # the load cells' gains are fitted too
@@ -269,15 +286,16 @@ def find_discrepancy(
     calibration = check_channel_gains(search, H, parts_nom, parts_upd, W, effects, data, stand)
     if calibration["flagged"]:
         fix = _search_gains_corrected(nominal, omega, H, W, W_meas, out_idx, in_idx, data, loads, calibration,
-                                      stand)
+                                      stand, negligible_change=negligible_change)
         calibration["with_gains_corrected"] = fix
         if fix is not None:
             calibration["text"] += f"; {fix['text']}"
         warnings.append(calibration["text"])
-    elif chosen.name == "none" and search.rss0 > 2.0 * search.n_valid:
+    elif chosen.name == "none" and search.rss0 > 2.0 * search.n_valid and not residual["closed"]:
         warnings.append("no effect of the library pays for its parameters, yet the residual is "
                         f"{search.rss0 / search.n_valid:.2g} times the noise level: the model "
-                        "differs from the test in a way the library does not describe")
+                        "differs from the test in a way the library does not describe"
+                        + _negligible_text(negligible))
     updated.attrs = {**updated.attrs, "discrepancy_effects": "; ".join(e.describe() for e in effects) or "none"}
 
     info = {
@@ -324,7 +342,7 @@ def find_discrepancy(
 
 def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx, data: FRFData,
                             loads: AppliedLoads | None, calibration: dict, stand: StandNoise | None = None,
-                            sweeps: int = 2) -> dict | None:
+                            sweeps: int = 2, negligible_change: float = NEGLIGIBLE_CHANGE) -> dict | None:
     """The effect search again on the data divided by the channel gains, alternating.
 
     Gains fitted against the nominal model may hold part of a real effect, and an effect
@@ -360,7 +378,8 @@ def _search_gains_corrected(nominal: Model, omega, H, W, W_meas, out_idx, in_idx
         loads_c = _loads_corrected(loads, data, b, gamma)
         Hc, Wc = H / g, corrected_weights(g, loads_c)
         found = _search(nominal, nominal.C, omega, Hc, Wc, out_idx, in_idx, None if loads_c is None else loads_c.T)
-        _validate(found, StandNoise.build(Hc, W_meas * np.abs(g), loads_c, data.outputs, nominal.dofs))
+        _validate(found, StandNoise.build(Hc, W_meas * np.abs(g), loads_c, data.outputs, nominal.dofs),
+                  negligible_change=negligible_change)
         updated = nominal if found.best.name == "none" else apply_effect_to_model(nominal, found.best.effect)
         parts = _model_parts(updated, data, loads)
         gains = fit_channel_gains(H, parts, W)
@@ -404,7 +423,8 @@ def _loads_corrected(loads: AppliedLoads | None, data: FRFData, b: np.ndarray,
 
 
 def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx, in_idx, T,
-             stand: StandNoise | None = None, sweeps: int = 2) -> list[Effect]:
+             stand: StandNoise | None = None, sweeps: int = 2,
+             negligible_change: float = NEGLIGIBLE_CHANGE) -> list[Effect]:
     """Two effects refitted in turn, each with the other in place (backfitting).
 
     The first round fitted its effect with the second one missing, so it may have absorbed
@@ -419,7 +439,7 @@ def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx
         for k in (0, 1):
             base = apply_effect_to_model(nominal, effects[1 - k])
             found = _search(base, base.C, omega, H, W, out_idx, in_idx, T)
-            _validate(found, stand)
+            _validate(found, stand, negligible_change=negligible_change)
             if found.best.name != "none" and all(d in nominal.dofs for d in found.best.effect.dofs):
                 effects[k] = found.best.effect
     return effects
@@ -433,16 +453,36 @@ def _model_parts(model: Model, data: FRFData, loads: AppliedLoads | None) -> Mod
     return model_parts(model.M, model.C, model.K, model.dofs, data, loads)
 
 
+def _negligible_leader(checks: list[dict]) -> dict | None:
+    """The round's leader if it was turned down as negligible (``_validate``'s first check)."""
+    if checks and checks[0]["negligible"]:
+        c = checks[0]
+        return {key: c[key] for key in ("effect", "dofs", "described", "frf_change", "gap_with_it")}
+    return None
+
+
+def _negligible_text(negligible: dict | None) -> str:
+    if negligible is None:
+        return ""
+    return (f"; the search's best, {negligible['described']}, would change no model FRF value "
+            f"by more than {100 * negligible['frf_change']:.2g} %: negligible, not named")
+
+
 def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_after: float,
-                        stated: bool = True) -> dict:
+                        stated: bool = True, negligible: dict | None = None) -> dict:
     """Does one effect close the gap? The residual and the next-best candidate.
 
     ``stated``: the noise level is the file's (``H_var``); else it was estimated from the
     data's roughness, which a coarse or adaptive sweep overstates, and the text says so.
+    ``negligible``: the deciding round's leader, turned down as negligible
+    (:func:`_negligible_leader`); the text names it, so that an effect the data show, too
+    small to matter, is not mistaken for none.
     """
     nxt = None
     if second is not None:
         b = second.best
+        if b.name != "none":  # a candidate named after a negligible one is the news
+            negligible = None
         nxt = None if b.name == "none" else {"effect": b.name, "dofs": list(b.effect.dofs),
                                               "parameters": b.effect.parameters,
                                               "criterion_gain_over_none": -second.none().delta_criterion,
@@ -450,6 +490,16 @@ def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_
     closed = nxt is None if (second is not None or not effects) else None
     if closed is None:
         text = f"{effects[0].describe()} found; whether it closes the gap was not checked"
+    elif (not effects and gap_after > GAP_WITHIN_NOISE and negligible is not None
+          and negligible["gap_with_it"] <= GAP_WITHIN_NOISE):
+        # The data show the difference beyond their noise, and it is an effect too small to
+        # change the model's predictions: nothing is left to look for.
+        return {"closed": True, "negligible_effect": negligible, "next_effect": None,
+                "text": (f"the data differ from the nominal model by a negligible effect: the "
+                         f"search's best, {negligible['described']}, would lower the gap from "
+                         f"{gap_after:.3g} to {negligible['gap_with_it']:.3g} (1 = noise level) "
+                         f"but change no model FRF value by more than "
+                         f"{100 * negligible['frf_change']:.2g} %: not named")}
     elif not effects and gap_after > GAP_WITHIN_NOISE:
         closed = False
         text = (f"no effect of the library pays for its parameters, yet the gap is {gap_after:.3g} "
@@ -471,4 +521,5 @@ def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_
         text = (f"one effect does not close the gap (gap after {gap_after:.3g}{within}): the second "
                 f"search names {nxt['effect']} at {'-'.join(nxt['dofs'])}, which would lower it to "
                 f"{nxt['gap_with_it']:.3g}")
-    return {"closed": closed, "text": text, "next_effect": nxt}
+    return {"closed": closed, "text": text + _negligible_text(negligible), "next_effect": nxt,
+            "negligible_effect": negligible}

@@ -56,14 +56,14 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
     from daq.run import run_test
     from daq.setup import parse_setup
     from daq.simlab import build_world, nominal_model, payload_substructure
+    from ssid.correlate_models import correlate_models
     from ssid.discrepancy import find_discrepancy
     from ssid.discrepancy.plots import write_plots
-    from ssid.correlate_models import correlate_models
     from ssid.frf import accelerance_under_test_loads
     from ssid.identify import identify_mck
     from ssid.io import Model, read_frf, write_model
     from ssid.modal import complex_modes, root_frequency_damping
-    from ssid.plots_correlation import plot_frf_overlay, plot_frequency_errors, plot_mac_matrix
+    from ssid.plots_correlation import plot_frequency_errors, plot_frf_overlay, plot_mac_matrix
     from ssidlab.cli_correlate import jsonable
 
     t0 = time.monotonic()

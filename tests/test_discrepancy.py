@@ -7,7 +7,6 @@ never shown the truth) and, for the simulated lab's physics, with ``sim_devices`
 from __future__ import annotations
 
 import json
-import time
 
 import numpy as np
 import pytest
@@ -308,14 +307,14 @@ def test_bad_input_raises_input_error():
         find_discrepancy(Model(M=M, K=-K, C=C, dofs=dofs), frf)
 
 
-def test_52_dof_model_16_outputs_1000_lines_in_under_a_minute():
+def test_52_dof_model_16_outputs_1000_lines_names_the_mass():
+    # The size of the speed target; its time is bench/discrepancy_speed.py's.
     case = make_case(7, structure="payload", effect="added_mass", n_lines=1000,
                      undamped_nominal=False, n_outputs=16, n_inputs=3)
     assert (case.nominal.n, case.frf.n_out, case.frf.n_freq) == (52, 16, 1000)
-    t0 = time.perf_counter()
     res = find_discrepancy(case.nominal, case.frf)
-    assert time.perf_counter() - t0 < 60.0
     assert (res.effect.name, res.dofs) == (case.truth.name, list(case.truth.dofs))
+    assert res.effect.parameters["mass_kg"] == pytest.approx(case.truth.parameters["mass_kg"], rel=0.05)
 
 
 def test_the_residual_line_says_whose_noise_it_is_within():

@@ -247,7 +247,12 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   hardly tell the 992 Hz shape from the 298.7 Hz one (MAC 0.80). The model's two roots above
   the band come out at 871 Hz (MAC 0.83 with the 992 Hz mode, 0.64 with the 298.7 Hz one)
   and 1608 Hz. The report's six modes between its 300 Hz edge and its 11th target were
-  dominated by X rotation (its section 6.2.3).
+  dominated by X rotation (its section 6.2.3). The FE model's own static and dynamic
+  reductions to these 12 sensors do no better (section 7): the Guyan and IRS TAMs have no
+  mode paired with the 992 Hz target and put the 1124 Hz one at 1606 and 1182 Hz; only the
+  Craig-Bampton TAM, whose fixed-interface modes are chosen for the targets, holds both
+  (1015, 1125 Hz). Like the Guyan and IRS reductions, a model fitted to the sensors'
+  response below 551 Hz is not told which modes above it an analyst wants.
 - **The modal candidate** exists only when the band holds at least as many modes as the
   model has DOFs; it then holds those modes to the accuracy of band processing, and which
   modes it holds is the data's choice: at 12 and 16 Z sensors some rotation-dominated modes

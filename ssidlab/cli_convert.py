@@ -89,8 +89,9 @@ def run_convert(args: argparse.Namespace) -> int:
 
     if in_kind == "frf" and out_kind == "uff":
         frf = read_frf(args.input)
-        write_uff_frf(args.output, frf, binary=binary, geometry=geometry)
-        summary = (f"{frf.n_out * frf.n_in} FRFs"
+        n_written = write_uff_frf(args.output, frf, binary=binary, geometry=geometry)
+        n_pairs = frf.n_out * frf.n_in
+        summary = (f"{n_written} FRFs" + (f" (of {n_pairs}: the others are blanked)" if n_written < n_pairs else "")
                    + (", coherence" if frf.coherence is not None else "")
                    + (f", {frf.n_react * frf.n_in} reactions" if frf.n_react else "")
                    + f", {frf.n_freq} lines as UFF {'58b (binary)' if binary else '58 (ASCII)'}")

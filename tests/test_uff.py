@@ -129,11 +129,22 @@ def test_blanked_values_are_not_written_and_come_back_blanked(tmp_path):
     frf.valid[:, 2, 1] = False  # a whole FRF missing
     frf.valid[3, 0, 0] = False  # one value, its H left as a number
     path = tmp_path / "frf.uff"
-    write_uff_frf(path, frf, binary=True)
+    assert write_uff_frf(path, frf, binary=True) == frf.n_out * frf.n_in - 1
     assert path.read_text(errors="replace").count("    58b") == 5
     back = read_uff_frf(path)
     np.testing.assert_array_equal(back.valid, frf.valid)
     np.testing.assert_array_equal(back.H[frf.valid], frf.H[frf.valid])
+
+
+def test_a_record_blanked_throughout_is_refused_not_written_empty(tmp_path):
+    # Before: a file of coherence and reactions only, which the reader refuses ("no FRF"),
+    # and the command said it had written every FRF.
+    frf = chain_frf(n_freq=12)
+    frf.coherence = np.full(frf.H.shape, 0.9)
+    frf.valid = np.zeros(frf.H.shape, dtype=bool)
+    with pytest.raises(InputError, match="no FRF has two valid lines"):
+        write_uff_frf(tmp_path / "x.uff", frf)
+    assert not (tmp_path / "x.uff").exists()
 
 
 def test_a_line_blanked_everywhere_is_lost_without_coherence(tmp_path):

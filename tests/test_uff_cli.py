@@ -43,6 +43,19 @@ def test_frf_to_uff_and_back(tmp_path, ssidlab):
     np.testing.assert_array_equal(back.valid, frf.valid)
 
 
+def test_the_summary_counts_the_frfs_written(tmp_path, ssidlab):
+    frf = full_frf()
+    frf.valid[:, 1, 0] = False  # one pair blanked throughout: not written
+    write_frf(tmp_path / "frf.h5", frf)
+    n = frf.n_out * frf.n_in
+    status, out, _ = ssidlab("convert", tmp_path / "frf.h5", tmp_path / "frf.uff")
+    assert status == 0 and f"{n - 1} FRFs (of {n}: the others are blanked)" in out, out
+    frf.valid[:] = False
+    write_frf(tmp_path / "none.h5", frf)
+    status, _, err = ssidlab("convert", tmp_path / "none.h5", tmp_path / "none.uff")
+    assert status == 2 and "no FRF has two valid lines" in err and not (tmp_path / "none.uff").exists()
+
+
 def test_binary_and_geometry_options(tmp_path, ssidlab):
     write_frf(tmp_path / "frf.h5", full_frf())
     (tmp_path / "nodes.csv").write_text("node,x,y,z\n1,0,0,0\n2,0.1,0,0\n3,0.2,0,0.05\n")

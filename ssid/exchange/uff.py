@@ -67,7 +67,7 @@ def write_uff_frf(
     *,
     binary: bool = False,
     geometry: Geometry | None = None,
-) -> None:
+) -> int:
     """Write FRFs (and coherence, reactions) as a UFF file of datasets 164, [2411,] 58.
 
     Parameters
@@ -82,16 +82,29 @@ def write_uff_frf(
     geometry : mapping of node -> (x, y, z), optional
         Node coordinates in metres, written as dataset 2411.
 
+    Returns
+    -------
+    int
+        FRFs written: a pair blanked throughout (or valid at one line only) has none.
+
     Raises
     ------
     InputError
-        Invalid data, a label without node+direction form, fewer than 2 frequency lines, or
-        (ASCII only) two lines that the abscissa's 6 significant digits cannot tell apart.
+        Invalid data, a label without node+direction form, fewer than 2 frequency lines, no
+        FRF with two valid lines, or (ASCII only) two lines that the abscissa's 6 significant
+        digits cannot tell apart.
     OSError
         The file cannot be created.
     """
     src = os.fspath(path)
-    write_datasets(path, frf_datasets(src, frf, binary=binary, geometry=geometry))
+    datasets = frf_datasets(src, frf, binary=binary, geometry=geometry)
+    write_datasets(path, datasets)
+    return sum(map(_is_accelerance, datasets))
+
+
+def _is_accelerance(d: dict) -> bool:
+    """Whether a dataset dictionary of :func:`frf_datasets` is an FRF (not a reaction's)."""
+    return d.get("type") == 58 and d["func_type"] == FUNC_FRF and d["ordinate_spec_data_type"] == SPEC_ACCELERATION
 
 
 def frf_datasets(src: str, frf: FRFData, *, binary: bool = False,
@@ -127,6 +140,10 @@ def frf_datasets(src: str, frf: FRFData, *, binary: bool = False,
                 out.append(function("frf", rsp, ref, freq[keep], data.H[keep, i, j]))
             elif keep.any():
                 short.append(f"{rsp}/{ref}")
+    if not any(map(_is_accelerance, out)):
+        # The file would hold no FRF, which no reader (ours included) accepts.
+        raise InputError(f"{src}: no FRF has two valid lines (values blanked or not finite): "
+                         "a UFF 58 file would hold none")
     if data.coherence is not None:
         for j, ref in enumerate(data.inputs):
             for i, rsp in enumerate(data.outputs):

@@ -98,3 +98,21 @@ def test_place_refuses_a_model_with_massless_dofs(tmp_path):
     r = run(str(fe), "--sensors", "2", "--json", str(tmp_path / "o.json"))
     assert r.returncode == 2, r.stderr
     assert "M is not positive definite" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_place_refuses_an_unstable_model_but_takes_a_free_one(tmp_path):
+    """K with a clearly negative eigenvalue (a sign slip in a model file) gave target modes
+    "0-0 Hz" and a placement for them; a free-free chain (a rigid-body mode, omega^2 at
+    round-off) is still a model to place sensors on."""
+    n = 6
+    K = 1e4 * (2 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1))
+    K[0, 0] = K[-1, -1] = 1e4  # free at both ends: one rigid-body mode
+    dofs = [f"{k + 1}+Z" for k in range(n)]
+    free, unstable = tmp_path / "free.h5", tmp_path / "unstable.h5"
+    write_model(str(free), Model(M=np.eye(n), K=K, C=None, dofs=dofs))
+    write_model(str(unstable), Model(M=np.eye(n), K=-K, C=None, dofs=dofs))
+    r = run(str(free), "--sensors", "3", "--json", str(tmp_path / "f.json"))
+    assert r.returncode == 0, r.stderr
+    r = run(str(unstable), "--sensors", "3", "--json", str(tmp_path / "u.json"))
+    assert r.returncode == 2 and "K is not positive semi-definite" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "u.json").exists()

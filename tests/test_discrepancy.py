@@ -376,6 +376,13 @@ def test_no_effect_with_a_large_gap_is_not_called_agreement():
     large = _residual_statement(None, [], 35.0)
     assert large["closed"] is False
     assert "agree" not in large["text"] and "35" in large["text"]
+    # A negligible leader that would not close the gap either: the library still does not
+    # describe the difference, and the text does not claim nothing paid.
+    tiny = {"effect": "added_mass", "dofs": ["2"], "described": "added_mass at 2: mass_kg=1e-06",
+            "frf_change": 2e-5, "gap_with_it": 30.0}
+    large = _residual_statement(None, [], 35.0, negligible=tiny)
+    assert large["closed"] is False and "no effect of the library that matters pays" in large["text"]
+    assert "negligible, not named" in large["text"] and large["negligible_effect"] == tiny
 
 
 @pytest.mark.parametrize("gain", [1000.0, 1 / 9.80665, -1.0, 1.2])

@@ -292,8 +292,9 @@ def find_discrepancy(
             calibration["text"] += f"; {fix['text']}"
         warnings.append(calibration["text"])
     elif chosen.name == "none" and search.rss0 > 2.0 * search.n_valid and not residual["closed"]:
-        warnings.append("no effect of the library pays for its parameters, yet the residual is "
-                        f"{search.rss0 / search.n_valid:.2g} times the noise level: the model "
+        warnings.append(f"no effect of the library {'that matters ' if negligible else ''}pays for its "
+                        f"parameters, yet the residual is {search.rss0 / search.n_valid:.2g} times the "
+                        "noise level: the model "
                         "differs from the test in a way the library does not describe"
                         + _negligible_text(negligible))
     updated.attrs = {**updated.attrs, "discrepancy_effects": "; ".join(e.describe() for e in effects) or "none"}
@@ -488,6 +489,8 @@ def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_
                                               "criterion_gain_over_none": -second.none().delta_criterion,
                                               "gap_with_it": float(np.sqrt(b.rss / second.n_valid))}
     closed = nxt is None if (second is not None or not effects) else None
+    # A negligible leader did pay for its parameters; it is not named for its size.
+    nothing_pays = "that matters pays for its parameters" if negligible else "pays for its parameters"
     if closed is None:
         text = f"{effects[0].describe()} found; whether it closes the gap was not checked"
     elif (not effects and gap_after > GAP_WITHIN_NOISE and negligible is not None
@@ -502,11 +505,11 @@ def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_
                          f"{100 * negligible['frf_change']:.2g} %: not named")}
     elif not effects and gap_after > GAP_WITHIN_NOISE:
         closed = False
-        text = (f"no effect of the library pays for its parameters, yet the gap is {gap_after:.3g} "
+        text = (f"no effect of the library {nothing_pays}, yet the gap is {gap_after:.3g} "
                 "(1 = noise level): the model differs from the test in a way the library does "
                 "not describe")
     elif not effects:
-        text = "the data agree with the nominal model within noise: no effect pays for its parameters"
+        text = f"the data agree with the nominal model within noise: no effect {nothing_pays}"
     elif closed:
         text = (f"{effects[0].describe()} closes the gap: a second search finds no further effect "
                 f"(gap after {gap_after:.3g}, 1 = noise level)")

@@ -108,45 +108,20 @@ LOAD_CELL_GAINS = (1.1, 0.8, 1 / 9.80665, -1.0, 1000.0)
 
 
 def run_load_cell_case(spec: tuple[int, float, bool]) -> dict:
-    """A substructure on a stand whose load cell ``seed % 2`` reads ``gain`` times the force
-    (1: every transducer right), with a hidden mass if ``mass``. Noise: independent circular
-    complex Gaussian, 1 % of each value's magnitude (floor 1e-4 of the largest), on the
-    accelerances and the reactions, stated as variances."""
-    import dataclasses
-
-    from ssid.discrepancy.effects import Effect, apply_effect
-    from ssid.io import Model
-    from ssid.models import example_system, frf_on_test_stand
+    """``make_stand_case(seed, gain, mass)``: a substructure on a stand whose load cell
+    ``seed % 2`` reads ``gain`` times the force (1: every transducer right), with a hidden
+    mass if ``mass``; 1 % noise with a floor, stated."""
+    from ssid.discrepancy.cases import make_stand_case
 
     seed, gain, mass = spec
-    rng = np.random.default_rng(seed)
-    M, C, K, _ = example_system(14, seed=seed)
-    dofs = [str(k) for k in range(M.shape[0])]
-    inputs, reactions = ["2", "9"], ["0", "13"]
-    truth = Effect("none", (), {})
-    Mt, Ct, Kt = M, C, K
-    if mass:
-        site = str(rng.choice([d for d in dofs if d not in reactions]))
-        truth = Effect("added_mass", (site,), {"mass_kg": float(rng.uniform(0.1, 0.5))})
-        Mt, Ct, Kt, _ = apply_effect(M, C, K, dofs, truth)
-    frf = frf_on_test_stand(Mt, Ct, Kt, dofs, inputs, reactions, np.linspace(3.0, 400.0, 240))
-
-    def noisy(A):
-        var = (0.01 * np.abs(A)) ** 2 + (1e-4 * np.abs(A).max()) ** 2
-        return A + np.sqrt(var / 2) * (rng.standard_normal(A.shape) + 1j * rng.standard_normal(A.shape)), var
-
-    H, vH = noisy(frf.H)
-    R, vR = noisy(frf.H_reaction)
-    r = seed % 2
-    R[:, r, :] *= gain
-    vR[:, r, :] *= gain**2
-    frf = dataclasses.replace(frf, H=H, H_var=vH, H_reaction=R, H_reaction_var=vR)
-    res = find_discrepancy(Model(M=M, C=C, K=K, dofs=dofs), frf)
+    case = make_stand_case(seed, gain, mass)
+    truth, cell = case.truth, case.info["load_cell"]
+    res = find_discrepancy(case.nominal, case.frf)
     cal = res.info["calibration"]
     # A load cell far off is found by the reactions' choice, which divides its reactions by
     # what it read before the search; the calibration check's gain is then relative to that.
-    slip = res.info["reactions"]["load_cell_factor"].get(reactions[r])
-    found_gain = cal["reaction_gain"].get(reactions[r], np.nan) * (1.0 if slip is None else slip)
+    slip = res.info["reactions"]["load_cell_factor"].get(cell)
+    found_gain = cal["reaction_gain"].get(cell, np.nan) * (1.0 if slip is None else slip)
     fix = cal.get("with_gains_corrected") if cal["flagged"] else None
     name, dofs_found = (res.effect.name, res.effect.dofs) if fix is None else (fix["effect"], fix["dofs"])
     named = name == truth.name and set(dofs_found) == set(truth.dofs)

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from ssid.discrepancy import find_discrepancy
+from ssid.discrepancy.cases import make_stand_case
 from ssid.discrepancy.effects import Effect, apply_effect
 from ssid.discrepancy.stand_noise import StandNoise, _GainsCost, eiv_cost
 from ssid.frf import applied_loads
@@ -206,33 +207,19 @@ def test_a_record_too_short_to_estimate_the_reactions_noise_says_it_takes_them_a
 
 
 def test_a_load_cell_in_kgf_beside_a_hidden_mass_is_corrected_until_the_mass_is_named():
-    """``bench/discrepancy_accuracy.py``'s load-cell case of seed 10017, generated as there:
-    the chain of the seed on its stand, a hidden 0.21 kg mass at DOF 12 beside the held DOF
+    """``bench/discrepancy_accuracy.py``'s load-cell case of seed 10017
+    (``cases.make_stand_case``): the chain of the seed on its stand, a hidden 0.21 kg mass at DOF 12 beside the held DOF
     13, whose load cell reads in kgf; noise 1 % of each value plus a floor of 1e-4 of the
     largest, stated. The reactions' choice does not take the kgf (the mass biases the fitted
     factor to 0.118, and dividing by 1/9.81 does not halve the gap), so the calibration check
     flags the cell and the search runs on the data corrected by the gains. With two fixed
     sweeps of search and gain refit, the held DOF's accelerometer kept x 0.46 and an
     oscillator at 12 was named; iterated until the effect and the gains settle, the mass."""
-    seed = 10017
-    rng = np.random.default_rng(seed)
-    M, C, K, _ = example_system(14, seed=seed)
-    dofs = [str(k) for k in range(M.shape[0])]
-    site = str(rng.choice([d for d in dofs if d not in REACTIONS]))
-    truth = Effect("added_mass", (site,), {"mass_kg": float(rng.uniform(0.1, 0.5))})
-    Mt, Ct, Kt, _ = apply_effect(M, C, K, dofs, truth)
-    frf = frf_on_test_stand(Mt, Ct, Kt, dofs, INPUTS, REACTIONS, np.linspace(3.0, 400.0, 240))
-
-    def noisy(A):
-        var = (0.01 * np.abs(A)) ** 2 + (1e-4 * np.abs(A).max()) ** 2
-        return A + np.sqrt(var / 2) * (rng.standard_normal(A.shape) + 1j * rng.standard_normal(A.shape)), var
-
-    H, vH = noisy(frf.H)
-    R, vR = noisy(frf.H_reaction)
-    frf = _with_load_cell_gain(dataclasses.replace(frf, H=H, H_var=vH, H_reaction=R, H_reaction_var=vR),
-                               1, 1 / 9.80665)
-    res = find_discrepancy(Model(M=M, C=C, K=K, dofs=dofs), frf)
-    assert truth.dofs == ("12",) and res.info["reactions"]["load_cell_factor"] == {}
+    case = make_stand_case(10017, 1 / 9.80665, mass=True)
+    truth = case.truth
+    res = find_discrepancy(case.nominal, case.frf)
+    assert truth.dofs == ("12",) and case.info["load_cell"] == "13"
+    assert res.info["reactions"]["load_cell_factor"] == {}
     fix = res.info["calibration"]["with_gains_corrected"]
     assert (fix["effect"], fix["dofs"]) == ("added_mass", ["12"]), fix["text"]
     assert fix["parameters"]["mass_kg"] == pytest.approx(truth.parameters["mass_kg"], rel=0.02)

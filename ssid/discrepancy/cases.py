@@ -30,13 +30,14 @@ import numpy as np
 
 from ..frf import FRFData, accelerance_from_model, receptance
 from ..io import Model
+from ..models import example_system, frf_on_test_stand
 from ..models.lumped import chain_model
 from ..models.payload import Z_DOFS, payload_simulator
 from ..tam import normal_modes
 from .effects import EFFECT_NAMES, Effect, apply_effect
 from .response import unit_modal_damping
 
-__all__ = ["STRUCTURES", "Case", "make_case"]
+__all__ = ["STAND_INPUTS", "STAND_REACTIONS", "STRUCTURES", "Case", "make_case", "make_stand_case"]
 
 STRUCTURES = ("chain", "payload")
 EFFECTS = EFFECT_NAMES[:-1]
@@ -253,3 +254,42 @@ def make_case(seed: int, structure: str | None = None, effect: str | None = None
     if undamped:
         info["zeta"] = float(zeta_all)
     return Case(seed, structure, nominal, meas, truth, info)
+
+
+#: Inputs and held DOFs (load cells) of :func:`make_stand_case`'s chains.
+STAND_INPUTS, STAND_REACTIONS = ["2", "9"], ["0", "13"]
+
+
+def make_stand_case(seed: int, load_cell_gain: float = 1.0, mass: bool = False) -> Case:
+    """A substructure on a test stand whose load cell ``seed % 2`` reads ``load_cell_gain``
+    times its force (1: every transducer right), with a hidden mass if ``mass``.
+
+    The seeded 14-DOF chain ``example_system(14, seed)`` held at DOFs 0 and 13 by a flexible
+    stand, inputs at 2 and 9, 240 lines over 3-400 Hz; the mass (0.1-0.5 kg) at a free DOF.
+    Noise: independent circular complex Gaussian errors of 1 % of each value's magnitude plus
+    a floor of 1e-4 of the largest, on accelerances and reactions, stated as variances. The
+    nominal model is the chain without the mass. ``info``: the load cell and its gain.
+    """
+    rng = np.random.default_rng(seed)
+    M, C, K, _ = example_system(14, seed=seed)
+    dofs = [str(k) for k in range(M.shape[0])]
+    truth = Effect("none")
+    Mt, Ct, Kt = M, C, K
+    if mass:
+        site = str(rng.choice([d for d in dofs if d not in STAND_REACTIONS]))
+        truth = Effect("added_mass", (site,), {"mass_kg": float(rng.uniform(0.1, 0.5))})
+        Mt, Ct, Kt, _ = apply_effect(M, C, K, dofs, truth)
+    frf = frf_on_test_stand(Mt, Ct, Kt, dofs, STAND_INPUTS, STAND_REACTIONS, np.linspace(3.0, 400.0, 240))
+
+    def noisy(A):
+        var = (0.01 * np.abs(A)) ** 2 + (1e-4 * np.abs(A).max()) ** 2
+        return A + np.sqrt(var / 2) * (rng.standard_normal(A.shape) + 1j * rng.standard_normal(A.shape)), var
+
+    frf.H, frf.H_var = noisy(frf.H)
+    R, vR = noisy(frf.H_reaction)
+    r = seed % 2
+    R[:, r, :] *= load_cell_gain
+    vR[:, r, :] *= load_cell_gain**2
+    frf.H_reaction, frf.H_reaction_var = R, vR
+    return Case(seed, "stand", Model(M=M, C=C, K=K, dofs=dofs), frf, truth,
+                {"load_cell": STAND_REACTIONS[r], "load_cell_gain": load_cell_gain})

@@ -327,7 +327,8 @@ def test_the_residual_line_says_whose_noise_it_is_within():
 
     nxt = SimpleNamespace(name="grounded_spring", rss=4.0,
                           effect=Effect("grounded_spring", ("3",), {"stiffness_n_per_m": 1.0}))
-    second = SimpleNamespace(best=nxt, n_valid=100, none=lambda: SimpleNamespace(delta_criterion=-5.0))
+    second = SimpleNamespace(best=nxt, n_valid=100, none=lambda: SimpleNamespace(delta_criterion=-5.0),
+                             gap=lambda rss: float(np.sqrt(rss / 100)))
     first = [Effect("added_mass", ("2",), {"mass_kg": 0.1})]
     assert "within the stated noise" in _residual_statement(second, first, 0.5)["text"]
     text = _residual_statement(second, first, 0.5, stated=False)["text"]

@@ -247,8 +247,8 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray |
     # against the model with the effect added (against the nominal model they would absorb
     # part of it: a load cell at x 0.13 beside a 0.43 kg mass that is named right).
     gains, basis = (alone, "nominal") if explains_better or not effects else (on_top, "updated")
-    gap = float(np.sqrt(gains.rss / search.n_valid))
-    gap0 = float(np.sqrt((rss_nom if basis == "nominal" else rss_upd) / search.n_valid))
+    gap = search.gap(gains.rss)
+    gap0 = search.gap(rss_nom if basis == "nominal" else rss_upd)
     reactions = list(data.reactions or []) if gains.reaction_gain.size else []
     which = gains.describe(data.outputs, data.inputs, reactions=reactions)
     cause = "a sensitivity entered wrong, a unit (g for m/s^2, lbf for N) or a reversed sensor?"

@@ -138,6 +138,11 @@ class SearchResult:
     def best(self) -> Candidate:
         return self.candidates[0]
 
+    def gap(self, rss: float) -> float:
+        """The gap a weighted residual sum ``rss`` leaves: its RMS per valid complex value
+        (1 = noise level)."""
+        return float(np.sqrt(rss / self.n_valid))
+
     def none(self) -> Candidate:
         return next(c for c in self.candidates if c.name == "none")
 

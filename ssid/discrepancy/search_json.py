@@ -21,7 +21,7 @@ def candidate_json(search: SearchResult, cand: Candidate, H_meas: np.ndarray, va
         "effect": cand.name,
         "dofs": list(cand.effect.dofs),
         "parameters": dict(cand.effect.parameters),
-        "gap_after": float(np.sqrt(cand.rss / search.n_valid)),
+        "gap_after": search.gap(cand.rss),
         "gap_after_log_ratio": frf_gap(H_meas, candidate_frf(search, cand), valid),
         "criterion": cand.criterion,
         "delta_criterion": cand.delta_criterion,
@@ -64,6 +64,6 @@ def round_json(search: SearchResult, H, valid, dofs) -> dict:
             "effect": runner.name, "dofs": list(runner.effect.dofs),
             "parameters": runner.effect.parameters, "delta_criterion": runner.delta_criterion},
         "none_delta_criterion": search.none().delta_criterion,
-        "gap_before": float(np.sqrt(search.rss0 / search.n_valid)),
-        "gap_best": float(np.sqrt(best.rss / search.n_valid)),
+        "gap_before": search.gap(search.rss0),
+        "gap_best": search.gap(best.rss),
     }

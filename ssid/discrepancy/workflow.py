@@ -150,7 +150,7 @@ def _validate(search: SearchResult, stand: StandNoise | None = None, tries: int 
         negligible = change < negligible_change  # not worth a cross-validation
         gain = None if negligible else cross_validated_gain(search, cand)
         check = {"effect": cand.name, "dofs": list(cand.effect.dofs), "described": cand.effect.describe(),
-                 "gap_with_it": float(np.sqrt(cand.rss / search.n_valid)), "frf_change": change,
+                 "gap_with_it": search.gap(cand.rss), "frf_change": change,
                  "negligible": negligible, "heldout_gain": gain,
                  "passed": gain is not None and gain > 0, "named": False}
         if check["passed"] and stand is not None:
@@ -508,7 +508,7 @@ def _residual_statement(second: SearchResult | None, effects: list[Effect], gap_
         nxt = None if b.name == "none" else {"effect": b.name, "dofs": list(b.effect.dofs),
                                               "parameters": b.effect.parameters,
                                               "criterion_gain_over_none": -second.none().delta_criterion,
-                                              "gap_with_it": float(np.sqrt(b.rss / second.n_valid))}
+                                              "gap_with_it": second.gap(b.rss)}
     closed = nxt is None if (second is not None or not effects) else None
     # A negligible leader did pay for its parameters; it is not named for its size.
     nothing_pays = "that matters pays for its parameters" if negligible else "pays for its parameters"

@@ -156,18 +156,14 @@ def _load_cell_factors_off(H: np.ndarray, parts: ModelParts, valid: np.ndarray,
     c = fit_load_cell_factors(H, parts, valid)
     lo, hi = AS_MEASURED
     fitted = {lbl: 1.0 / float(x) for lbl, x in zip(react, c) if not lo <= x <= hi and x != 0}
-    if len(fitted) == len(react) and not all(_is_unit_slip(f) for f in fitted.values()):
+    slip = {lbl: _unit_slip(f) for lbl, f in fitted.items()}
+    if len(fitted) == len(react) and None in slip.values():
         return {}, {}
-    return {lbl: _unit_slip(f) for lbl, f in fitted.items()}, fitted
+    return {lbl: fitted[lbl] if s is None else s for lbl, s in slip.items()}, fitted
 
 
-def _is_unit_slip(factor: float) -> bool:
-    """Whether ``factor`` lies within ``UNIT_SLIP_RTOL`` of a unit slip (``UNIT_SLIPS``)."""
-    return bool(np.min(np.abs(UNIT_SLIPS / factor - 1.0)) <= UNIT_SLIP_RTOL)
-
-
-def _unit_slip(factor: float) -> float:
-    """The unit slip (``UNIT_SLIPS``) within ``UNIT_SLIP_RTOL`` of ``factor``, else ``factor``.
+def _unit_slip(factor: float) -> float | None:
+    """The unit slip (``UNIT_SLIPS``) within ``UNIT_SLIP_RTOL`` of ``factor``; None if none is.
 
     The fit's factor carries the nominal model's errors and the noise (0.2-1.2 % off a factor
     1000 on the stand cases); dividing a held DOF's large reaction by a factor that much off
@@ -176,7 +172,7 @@ def _unit_slip(factor: float) -> float:
     """
     rel = np.abs(UNIT_SLIPS / factor - 1.0)
     k = int(np.argmin(rel))
-    return float(UNIT_SLIPS[k]) if rel[k] <= UNIT_SLIP_RTOL else float(factor)
+    return float(UNIT_SLIPS[k]) if rel[k] <= UNIT_SLIP_RTOL else None
 
 
 def fit_load_cell_factors(H: np.ndarray, parts: ModelParts, valid: np.ndarray) -> np.ndarray:
@@ -325,7 +321,7 @@ def choose_reactions(M: np.ndarray, C: np.ndarray | None, K: np.ndarray, dofs: l
         g_fix = frf_gap_median(frf.H, parts.total(scale), valid)
         # A factor that is no unit slip only where the reactions as measured lose: a gain
         # nearer 1 is the calibration check's, whose estimate models the noise.
-        slips = all(_is_unit_slip(f) for f in factor.values())
+        slips = all(_unit_slip(f) is not None for f in factor.values())
         if g_fix < CLEAR_WIN * min(g_on, g_off) and (slips or g_on >= g_off):
             fixed = applied_loads(_reactions_scaled(frf, dict(zip(react, scale))))
             cells = ", ".join(f"{lbl} x {f:.6g} (fitted {fitted[lbl]:.4g})" for lbl, f in factor.items())

@@ -26,8 +26,10 @@ from .band_edges import (
     band_min_lines,
     default_band_width_hz,
     default_bands,
+    distance_to_nearest_line,
     line_spacing_at,
     lines_evenly_spaced,
+    low_edge_band,
     overlapping_bands,
 )
 from .band_scaling import (
@@ -55,10 +57,12 @@ __all__ = [
     "band_layout",
     "default_band_width_hz",
     "default_bands",
+    "distance_to_nearest_line",
     "frf_share",
     "fit_scale_factors",
     "line_spacing_at",
     "lines_evenly_spaced",
+    "low_edge_band",
     "normal_mode_mck",
     "overlapping_bands",
     "plot_band_roots",
@@ -90,16 +94,20 @@ class BandRoot:
     #: False when criterion 2 was not applied to a negative damping, for the same reason.
     damping_applied: bool = True
     cluster: int = -1  # index of the physical mode it was matched to
+    #: A root of the low-edge band (:func:`ssid.band_edges.low_edge_band`): it may confirm
+    #: another band's estimate of an unresolved root (criterion 4), never stand for a mode.
+    low_edge: bool = False
 
 
 @dataclass
 class BandResult:
     """Everything band processing found."""
 
-    bands_hz: list[tuple[float, float]]
+    bands_hz: list[tuple[float, float]]  # the bands processed, the low-edge band last
     roots: list[BandRoot]
     selected: list[BandRoot]
     data: list[Step1Data] = field(default_factory=list)  # per band (weights included)
+    low_edge_band: int | None = None  # index of the low-edge band in bands_hz, if one was added
 
     @property
     def freq_hz(self) -> np.ndarray:
@@ -125,6 +133,7 @@ def process_bands(
     mpc_min: float = 0.8,
     repeat_tol: float = 0.125,
     min_lines: int | None = None,
+    low_edge: bool = True,
 ) -> BandResult:
     """Run step 1 and Eq. 3.12 per band and select the structural roots (criteria 1-4).
 
@@ -141,6 +150,13 @@ def process_bands(
         2 % damping (the modes of chapter 6).
     min_lines : bands with fewer valid lines are skipped (default: enough real equations for
         the step-1 unknowns per DOF).
+    low_edge : add :func:`ssid.band_edges.low_edge_band` after ``bands_hz``: a third
+        estimate for roots the lines do not resolve at the record's low edge. Its roots that
+        the lines resolve are rejected ("resolved (low-edge band)"): a resolved mode there
+        already has the part-band's and the whole band's estimates, and the low-edge band,
+        holding every line of both and more modes for the same n DOFs, adds a more biased one
+        (on 4 of 8 DOFs measured it confirmed a 1.5 %-off estimate of a 39.7 Hz mode that no
+        other band repeated). Its roots never represent a mode.
 
     Returns
     -------
@@ -151,7 +167,9 @@ def process_bands(
     roots: list[BandRoot] = []
     data: list[Step1Data] = []
     unseen: list[BandRoot] = []  # spared by criterion 2 or 3: the lines do not see them
-    for b, (lo, hi) in enumerate(bands_hz):
+    extra = low_edge_band(bands_hz, frf.freq_hz) if low_edge else None
+    all_bands = list(bands_hz) + ([extra] if extra is not None else [])
+    for b, (lo, hi) in enumerate(all_bands):
         sub = frf.band(lo, hi)
         if sub.n_freq < need:
             data.append(None)
@@ -167,6 +185,7 @@ def process_bands(
             root = BandRoot(b, complex(modes.lam[r]), modes.theta[:, r].copy(), float(f),
                             float(zeta[r]), float(mpc[r]))
             root.phase_seen = _phase_seen_by_lines(f, zeta[r], sub.freq_hz)
+            root.low_edge = extra is not None and b == len(bands_hz)
             if not lo <= f <= hi:
                 root.rejected = "outside band"
             elif zeta[r] < 0 or mpc[r] < mpc_min:
@@ -178,32 +197,43 @@ def process_bands(
                     unseen.append(root)
             roots.append(root)
     _screen_unresolved(roots, unseen, frf.freq_hz)
+    for root in roots:
+        # After the screening above, so that the band's resolved roots crowd its unresolved
+        # ones as in any band.
+        if root.low_edge and root.phase_seen and not root.rejected:
+            root.rejected = "resolved (low-edge band)"
     _cluster_repeated(roots, repeat_tol, frf.freq_hz)
-    _reject_echoes(roots, bands_hz, data)
-    selected = _pick_representatives(roots, bands_hz)
-    return BandResult(bands_hz=list(bands_hz), roots=roots, selected=selected, data=data)
+    _reject_echoes(roots, all_bands, data)
+    selected = _pick_representatives(roots, all_bands)
+    return BandResult(bands_hz=all_bands, roots=roots, selected=selected, data=data,
+                      low_edge_band=len(bands_hz) if extra is not None else None)
 
 
-def repeat_tolerance_hz(freq_hz: np.ndarray, zeta: np.ndarray, df_hz: float | np.ndarray,
+def repeat_tolerance_hz(freq_hz: np.ndarray, zeta: np.ndarray,
+                        nearest_line_hz: float | np.ndarray,
                         tol: float = 0.125) -> np.ndarray:
     """Criterion 4's tolerance (Hz) for roots of frequency ``freq_hz`` and damping ``zeta``.
 
     A root's frequency is fixed by the lines over the width where its resonance shapes the
     FRF: its half-power band ``2 zeta f`` (Eq. 5.18 for zeta) when the lines resolve it. When
-    the line spacing ``df`` is wider than that, the peak falls between two lines and the root
-    is located only by its skirts at lines up to ``df`` away; a given relative noise on those
-    lines moves the estimate in proportion to that distance, so two bands' estimates of one
-    mode differ by a fraction of ``df``, not of ``2 zeta f``. The tolerance is the fraction
-    ``tol`` of ``max(2 zeta f, df)``: on the 16-DOF payload (1-2300 Hz, df = 2.25 Hz) the
-    1.29 Hz suspension mode has ``2 zeta f`` = 0.05 Hz, and its estimates in the two bands
-    that hold it differ by 1.4 % of f (0.8 % of df) with the report's noise. A lightly damped
-    noise root gets a tighter tolerance than under a fixed fraction of f, not a looser one.
+    its nearest line is farther than that, the peak falls between lines and the root is
+    located by its skirt at that line, ``d`` away, which sees it as ``r / (f_n - f)``: a
+    relative noise ``e`` there moves the estimate by about ``e d``, so two bands' estimates
+    of one mode differ by a fraction of ``d``, not of ``2 zeta f``. The tolerance is the
+    fraction ``tol`` of ``max(2 zeta f, d)``. On the 16-DOF payload (1-2300 Hz, df = 2.25 Hz)
+    the 1.29 Hz suspension mode has ``2 zeta f`` = 0.05 Hz and ``d`` = 0.29 Hz (the 1 Hz
+    line); its estimates in the two bands that hold it differ by 1.4 % of f (0.018 Hz, within
+    ``d/8`` = 0.036 Hz) with the report's noise. The line spacing ``df`` was used before in
+    place of ``d``: ``df/8`` = 0.28 Hz, 22 % of that mode's frequency, paired a 1.29 Hz
+    estimate with a 1.53 Hz one (12 sensors, 1-1158 Hz, seed 4) and made a mode of two noise
+    roots at 1.04 and 1.15 Hz (seed 28). A lightly damped noise root gets a tighter tolerance
+    than under a fixed fraction of f, not a looser one.
 
     Parameters
     ----------
     freq_hz, zeta : (m,) frequencies (Hz) and damping ratios of the roots.
-    df_hz : line spacing of the record where each root lies (Hz), scalar or (m,)
-        (:func:`line_spacing_at`).
+    nearest_line_hz : distance from each root to the record's nearest line (Hz), scalar or
+        (m,) (:func:`distance_to_nearest_line`).
     tol : fraction of the width (1/8: 0.5 % of f for a resolved 2 %-damped mode).
 
     Returns
@@ -212,7 +242,7 @@ def repeat_tolerance_hz(freq_hz: np.ndarray, zeta: np.ndarray, df_hz: float | np
     """
     f = np.asarray(freq_hz, dtype=float)
     z = np.clip(np.asarray(zeta, dtype=float), 0.0, None)
-    return tol * np.maximum(2 * z * f, df_hz)
+    return tol * np.maximum(2 * z * f, nearest_line_hz)
 
 
 #: A root's shape phase counts as seen by the lines when the nearest line lies within this
@@ -292,7 +322,7 @@ def _cluster_repeated(roots: list[BandRoot], tol: float, line_freq_hz: np.ndarra
     f = np.array([r.freq_hz for r in alive])
     z = np.array([max(abs(r.zeta), 1e-12) for r in alive])
     band = np.array([r.band for r in alive])
-    t = repeat_tolerance_hz(f, z, line_spacing_at(line_freq_hz, f), tol)
+    t = repeat_tolerance_hz(f, z, distance_to_nearest_line(line_freq_hz, f), tol)
 
     def close(i: int, j: int) -> bool:
         if band[i] == band[j] or abs(f[i] - f[j]) > max(t[i], t[j]):
@@ -391,7 +421,10 @@ def _reject_echoes(roots: list[BandRoot], bands_hz, data: list[Step1Data | None]
 def _pick_representatives(roots: list[BandRoot], bands_hz) -> list[BandRoot]:
     """One root per cluster: the one farthest from an edge of its band (least edge effect),
     among those with positive damping (a cluster's others came through criteria 2 and 4 only
-    because the lines do not see their damping).
+    because the lines do not see their damping), never the low-edge band's (it confirms;
+    holding the most modes for the same n DOFs, its estimates of the low modes are the most
+    compromised: 1.274 and 1.257 Hz where the other bands gave 1.284 and 1.289 Hz for the
+    1.287 Hz mode on two payload records).
 
     Only band edges inside the record count: at the record's own first or last line every
     band holding the root is cut alike (the two part-bands at each end share that edge with
@@ -408,7 +441,7 @@ def _pick_representatives(roots: list[BandRoot], bands_hz) -> list[BandRoot]:
 
     best: dict[int, BandRoot] = {}
     for r in roots:
-        if r.rejected or r.cluster < 0 or r.zeta <= 0:
+        if r.rejected or r.cluster < 0 or r.zeta <= 0 or r.low_edge:
             continue
         cur = best.get(r.cluster)
         if cur is None or margin(r) > margin(cur):

@@ -28,7 +28,8 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
     marks = {"": ("o", "tab:green", "kept"), "not repeated": ("x", "tab:orange", "not repeated"),
              "low MPC": ("s", "tab:purple", "low MPC"), "negative damping": ("v", "tab:red", "negative damping"),
              "outside band": (".", "0.6", "outside band"),
-             "same shape as a stronger mode": ("d", "tab:brown", "same shape as a stronger mode")}
+             "same shape as a stronger mode": ("d", "tab:brown", "same shape as a stronger mode"),
+             "resolved (low-edge band)": (".", "0.3", "resolved (low-edge band: unresolved roots only)")}
     seen = set()
     ring = "criterion 2 or 3 not applied (no line sees its phase)"
     for r in result.roots:
@@ -47,7 +48,8 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
             ax.axvline(f, color="k", lw=0.5, ls=":", zorder=1)
     lo = min(b[0] for b in result.bands_hz)
     hi = max(b[1] for b in result.bands_hz)
-    widths = [b[1] - b[0] for b in result.bands_hz[1:-1]] or [hi - lo]
+    regular = result.bands_hz[: result.low_edge_band]  # the layout's, without the low-edge band
+    widths = [b[1] - b[0] for b in regular[1:-1]] or [hi - lo]
     if lo > 0 and max(widths) > 3 * min(widths):
         ax.set_xscale("log")  # bands of equal line count on a log sweep: equal widths on a log axis
     ax.set_xlim(lo, hi)

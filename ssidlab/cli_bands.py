@@ -133,7 +133,10 @@ def run_bands(args: argparse.Namespace) -> int:
                      "overlap": args.overlap,
                      "mpc_min": args.mpc_min, "repeat_tol": args.repeat_tol,
                      "solver": args.solver},
-        "bands_hz": [list(b) for b in bands],
+        "bands_hz": [list(b) for b in res.bands_hz],
+        # A band added after the layout's (ssid.band_edges.low_edge_band): its roots confirm
+        # unresolved roots only.
+        "low_edge_band": res.low_edge_band,
         "roots": [{"band": r.band, "freq_hz": r.freq_hz, "damping_ratio": r.zeta,
                    "mpc": r.mpc, "mpc_applied": r.mpc_applied,
                    "damping_applied": r.damping_applied, "verdict": r.rejected or "kept",
@@ -238,7 +241,13 @@ def _table(out: dict) -> str:
         size = f"at most {span:.4g} Hz (the record is narrower than a {s['width_hz']:.4g} Hz band)"
     else:
         size = f"{s['width_hz']:.4g} Hz"
-    lines = [f"{len(out['bands_hz'])} bands of {size}; "
+    n_bands = len(out["bands_hz"])
+    low = out.get("low_edge_band")
+    if low is not None:
+        a, b = out["bands_hz"][low]
+        size += f" and a low-edge band ({a:.4g}-{b:.4g} Hz) for roots below the line spacing"
+        n_bands -= 1
+    lines = [f"{n_bands} bands of {size}; "
              f"{len(out['roots'])} roots (" + ", ".join(f"{v} {k}" for k, v in verdicts.items())
              + f"); {len(out['modes'])} modes found",
              head + ("  target (MAC)" if with_t else "")]

@@ -14,6 +14,7 @@ from ssid.bands import (
     _pick_representatives,
     band_min_lines,
     default_bands,
+    distance_to_nearest_line,
     frf_share,
     fit_scale_factors,
     line_spacing_at,
@@ -224,11 +225,16 @@ def test_bp2_bp3_recover_reduced_mck_with_report_noise(chain):
 
 
 def test_repeat_tolerance_is_a_fraction_of_the_width_that_locates_the_root():
-    """1/8 of max(2 zeta f, df): 0.5 % of f for a resolved 2 %-damped mode, df/8 for a mode
-    narrower than the line spacing, and tighter than 0.5 % of f for a lightly damped root."""
-    tol = repeat_tolerance_hz(np.array([1000.0, 1.29, 1000.0]), np.array([0.02, 0.02, 3e-4]),
-                              df_hz=2.25)
-    assert np.allclose(tol, [0.005 * 1000.0, 2.25 / 8, 2.25 / 8])
+    """1/8 of max(2 zeta f, d), d the distance to the nearest line: 0.5 % of f for a resolved
+    2 %-damped mode, d/8 for a mode narrower than the line spacing (the 1.29 Hz suspension
+    mode, 0.29 Hz above the 1 Hz line of a 2.25 Hz grid: 2.8 % of f), and tighter than 0.5 %
+    of f for a lightly damped root."""
+    lines = 1.0 + 2.25 * np.arange(1000)
+    f = np.array([1001.0, 1.29, 1001.0])
+    d = distance_to_nearest_line(lines, f)
+    assert np.allclose(d, [1.0, 0.29, 1.0])  # the lines at 1000 and 1 Hz
+    tol = repeat_tolerance_hz(f, np.array([0.02, 0.02, 3e-4]), d)
+    assert np.allclose(tol, [0.005 * 1001.0, 0.29 / 8, 1.0 / 8])
 
 
 def _root(band, f, zeta):
@@ -240,13 +246,15 @@ def _root(band, f, zeta):
 def test_repeat_criterion_keeps_unresolved_mode_and_rejects_noise_roots():
     """Roots as band processing found them on the 16-DOF payload, 1-2300 Hz, df = 2.25 Hz,
     with the report's noise (seed 1). The 1.29 Hz suspension mode (2 zeta f = 0.05 Hz, far
-    below df) is estimated at 1.272 and 1.290 Hz in bands 0 and 1, 1.4 % apart: within df/8,
-    the same mode. Band 0 also holds a noise root at 1.186 Hz that is within df/8 of the
-    band-1 estimate too: the closest pair is matched first and the noise root is left alone.
-    Near 2200 Hz band 22 holds a noise root (2196.3 Hz, zeta 1.2 %) beside its estimate of
-    the mode (2200.3 Hz): the mode's estimates of bands 21, 22, 23 form the group. Two lightly
-    damped noise roots 0.5 Hz apart near 1000 Hz (within 0.5 % of f, the old tolerance) are
-    more than df/8 apart and are rejected."""
+    below df) is estimated at 1.272 and 1.290 Hz in bands 0 and 1, 1.4 % apart: within d/8
+    (d = 0.27-0.29 Hz to the 1 Hz line), the same mode. Band 0 also holds a noise root at
+    1.186 Hz, 0.10 Hz from the band-1 estimate: beyond d/8 (it was within df/8 = 0.28 Hz, and
+    only the closest-first matching left it alone then). Near 2200 Hz band 22 holds a noise
+    root (2196.3 Hz, zeta 1.2 %) beside its estimate of the mode (2200.3 Hz), both within
+    tolerance of the other bands' estimates: the closest pairs are matched first and the
+    mode's estimates of bands 21, 22, 23 form the group. Two lightly damped noise roots 0.5
+    Hz apart near 1000 Hz (within 0.5 % of f, the old tolerance) are more than
+    max(2 zeta f, d)/8 apart and are rejected."""
     roots = [_root(0, 1.186, 0.0172), _root(0, 1.272, 0.0204), _root(1, 1.290, 0.0211),
              _root(22, 2196.324, 0.0118), _root(22, 2200.294, 0.0200),
              _root(21, 2200.853, 0.0196), _root(23, 2201.743, 0.0199),
@@ -362,6 +370,30 @@ def test_damping_criteria_spare_a_mode_whose_damping_no_line_sees(payload_12dof_
     for r in res.selected:
         if r.cluster in through:
             assert np.min(np.abs(f_true - r.freq_hz)) < 0.01 * r.freq_hz, (r.freq_hz, r.zeta)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_low_edge_band_keeps_the_suspension_modes_below_the_line_spacing(payload_12dof_1158hz,
+                                                                         seed):
+    """Report noise model, 12 sensors, 1-1158 Hz (df = 2.26 Hz): the suspension modes at
+    1.29, 2.83 and 6.21 Hz lie in the part-band and the whole band at the record's low edge
+    only, and no line resolves them. With those two bands alone, seed 3 lost the 1.29 Hz mode
+    (band 0's estimate 1.775 Hz, MPC 0.07: nothing repeated band 1's 1.291 Hz) and seed 4
+    took band 1's 1.533 Hz estimate (MPC 0.01) for it, paired with band 0's 1.292 Hz within
+    df/8. Each of the three must be found within 2 %, nothing else below 10 Hz, and on seed 3
+    the 1.29 Hz mode must be one that the low-edge band confirmed, not represents."""
+    frf, f_true = payload_12dof_1158hz
+    res = process_bands(report_noise_frf(frf, seed=seed),
+                        overlapping_bands(1.0, 1158.0, default_band_width_hz(frf.freq_hz), 0.5))
+    low = res.low_edge_band
+    assert low is not None and res.bands_hz[low] == pytest.approx((1.0, 1.0 + 1.5 * (1157.0 / 12)))
+    below = res.freq_hz[res.freq_hz < 10.0]
+    assert below.size == 3 and np.allclose(below, f_true[:3], rtol=0.02), below
+    assert not any(r.low_edge for r in res.selected)
+    if seed == 3:
+        first = res.selected[0]
+        members = [r for r in res.roots if r.cluster == first.cluster and not r.rejected]
+        assert sorted(r.band for r in members) == [1, low]
 
 
 @pytest.mark.parametrize("seed, echo_hz, mode_hz", [(1, 81.8, 78.87), (3, 116.0, 117.55)])

@@ -46,8 +46,13 @@ def test_bands_finds_every_mode_writes_chart_json_and_modal_model(tmp_path):
     assert all(m["n_bands"] >= 2 for m in res["modes"])  # criterion 4
     assert {r["verdict"] for r in res["roots"]} <= {"kept", "outside band", "negative damping",
                                                     "low MPC", "not repeated",
-                                                    "same shape as a stronger mode"}
+                                                    "same shape as a stronger mode",
+                                                    "resolved (low-edge band)"}
     assert res["settings"]["overlap"] == 0.5 and len(res["bands_hz"]) > 2
+    # The low-edge band (3-301.5 Hz, 1.5 widths) is listed last and named in the table.
+    low = res["low_edge_band"]
+    assert low == len(res["bands_hz"]) - 1 and res["bands_hz"][low][0] == 3.0
+    assert "and a low-edge band (3-" in p.stdout
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     model = read_model(str(out))
     assert model.dofs == list(dofs)
@@ -95,6 +100,11 @@ def reduced(tmp_path_factory):
     return M, C, K, dofs, d
 
 
+def _layout(res: dict) -> list:
+    """The bands the settings laid out: the JSON's bands without the low-edge band (last)."""
+    return res["bands_hz"][: res["low_edge_band"]]
+
+
 def _all_true(found_hz, f_true, rtol=0.01):
     """Every frequency found is one of the system's within ``rtol`` (the report's 1 % for an
     identified mode; 0.44 % at worst measured in these tests)."""
@@ -137,9 +147,10 @@ def test_bands_settings_change_the_bands(reduced):
     assert p.returncode == 0, p.stderr
     assert p.stdout == ""
     res = json.loads(js.read_text())
-    widths = [hi - lo for lo, hi in res["bands_hz"]]
+    widths = [hi - lo for lo, hi in _layout(res)]
     assert max(widths) == pytest.approx(100.0)
-    starts = [lo for lo, _ in res["bands_hz"]][2:5]
+    assert res["bands_hz"][-1] == pytest.approx([5.0, 155.0])  # the low-edge band: 1.5 widths
+    starts = [lo for lo, _ in _layout(res)][2:5]
     assert np.allclose(np.diff(starts), 25.0)  # 75 % overlap: a step of a quarter width
     assert res["settings"]["solver"] == "ls" and len(res["modes"]) >= 4
     assert _all_true([m["freq_hz"] for m in res["modes"]], _root_freq_hz(*reduced[:3]))
@@ -207,14 +218,14 @@ def test_bands_on_a_log_sweep_use_bands_of_equal_line_count(tmp_path, log_sweep_
     res = json.loads(js.read_text())
     assert res["settings"]["width_hz"] is None and res["settings"]["band_lines"] >= 24
     assert p.stdout.splitlines()[0].startswith(
-        f"{len(res['bands_hz'])} bands of {res['settings']['band_lines']} lines (uneven line spacing)")
+        f"{len(_layout(res))} bands of {res['settings']['band_lines']} lines (uneven line spacing)")
     found = np.array([m["freq_hz"] for m in res["modes"]])
     assert found.size == fn.size and np.allclose(found, fn, rtol=1e-3)
     p = run(str(src), "--json", str(js), "--solver", "ls", "--width", "300", "--quiet")
     assert p.returncode == 0, p.stderr
     res = json.loads(js.read_text())
     assert res["settings"]["width_hz"] == 300.0
-    assert max(hi - lo for lo, hi in res["bands_hz"]) == pytest.approx(300.0)
+    assert max(hi - lo for lo, hi in _layout(res)) == pytest.approx(300.0)
 
 
 def test_bands_on_a_record_shorter_than_one_default_band(tmp_path):

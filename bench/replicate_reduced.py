@@ -264,8 +264,8 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   (13.5 %, seed 1) is the 1.29 Hz suspension mode's, which lies between the first two lines
   (section 4): they hardly determine its damping (47 % on the same seed with two BLAS
   threads).
-  The one miss of the 12-DOF `bands` row is that mode, lost by band processing on seed 3
-  (section 4, "Still open").
+  Band processing lost that mode on seed 3 of the 12-DOF `bands` row (as 650 Hz) until a
+  low-edge band gave it a third estimate (section 4); the row now holds all 12 targets.
 - **The written model's FRFs** (the report's Figs. 6.7-6.10). The roots are step 1's; the
   written M, C, K come from step 2, and a reduced-order fit is not one second-order system,
   so the two can disagree. With the C of Eq. 3.15 the 10-DOF models' own modes were 39-457 %

@@ -49,7 +49,7 @@ def test_bands_finds_every_mode_writes_chart_json_and_modal_model(tmp_path):
                                                     "same shape as a stronger mode",
                                                     "resolved (low-edge band)"}
     assert res["settings"]["overlap"] == 0.5 and len(res["bands_hz"]) > 2
-    # The low-edge band (3-301.5 Hz, 1.5 widths) is listed last and named in the table.
+    # The low-edge band (3-77.6 Hz, 1.5 widths of 49.75 Hz) is listed last and named in the table.
     low = res["low_edge_band"]
     assert low == len(res["bands_hz"]) - 1 and res["bands_hz"][low][0] == 3.0
     assert "and a low-edge band (3-" in p.stdout

@@ -161,8 +161,8 @@ BAND_NOTES = """Why M was not positive definite at first, and what changed (`ssi
   step of the layout: w/2, w, 3w/2), now gives a third estimate: its roots count only when
   no line resolves them (a resolved root there already has two estimates, and this band,
   with more modes for the same n DOFs, adds a more biased third: see the last trial below),
-  and they confirm, never represent, a mode (its estimates of the low modes are the worst
-  of the three). With it and the nearest-line tolerance, the 31 seeds find all three
+  and they confirm, never represent, a mode (where we compared, its estimates of the low
+  modes were the worst of the three). With it and the nearest-line tolerance, the 31 seeds find all three
   suspension modes within 1.9 % and make no mode of noise below 10 Hz; on 44 other records
   (10 sensors at 1-300 and 1-551 Hz, 12 at 1-650 Hz, 16 at 1-2300 Hz; noise-free and seeds
   1-10, one BLAS thread) the modes found and the roots taken for modes not within 1 % of one

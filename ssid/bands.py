@@ -185,7 +185,7 @@ def process_bands(
             root = BandRoot(b, complex(modes.lam[r]), modes.theta[:, r].copy(), float(f),
                             float(zeta[r]), float(mpc[r]))
             root.phase_seen = _phase_seen_by_lines(f, zeta[r], sub.freq_hz)
-            root.low_edge = extra is not None and b == len(bands_hz)
+            root.low_edge = b == len(bands_hz)  # only the low-edge band has that index
             if not lo <= f <= hi:
                 root.rejected = "outside band"
             elif zeta[r] < 0 or mpc[r] < mpc_min:
@@ -267,9 +267,7 @@ def _phase_seen_by_lines(freq_hz: float, zeta: float, line_freq_hz: np.ndarray) 
     The 4 lies between. ``zeta`` is taken by magnitude: a root with negative damping is as
     far from being seen as its positive twin.
     """
-    if line_freq_hz.size == 0:
-        return True
-    d_min = float(np.min(np.abs(np.asarray(line_freq_hz) - freq_hz)))
+    d_min = float(distance_to_nearest_line(line_freq_hz, freq_hz)[0])  # 0 with no lines: seen
     return d_min <= PHASE_SEEN_HALF_WIDTHS * abs(zeta) * freq_hz
 
 

@@ -11,6 +11,7 @@ import scipy.linalg as sla
 from ssid.bands import (
     BandRoot,
     _cluster_repeated,
+    _phase_seen_by_lines,
     _pick_representatives,
     band_min_lines,
     default_bands,
@@ -271,6 +272,30 @@ def test_repeat_criterion_keeps_unresolved_mode_and_rejects_noise_roots():
     assert bands[1] == (1.0, 201.0) and bands[22] == (2101.0, 2300.0)
     reps = _pick_representatives(roots, bands)
     assert [r.freq_hz for r in reps] == [1.290, 2200.294]
+
+
+def test_damping_check_skipped_where_no_line_sees_the_damping():
+    """Roots as band processing found them on the payload (12 sensors, 1-1158 Hz, 512 lines,
+    the report's noise, seed 2; the record-level test below): the 1.29 Hz suspension mode at
+    1.2793 Hz with damping -0.32 % in band 0 and 1.2797 Hz with 1.95 % in band 1. The nearest
+    line (1 Hz) is 0.28 Hz away, 11 half-widths zeta f: the lines see neither the phase nor
+    the damping, sign included. The two are one mode (criterion 4 skips its factor-2 damping
+    check), represented by the estimate with positive damping. Were the lines to see them,
+    the damping check would keep them apart and neither would be repeated. (Whether the
+    record gives a negative estimate depends on where its step-1 fits stop: with a
+    gain-ratio LM schedule it gave none. This test holds the rule itself.)"""
+    lines = np.linspace(1.0, 1158.0, 512)
+    roots = [_root(0, 1.27932, -0.0032), _root(1, 1.27971, 0.0195)]
+    for r in roots:
+        r.phase_seen = _phase_seen_by_lines(r.freq_hz, r.zeta, lines)
+    assert not any(r.phase_seen for r in roots)
+    _cluster_repeated(roots, 0.125, lines)
+    assert not any(r.rejected for r in roots) and roots[0].cluster == roots[1].cluster >= 0
+    bands = overlapping_bands(1.0, 1158.0, default_band_width_hz(lines), 0.5)
+    assert [r.freq_hz for r in _pick_representatives(roots, bands)] == [1.27971]
+    seen = [replace(r, phase_seen=True, cluster=-1) for r in roots]
+    _cluster_repeated(seen, 0.125, lines)
+    assert [r.rejected for r in seen] == ["not repeated"] * 2
 
 
 def test_residual_terms_dropped_only_where_a_mode_is_unresolved():

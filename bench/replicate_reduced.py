@@ -215,9 +215,9 @@ REDUCED_NOTES = """Reading sections 2 and 3:
 - **Same spectrum, different problem.** The report's 1-300 Hz held 9 of its 10 targets, with
   the 10th 1.5 % above the edge (its resonance half in the band); ours holds 7, and the 10th
   target (559 Hz) lies 1.9 times above the edge, so the 1-300 Hz rows ask our models to
-  extrapolate much farther (in the 10-DOF default the in-band modes are within 0.07 %, the
-  318.6 and 395.2 Hz targets above the band within 0.08 %, and the 559 Hz one 2.1 % off,
-  which sets the row's 2.1 %). The `as 300 Hz`
+  extrapolate much farther (in the 10-DOF default the in-band modes are within 0.012 %, the
+  318.6 and 395.2 Hz targets above the band within 0.07 and 0.22 %, and the 559 Hz one 2.2 %
+  off, which sets the row's 2.2 %). The `as 300 Hz`
   and `as 650 Hz` rows put our model where the report's spectra put its own.
 - **Why our modes sit elsewhere.** The report's Table 6.19 shows its 4th mode (18.1 Hz) at its
   10 sensors: the frame's twist (rail ends 1 and 4 at 1, -0.97, 5 and 8 at -1, 0.97, the
@@ -260,10 +260,12 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   missed although every mode the model holds is right.
   With the FE model's target modes kept first (`prefer_shapes`, as the report picked its
   band-processing roots by hand in section 4), it holds every target (`FE targets first`)
-  on noise-free data, and under the report's noise at 16 DOFs too. Its worst damping error
-  (13.5 %, seed 1) is the 1.29 Hz suspension mode's, which lies between the first two lines
-  (section 4): they hardly determine its damping (47 % on the same seed with two BLAS
-  threads).
+  on noise-free data, and under the report's noise at 16 DOFs too. Its worst errors are the
+  suspension modes', whose half-power bands are narrower than the line spacing (section 4),
+  so the lines hardly determine them: 0.84 % in frequency (1.29 Hz, seed 3) and 3.0 % in
+  damping (6.2 Hz, seed 1). Rounding moves them: with the refinement's normal equations
+  solved by LU the row read 0.32 % / 13.5 %, and the 1.29 Hz mode's damping was 47 % off on
+  seed 1 with two BLAS threads.
   Band processing lost that mode on seed 3 of the 12-DOF `bands` row (as 650 Hz) until a
   low-edge band gave it a third estimate (section 4); the row now holds all 12 targets.
 - **The written model's FRFs** (the report's Figs. 6.7-6.10). The roots are step 1's; the
@@ -271,12 +273,15 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   so the two can disagree. With the C of Eq. 3.15 the 10-DOF models' own modes were 39-457 %
   off in damping and their FRFs 13-49 % off the data; the damping matrix is now chosen from
   the data (`docs/algorithm.md`, step 2), and the physical 10-DOF models reproduce the data
-  within 5.8-9.3 % with the roots' damping (the report: "almost identical" at 1-300 Hz).
-  The whole-band fits of the wider spectra are 98-102 % off: they hold some modes right,
+  within 1.7-9.3 % with the roots' damping (the report: "almost identical" at 1-300 Hz).
+  The whole-band fits of the wider spectra are 99-102 % off: they hold some modes right,
   but their FRFs are as far from the data as a model predicting zero response (the report
   saw the same trend, "overestimates the response near the first mode", at 1-2100 Hz).
 - **Rounding.** The reduced-order `ml` fits whose band holds fewer modes than DOFs are
-  ill-conditioned enough that the BLAS thread count changes them (10-DOF, 1-300 Hz: one
-  thread 2.1 % / 15 %, a non-physical refinement replaced by its TLS start; two threads
-  2.1 % / 3.1 %). This bench runs its cases two at a time with one BLAS thread each.
+  ill-conditioned enough that rounding changes them: the BLAS thread count did (10-DOF,
+  1-300 Hz: one thread 2.1 % / 15 %, a non-physical refinement replaced by its TLS start;
+  two threads 2.1 % / 3.1 %), and so did summing the refinement's normal equations over
+  their upper triangles and solving them by Cholesky instead of LU, which change nothing but
+  rounding (the same row, one thread, now 2.2 % / 3.1 % from a physical refinement). This bench runs its cases two at a time with one
+  BLAS thread each.
 """

@@ -282,6 +282,6 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   1-300 Hz: one thread 2.1 % / 15 %, a non-physical refinement replaced by its TLS start;
   two threads 2.1 % / 3.1 %), and so did summing the refinement's normal equations over
   their upper triangles and solving them by Cholesky instead of LU, which change nothing but
-  rounding (the same row, one thread, now 2.2 % / 3.1 % from a physical refinement). This bench runs its cases two at a time with one
-  BLAS thread each.
+  rounding (the same row, one thread, now 2.2 % / 3.1 % from a physical refinement). This
+  bench runs its cases two at a time with one BLAS thread each.
 """

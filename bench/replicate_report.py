@@ -97,8 +97,9 @@ BAND_NOTES = """Why M was not positive definite at first, and what changed (`ssi
   criterion checks): X = 0, M and K are positive definite when every modal mass is positive,
   and eig(K, M) = |lambda_r|^2, so its frequency error is the root error. On the noisy
   record BP2 gives at least one of the automatic set's modes a modal mass that is not
-  positive, so that cell has no model (11.8 % with the band fits' normal equations solved by
-  LU, which differs by rounding only); BP3's modal masses are all positive there.
+  positive, so that cell has no model (11.8 % when the band fits' normal equations were
+  solved by LU; the Cholesky solve changes only rounding); BP3's modal masses are all
+  positive there.
 
 - **Repeat tolerance and the lines (criterion 4).** A root is located to a fraction of
   the width over which the lines see it: its half-power band 2 zeta f when the lines resolve

@@ -112,10 +112,11 @@ def _kron_unpack(n: int, p: int) -> tuple[np.ndarray, np.ndarray]:
     of :class:`_NormalEquations` (flat index into its ``(n(n+1)/2, p(p+1)/2)`` arrays), and
     the sign its imaginary-part product takes there (-1 when exactly one pair is swapped)."""
     def packed(m: int) -> tuple[np.ndarray, np.ndarray]:
-        i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
-        lo, hi = np.minimum(i, j), np.maximum(i, j)
-        # Row-major upper-triangle position of (lo, hi), as np.triu_indices orders it.
-        return lo * m - lo * (lo - 1) // 2 + (hi - lo), np.where(i <= j, 1.0, -1.0)
+        iu = np.triu_indices(m)  # the order the sums are kept in
+        pos = np.empty((m, m), dtype=np.intp)
+        pos[iu] = np.arange(iu[0].size)
+        pos[iu[1], iu[0]] = pos[iu]
+        return pos, np.where(np.arange(m)[:, None] <= np.arange(m), 1.0, -1.0)
 
     uw, sw = packed(n)  # (n, n): a, b
     ug, sg = packed(p)  # (p, p): c, d

@@ -29,6 +29,8 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
              "low MPC": ("s", "tab:purple", "low MPC"), "negative damping": ("v", "tab:red", "negative damping"),
              "outside band": (".", "0.6", "outside band"),
              "same shape as a stronger mode": ("d", "tab:brown", "same shape as a stronger mode"),
+             "inside a resolved mode's half-power band": ("+", "tab:pink",
+                                                          "inside a resolved mode's half-power band"),
              "resolved (low-edge band)": (".", "0.3", "resolved (low-edge band: unresolved roots only)")}
     seen = set()
     ring = "criterion 2 or 3 not applied (no line sees its phase)"

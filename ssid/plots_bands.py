@@ -33,7 +33,7 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
                                                           "inside a resolved mode's half-power band"),
              "resolved (low-edge band)": (".", "0.3", "resolved (low-edge band: unresolved roots only)")}
     seen = set()
-    ring = "criterion 2 or 3 not applied (no line sees its phase)"
+    ring = "criterion 2 or 3 not applied (no line sees its phase, or a band edge cuts it)"
     for r in result.roots:
         mk, col, lab = marks[r.rejected]
         ax.scatter(r.freq_hz, r.band, marker=mk, color=col, s=28,

@@ -301,8 +301,6 @@ def test_damping_check_skipped_where_no_line_sees_the_damping():
     assert [r.rejected for r in seen] == ["not repeated"] * 2
 
 
-
-
 @pytest.mark.parametrize("seed, noise", [
     (10, [(6, 321.89400, 0.00024), (7, 321.93359, 0.00006)]),
     (19, [(6, 322.35805, 0.0018), (7, 322.40757, 0.0017)])])
@@ -331,6 +329,7 @@ def test_unresolved_mode_inside_a_resolved_modes_half_power_band_is_rejected(see
     verdict = {r.freq_hz: r.rejected for r in roots}
     assert all(verdict[f] == "inside a resolved mode's half-power band" for _, f, _ in noise)
     assert [f for f, v in verdict.items() if v] == [f for _, f, _ in noise]
+
 
 def test_residual_terms_dropped_only_where_a_mode_is_unresolved():
     """A run of lines 1 Hz apart around a mode with 2 zeta f = 0.05 Hz gets no residual terms,
@@ -404,7 +403,6 @@ def test_mpc_criterion_spares_a_mode_whose_phase_no_line_sees(payload_10dof_300h
         assert np.min(np.abs(f_true - r.freq_hz)) < 0.02 * r.freq_hz, (r.freq_hz, r.mpc)
 
 
-
 def test_damping_criteria_spare_a_mode_whose_damping_no_line_sees(payload_12dof_1158hz):
     """Report noise model, seed 2, 12 sensors, 1-1158 Hz (df = 2.26 Hz). The 1.29 Hz mode's
     estimates in bands 0 and 1 lie 0.0002 Hz apart, 11 half-widths from the nearest line,
@@ -453,8 +451,6 @@ def test_low_edge_band_keeps_the_suspension_modes_below_the_line_spacing(payload
         first = res.selected[0]
         members = [r for r in res.roots if r.cluster == first.cluster and not r.rejected]
         assert sorted(r.band for r in members) == [1, low]
-
-
 
 
 @pytest.mark.parametrize("seed, noise_hz", [(10, 321.9), (19, 322.4)])
@@ -533,6 +529,7 @@ def test_a_mode_cut_by_a_band_edge_is_found_by_the_band_centred_on_it(payload_12
     k = int(np.argmin(np.abs(res.freq_hz - mode)))
     assert abs(res.freq_hz[k] - mode) < 5e-3 * mode, res.freq_hz
     assert res.selected[k].mpc >= 0.8 and res.selected[k].mpc_applied
+
 
 @pytest.mark.parametrize("seed, echo_hz, mode_hz, verdict", [
     (1, 81.8, 78.87, "same shape as a stronger mode"),

@@ -15,10 +15,13 @@ before the function returns or raises, and the run file holds every completed li
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import functools
+import io
 import logging
 import platform
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -71,6 +74,32 @@ def _interrupts_deferred():
             signal.signal(s, h)
         if held:
             log.warning("%d interrupt(s) held back while reaching the safe state", len(held))
+
+
+#: Reaching the safe state (drive ramped to zero, instruments closed, file state written)
+#: takes about a second; past this many seconds every thread's stack goes to stderr.
+SAFE_STATE_STALL_S = 10.0
+
+
+@contextlib.contextmanager
+def _stall_report(after_s: float = SAFE_STATE_STALL_S):
+    """Print every thread's stack to stderr once if the block is still running ``after_s``
+    seconds on (:func:`faulthandler.dump_traceback_later`), and go on waiting.
+
+    Why: an aborted run once did not exit within 30 s in CI (the TUI's abort test, under the
+    parallel suite's load) and left no trace of where it waited; this shows the operator, and
+    the test's log, which call holds the safe state up. A stderr without a file descriptor
+    (captured in tests) gets no report.
+    """
+    try:
+        faulthandler.dump_traceback_later(after_s, repeat=False, file=sys.stderr)
+    except (io.UnsupportedOperation, AttributeError, ValueError, RuntimeError):
+        yield
+        return
+    try:
+        yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()
 
 
 def _create_runfile(setup: TestSetup, path: Path) -> RunFile:
@@ -246,7 +275,7 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         state = f"failed: {type(exc).__name__}: {exc}"
         raise
     finally:
-        with _interrupts_deferred():
+        with _interrupts_deferred(), _stall_report():
             problems: list[str] = []
             if rig is not None:
                 problems = rig.safe_state()

@@ -33,6 +33,7 @@ ends.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import os
 import shlex
 import signal
@@ -177,6 +178,11 @@ def run_acquire(args: argparse.Namespace) -> int:
     # SIGINT (Ctrl-C, the TUI's abort) would be lost and the drive would keep running.
     # The latching handler also survives an interrupt raised where Python drops it.
     previous_int = signal.signal(signal.SIGINT, latching_interrupt_handler(KeyboardInterrupt))
+    # `kill -USR1 PID` prints every thread's stack to stderr and the run goes on: where a run
+    # that does not stop is waiting (the TUI's abort test asks so before it gives up).
+    stacks_on_usr1 = hasattr(signal, "SIGUSR1")
+    if stacks_on_usr1:
+        faulthandler.register(signal.SIGUSR1, file=sys.__stderr__, all_threads=True, chain=False)
     control = RunControl() if args.control_stdin else None
     if control is not None:
         threading.Thread(target=_read_control, args=(control, sys.stdin), name="acquire-control", daemon=True).start()
@@ -197,6 +203,8 @@ def run_acquire(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGINT, previous_int)
+        if stacks_on_usr1:
+            faulthandler.unregister(signal.SIGUSR1)
         # The instruments are safe and the file closed: give the reader a few seconds for
         # the rest, but do not let one that stopped reading keep the process alive.
         pump.close()

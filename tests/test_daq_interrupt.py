@@ -161,3 +161,51 @@ def test_a_run_file_from_before_the_transient_shape_resumes(tmp_path):
     np.testing.assert_allclose(_variance_with_transient(row0), [1e-6 + 0.02**2, 2e-6 + 0.05**2])
     np.testing.assert_allclose(_variance_with_transient(new), [1e-6, 2e-6 + 0.04])
     rf.f.close()
+
+
+def test_sigusr1_prints_every_threads_stack_and_the_run_goes_on(tmp_path):
+    """`kill -USR1` on a running `ssidlab acquire` prints its threads' stacks to stderr (where
+    a run that does not stop is waiting) and does not stop or disturb the run: it measures
+    on until the Ctrl-C two sub-lines later, then stops safely as usual."""
+    text = sine_setup(two=True)
+    (tmp_path / "s.toml").write_text(text)
+    proc = subprocess.Popen(
+        [sys.executable, "-u", "-m", "ssidlab", "acquire", str(tmp_path / "s.toml"), "--sim",
+         "--out", str(tmp_path / "run.h5")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    try:
+        k = 0
+        for line in proc.stdout:
+            k += line.startswith("  shaker")
+            if k == 1:
+                proc.send_signal(signal.SIGUSR1)
+                k += 1  # signal once
+            elif k == 4:
+                proc.send_signal(signal.SIGINT)
+                break
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        err = proc.stderr.read()
+        proc.stdout.close()
+        proc.stderr.close()
+    assert "most recent call first" in err and "Thread 0x" in err, err
+    assert proc.returncode == 130, err
+    with h5py.File(tmp_path / "run.h5") as f:
+        assert f["acq"].attrs["state"] == "interrupted" and int(f["acq/n_done"][0]) >= 3
+
+
+def test_a_stalled_safe_state_reports_where_it_waits(tmp_path):
+    """Reaching the safe state is timed: past its limit every thread's stack goes to stderr
+    once and the wait goes on; a block that ends in time prints nothing."""
+    code = ("import time; from daq.run import _stall_report\n"
+            "with _stall_report(0.3):\n    time.sleep(1.0)\n"
+            "print('after', flush=True)\n"
+            "with _stall_report(5.0):\n    time.sleep(0.1)\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert p.returncode == 0 and p.stdout == "after\n", p.stderr
+    assert p.stderr.count("most recent call first") >= 1 and "line 3" in p.stderr, p.stderr
+    assert p.stderr.count("Timeout (0:00:00") == 1, p.stderr

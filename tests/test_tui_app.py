@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
+import os
+import signal
 import time
 from pathlib import Path
 
@@ -49,9 +51,18 @@ async def wait_for(pilot, cond, timeout: float, what: str) -> None:
     deadline = time.monotonic() + timeout
     while not cond():
         if time.monotonic() > deadline:
-            # The run's own log tells where a stalled run stopped (a CI stall once went unexplained).
+            # The run's own log tells where a stalled run stopped (CI stalls went unexplained
+            # twice): ask a run still going for its threads' stacks (ssidlab acquire prints
+            # them on SIGUSR1) and give its output a moment to reach the log.
+            acq = getattr(pilot.app, "acquisition", None)
+            if acq is not None and acq.running:
+                try:
+                    os.kill(acq.proc.pid, signal.SIGUSR1)
+                    await pilot.pause(2.0)
+                except OSError:
+                    pass
             try:
-                tail = "\n".join(log_text(pilot.app).splitlines()[-25:])
+                tail = "\n".join(log_text(pilot.app).splitlines()[-120:])
             except Exception as exc:  # noqa: BLE001 -- the timeout is the failure; the log is extra
                 tail = f"(no log: {exc})"
             raise AssertionError(f"timed out after {timeout} s waiting for {what}; the TUI log ends:\n{tail}")

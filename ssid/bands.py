@@ -521,7 +521,10 @@ def _reject_echoes(roots: list[BandRoot], bands_hz, data: list[Step1Data | None]
 def _pick_representatives(roots: list[BandRoot], bands_hz) -> list[BandRoot]:
     """One root per cluster: the one farthest from an edge of its band (least edge effect),
     among those with positive damping (a cluster's others came through criteria 2 and 4 only
-    because the lines do not see their damping), never the low-edge band's (it confirms;
+    because the lines do not see their damping), never one spared criterion 3 because an edge
+    of its band cuts its resonance (it confirms the whole band's estimate that passed, see
+    :func:`_reject_edge_cut_only`; with a wider damping estimate it could lie farther from
+    its edge), never the low-edge band's (it confirms;
     holding the most modes for the same n DOFs, its estimates of the low modes are the most
     compromised: 1.274 and 1.257 Hz where the other bands gave 1.284 and 1.289 Hz for the
     1.287 Hz mode on two payload records).
@@ -541,7 +544,7 @@ def _pick_representatives(roots: list[BandRoot], bands_hz) -> list[BandRoot]:
 
     best: dict[int, BandRoot] = {}
     for r in roots:
-        if r.rejected or r.cluster < 0 or r.zeta <= 0 or r.low_edge:
+        if r.rejected or r.cluster < 0 or r.zeta <= 0 or r.low_edge or (r.edge_cut and not r.mpc_applied):
             continue
         cur = best.get(r.cluster)
         if cur is None or margin(r) > margin(cur):

@@ -514,6 +514,18 @@ def test_a_mode_whose_every_estimate_an_edge_cuts_must_pass_criterion_3_elsewher
     _reject_edge_cut_only(roots)
     assert [r.rejected for r in roots] == ["", "", "low MPC", "low MPC", "low MPC", "not repeated"]
     assert [r.freq_hz for r in _pick_representatives(roots, bands)] == [585.40640]
+    # A spared estimate confirms, never represents, even where a wider damping estimate puts
+    # it farther from its band's edge than the whole band's estimate is from its own.
+    bands = [(0.0, 101.2), (98.4, 200.0)]
+    pair = [_root(0, 100.0, 0.01), _root(1, 100.01, 0.02)]
+    for r in pair:
+        r.edge_cut = _resonance_cut_by_band_edge(r.freq_hz, r.zeta, bands[r.band], (0.0, 200.0))
+    assert [r.edge_cut for r in pair] == [False, True]
+    pair[1].mpc, pair[1].mpc_applied = 0.5, False
+    _cluster_repeated(pair, 0.125, np.linspace(0.0, 200.0, 401))
+    _reject_edge_cut_only(pair)
+    assert not any(r.rejected for r in pair)
+    assert _pick_representatives(pair, bands) == [pair[0]]
 
 
 def test_a_mode_cut_by_a_band_edge_is_found_by_the_band_centred_on_it(payload_12dof_1158hz):

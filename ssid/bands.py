@@ -305,6 +305,13 @@ def _resonance_cut_by_band_edge(freq_hz: float, zeta: float, band_hz: tuple[floa
                 or (hi < layout_hz[1] and hi - freq_hz < half))
 
 
+def _resolved_by_lines(root: BandRoot, line_freq_hz: np.ndarray) -> bool:
+    """Whether the lines resolve a root's resonance: its half-power band ``2 zeta f`` is at
+    least the line spacing there (a negative damping resolves nothing)."""
+    width = 2.0 * max(root.zeta, 0.0) * root.freq_hz
+    return width >= float(line_spacing_at(line_freq_hz, root.freq_hz)[0])
+
+
 def _screen_unresolved(roots: list[BandRoot], candidates: list[BandRoot],
                        line_freq_hz: np.ndarray) -> None:
     """Criteria 2 and 3 for roots whose phase the lines do not see (negative damping or low
@@ -327,7 +334,7 @@ def _screen_unresolved(roots: list[BandRoot], candidates: list[BandRoot],
     for root in candidates:
         crowded = any(
             other.band == root.band and id(other) not in spared and not other.rejected
-            and 2.0 * max(other.zeta, 0.0) * other.freq_hz >= df(other.freq_hz)
+            and _resolved_by_lines(other, line_freq_hz)
             and abs(other.freq_hz - root.freq_hz) < df(root.freq_hz)
             for other in roots)
         if crowded:
@@ -443,15 +450,10 @@ def _reject_inside_resolved(roots: list[BandRoot], bands_hz, line_freq_hz: np.nd
     """
     reps = _pick_representatives(roots, bands_hz)
 
-    def width(r: BandRoot) -> float:
-        return 2.0 * r.zeta * r.freq_hz  # representatives have positive damping
-
-    def resolved(r: BandRoot) -> bool:
-        return width(r) >= float(line_spacing_at(line_freq_hz, r.freq_hz)[0])
-
-    wide = [r for r in reps if resolved(r)]
-    inside = {u.cluster for u in reps
-              if not resolved(u) and any(abs(r.freq_hz - u.freq_hz) < 0.5 * width(r) for r in wide)}
+    wide = [r for r in reps if _resolved_by_lines(r, line_freq_hz)]
+    inside = {u.cluster for u in reps  # representatives have positive damping: zeta f > 0
+              if not _resolved_by_lines(u, line_freq_hz)
+              and any(abs(r.freq_hz - u.freq_hz) < r.zeta * r.freq_hz for r in wide)}
     for q in roots:
         if q.cluster in inside and not q.rejected:
             q.rejected = "inside a resolved mode's half-power band"

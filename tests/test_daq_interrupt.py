@@ -51,21 +51,34 @@ def test_ctrl_c_leaves_a_readable_file_and_resume_gives_the_same_frf(tmp_path):
     assert status == 2 and "differs from the setup" in err
 
 
-def _signal_at_sub_line(proc: subprocess.Popen, sig: int, n: int, timeout_s: float) -> None:
-    """Send ``sig`` to the acquiring ``proc`` at its ``n``-th sub-line progress line and wait
-    for it to end (killed if it has not within ``timeout_s``)."""
+def _signal_at_sub_lines(proc: subprocess.Popen, signals: dict[int, int], timeout_s: float) -> None:
+    """Send ``signals[n]`` to the acquiring ``proc`` at its ``n``-th sub-line progress line,
+    for each ``n``, and after the last one wait for it to end (killed if it has not within
+    ``timeout_s``)."""
     try:
         k = 0
         for line in proc.stdout:
             k += line.startswith("  shaker")
-            if k == n:
-                proc.send_signal(sig)
-                break
+            if line.startswith("  shaker") and k in signals:
+                proc.send_signal(signals[k])
+                if k == max(signals):
+                    break
         proc.wait(timeout=timeout_s)
     finally:
         if proc.poll() is None:
             proc.kill()
         proc.stdout.close()
+
+
+def _acquire_sim(tmp_path: Path, **popen_kw) -> subprocess.Popen:
+    """`ssidlab acquire s.toml --sim --out run.h5` in ``tmp_path`` (two shakers, stepped
+    sine), stdout and stderr piped."""
+    (tmp_path / "s.toml").write_text(sine_setup(two=True))
+    return subprocess.Popen(
+        [sys.executable, "-u", "-m", "ssidlab", "acquire", str(tmp_path / "s.toml"), "--sim",
+         "--out", str(tmp_path / "run.h5")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)), **popen_kw)
 
 
 def test_kill_9_mid_run_then_resume_gives_the_same_file(tmp_path):
@@ -78,7 +91,7 @@ def test_kill_9_mid_run_then_resume_gives_the_same_file(tmp_path):
     proc = subprocess.Popen([sys.executable, "-u", "-c", code, str(tmp_path / "s.toml"), "--sim",
                              "--out", str(tmp_path / "killed.h5")], stdout=subprocess.PIPE, text=True,
                             cwd=tmp_path)
-    _signal_at_sub_line(proc, signal.SIGKILL, 9, timeout_s=30)
+    _signal_at_sub_lines(proc, {9: signal.SIGKILL}, timeout_s=30)
     assert proc.returncode == -signal.SIGKILL
     part = read_frf(tmp_path / "killed.h5")  # the killed run's file opens and validates
     with h5py.File(tmp_path / "killed.h5") as f:
@@ -93,16 +106,9 @@ def test_kill_9_mid_run_then_resume_gives_the_same_file(tmp_path):
 def test_sigint_stops_a_run_started_with_sigint_ignored(tmp_path):
     """A run started in the background by a non-interactive shell inherits SIGINT as ignored;
     Ctrl-C (or the TUI's abort) must still stop it safely, not be lost while the drive runs."""
-    text = sine_setup(two=True)
-    (tmp_path / "s.toml").write_text(text)
-    proc = subprocess.Popen(
-        [sys.executable, "-u", "-m", "ssidlab", "acquire", str(tmp_path / "s.toml"), "--sim",
-         "--out", str(tmp_path / "run.h5")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
-        env=dict(os.environ, PYTHONPATH=str(ROOT)),
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    proc = _acquire_sim(tmp_path, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
-        _signal_at_sub_line(proc, signal.SIGINT, 1, timeout_s=60)
+        _signal_at_sub_lines(proc, {1: signal.SIGINT}, timeout_s=60)
     finally:
         err = proc.stderr.read()
         proc.stderr.close()
@@ -167,29 +173,11 @@ def test_sigusr1_prints_every_threads_stack_and_the_run_goes_on(tmp_path):
     """`kill -USR1` on a running `ssidlab acquire` prints its threads' stacks to stderr (where
     a run that does not stop is waiting) and does not stop or disturb the run: it measures
     on until the Ctrl-C two sub-lines later, then stops safely as usual."""
-    text = sine_setup(two=True)
-    (tmp_path / "s.toml").write_text(text)
-    proc = subprocess.Popen(
-        [sys.executable, "-u", "-m", "ssidlab", "acquire", str(tmp_path / "s.toml"), "--sim",
-         "--out", str(tmp_path / "run.h5")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
-        env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    proc = _acquire_sim(tmp_path)
     try:
-        k = 0
-        for line in proc.stdout:
-            k += line.startswith("  shaker")
-            if k == 1:
-                proc.send_signal(signal.SIGUSR1)
-                k += 1  # signal once
-            elif k == 4:
-                proc.send_signal(signal.SIGINT)
-                break
-        proc.wait(timeout=60)
+        _signal_at_sub_lines(proc, {1: signal.SIGUSR1, 3: signal.SIGINT}, timeout_s=60)
     finally:
-        if proc.poll() is None:
-            proc.kill()
         err = proc.stderr.read()
-        proc.stdout.close()
         proc.stderr.close()
     assert "most recent call first" in err and "Thread 0x" in err, err
     assert proc.returncode == 130, err

@@ -319,10 +319,11 @@ class ShakerAmplifier:
                     await asyncio.sleep(0.05)
         raise InstrumentError(f"{self.name}: could not confirm the amplifier disabled: {last}")
 
-    async def close(self) -> None:
-        """Safe state, stop the monitor, close the link (always, even if safe_state fails)."""
+    async def close(self, safe_state: bool = True) -> None:
+        """Safe state (unless ``safe_state`` is False: the caller has just tried it), stop the
+        monitor, close the link (always, even if safe_state fails)."""
         try:
-            if self.client is not None:
+            if self.client is not None and safe_state:
                 await self.safe_state()
         finally:
             if self._monitor_task is not None:
@@ -396,6 +397,16 @@ class SyncShakerAmplifier:
             return
         try:
             self._call(self.amp.close())
+        finally:
+            self._shutdown_loop()
+
+    def release(self) -> None:
+        """Close the link without another safe state (as ``SignalGenerator.release``); the
+        amplifier's own comms watchdog disables it once the link is gone."""
+        if not self._thread.is_alive():
+            return
+        try:
+            self._call(self.amp.close(safe_state=False))
         finally:
             self._shutdown_loop()
 

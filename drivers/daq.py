@@ -448,6 +448,12 @@ class CanFdDaq:
         finally:
             self._close_bus()
 
+    def release(self) -> None:
+        """Close the bus without another stop request (as ``SignalGenerator.release``)."""
+        self.running = False
+        self._streams = {}
+        self._close_bus()
+
     def __enter__(self) -> CanFdDaq:
         return self
 

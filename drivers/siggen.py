@@ -259,6 +259,12 @@ class SignalGenerator:
         finally:
             self.line.close()
 
+    def release(self) -> None:
+        """Release the port without another safe state: for a caller that has just brought
+        this generator to its safe state, or tried to and could not confirm it (an instrument
+        that stopped answering would cost each further attempt its time-outs)."""
+        self.line.close()
+
     def __enter__(self) -> SignalGenerator:
         return self
 

@@ -389,3 +389,22 @@ def test_after_an_interlock_trip_the_fault_is_reset_by_the_check_and_the_run_res
     finally:
         handle.stop()
     assert np.all(read_frf(run).valid_mask())
+
+
+def test_an_instrument_gone_silent_costs_the_stop_one_safe_state_attempt(tmp_path, monkeypatch):
+    """The amplifier's Modbus server stops mid-run. Its safe state is attempted once, not
+    again by the rig's close and by the driver's own close: each attempt on an instrument
+    that does not answer waits out its time-outs (a frozen lab took 30 s to exit)."""
+    from drivers.amplifier import ShakerAmplifier
+
+    attempts: list[str] = []
+    real = ShakerAmplifier.safe_state
+
+    async def counted(self):
+        attempts.append(self.name)
+        return await real(self)
+
+    monkeypatch.setattr(ShakerAmplifier, "safe_state", counted)
+    msg, _ = stopped_run(tmp_path, lambda lab: lab.amplifiers[0].stop())
+    assert msg.startswith("safe state NOT confirmed (check the instruments): amp0:"), msg
+    assert attempts.count("amp0") == 1, attempts

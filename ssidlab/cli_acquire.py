@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import faulthandler
+import logging
 import os
 import shlex
 import signal
@@ -187,6 +188,11 @@ def run_acquire(args: argparse.Namespace) -> int:
     if control is not None:
         threading.Thread(target=_read_control, args=(control, sys.stdin), name="acquire-control", daemon=True).start()
     run_path = Path(out or setup.output_file)
+    # The drivers say what failed in their own words; the Modbus library's log lines of the
+    # same failure (a lab that stopped answering) would only be noise on the terminal.
+    modbus_log = logging.getLogger("pymodbus")
+    modbus_level = modbus_log.level
+    modbus_log.setLevel(logging.CRITICAL + 1)
     # From here the run never waits for whoever reads its output (ssidlab.output_pump).
     pump = OutputPump().start()
     try:
@@ -203,6 +209,7 @@ def run_acquire(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGINT, previous_int)
+        modbus_log.setLevel(modbus_level)
         if stacks_on_usr1:
             faulthandler.unregister(signal.SIGUSR1)
         # The instruments are safe and the file closed: give the reader a few seconds for

@@ -192,7 +192,15 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         if rf.state == "complete":
             rf.close()
             echo(f"{path}: the run is complete; nothing to resume")
-            return {"state": "complete", "file": str(path), "resumed": False}
+            summary = {"state": "complete", "file": str(path), "resumed": False}
+            uff = _uff_path(setup, path, out)
+            if uff is not None and not uff.exists():
+                # A run stopped after its file was complete (a Ctrl-C at the very end)
+                # had its export cut: write it now from the file.
+                from ssid.io import read_frf
+
+                _export_uff(read_frf(path), uff, summary, echo)
+            return summary
         echo(f"{path}: resuming ({rf.n_done} records, state was {rf.state!r})")
         ranges = range_changes(changes)
         if ranges:
@@ -299,27 +307,40 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
                 raise RunStopped(f"safe state NOT confirmed (check the instruments): {'; '.join(problems)}; "
                                  f"the run ended as: {ended}")
     summary.update({"state": state, "file": str(path), "resumed": bool(resume)})
-    if setup.uff_file:
-        from ssid.exchange import write_uff_frf
-
-        uff = Path(setup.uff_file)
-        if not uff.is_absolute() and out is not None:
-            # Named after the run file: runs of one setup into different files (run1.h5,
-            # run2.h5) must not overwrite each other's export.
-            uff = path.with_suffix(uff.suffix or ".uff")
-        try:
-            write_uff_frf(str(uff), frf)
-        except InputError as exc:
-            # The measurement is safe in the HDF5 file; a label UFF cannot carry must not
-            # turn a finished run into a failure.
-            summary["uff_error"] = str(exc)
-            echo(f"warning: UFF export skipped: {exc}")
-        else:
-            summary["uff"] = str(uff)
-            echo(f"exported {frf.n_out * frf.n_in} FRFs to {uff} (UFF 58)")
+    uff = _uff_path(setup, path, out)
+    if uff is not None:
+        _export_uff(frf, uff, summary, echo)
     summary["test_time_s"] = float(summary.get("test_time_s", np.nan))
     summary.update(_reciprocity(frf, echo))
     return summary
+
+
+def _uff_path(setup: TestSetup, path: Path, out: str | None) -> Path | None:
+    """Where the run's UFF export goes (None: the setup asks for none)."""
+    if not setup.uff_file:
+        return None
+    uff = Path(setup.uff_file)
+    if not uff.is_absolute() and out is not None:
+        # Named after the run file: runs of one setup into different files (run1.h5,
+        # run2.h5) must not overwrite each other's export.
+        uff = path.with_suffix(uff.suffix or ".uff")
+    return uff
+
+
+def _export_uff(frf, uff: Path, summary: dict, echo) -> None:
+    """The FRFs to ``uff`` (UFF 58), said and noted in ``summary``."""
+    from ssid.exchange import write_uff_frf
+
+    try:
+        write_uff_frf(str(uff), frf)
+    except InputError as exc:
+        # The measurement is safe in the HDF5 file; a label UFF cannot carry must not
+        # turn a finished run into a failure.
+        summary["uff_error"] = str(exc)
+        echo(f"warning: UFF export skipped: {exc}")
+    else:
+        summary["uff"] = str(uff)
+        echo(f"exported {frf.n_out * frf.n_in} FRFs to {uff} (UFF 58)")
 
 
 def _reciprocity(frf, echo) -> dict:

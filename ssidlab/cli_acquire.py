@@ -123,6 +123,13 @@ def _say_how_to_continue(run_path: Path, sim: bool, setup_arg: str | None = None
     # A fault before the first line (an instrument that never answered) leaves a file with
     # the setup only: say so rather than claim measured lines were kept.
     state, n = peek_run_file(run_path) or (None, 0)
+    if state == "complete":
+        # Interrupted after the file was finished: nothing to measure again, but the steps
+        # after it (the UFF export) were cut, and a resume of a complete run does them.
+        print(f"ssidlab acquire: the run file was complete ({n} measurement records in {run_path}); "
+              f"the steps after it (a UFF export the setup asks for) are done by: {cmd}", file=sys.stderr,
+              flush=True)
+        return {"state": state, "file": str(run_path), "n_records": n, "remedy": None, "continue_with": cmd}
     kept = (f"{n} measurement records are kept in {run_path}" if n
             else f"nothing was measured yet; the setup is kept in {run_path}")
     print(f"ssidlab acquire: {kept}; continue with: {cmd}", file=sys.stderr, flush=True)

@@ -143,6 +143,24 @@ def test_a_run_stopped_by_a_fault_says_how_to_continue(tmp_path):
         assert f["acq"].attrs["state"].startswith("stopped: instrument lost")
 
 
+def test_an_interrupt_after_the_run_was_complete_says_so(tmp_path, capsys):
+    """A Ctrl-C held back while the run finished is raised once its file is complete: the
+    command then says so (not "records kept, continue with") and that a resume does the
+    steps cut after it (the UFF export; test_daq_sine.test_uff58_export)."""
+    from ssidlab.cli_acquire import _say_how_to_continue
+
+    setup = parse_setup(sine_setup(n_lines=3, refine=2), str(tmp_path / "s.toml"))
+    run_on_sim(setup, tmp_path / "run.h5")
+    capsys.readouterr()
+    said = _say_how_to_continue(tmp_path / "run.h5", sim=True)
+    err = capsys.readouterr().err
+    with h5py.File(tmp_path / "run.h5") as f:
+        n_records = int(f["acq/n_done"][0])
+    assert f"the run file was complete ({n_records} measurement records" in err, err
+    assert f"done by: ssidlab acquire --resume {tmp_path / 'run.h5'} --sim" in err
+    assert "kept" not in err and said["state"] == "complete" and said["remedy"] is None
+
+
 def test_a_run_file_from_before_the_transient_shape_resumes(tmp_path):
     """Run files written before ``X_transient`` was kept: resuming one adds the field with
     NaN for the rows already there, and their variance falls back to the relative transient

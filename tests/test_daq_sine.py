@@ -408,3 +408,15 @@ def test_uff58_export(tmp_path):
     summary2, _ = run_on_sim(setup, tmp_path / "second.h5")
     assert summary2["uff"] == str(tmp_path / "second.uff") and (tmp_path / "second.uff").is_file()
     assert (tmp_path / "run.uff").read_bytes() == before
+    # A run stopped after its file was complete (Ctrl-C at its very end) lost its export: a
+    # resume of the complete run writes it from the file, the same (but for its time of
+    # writing), and measures nothing.
+    (tmp_path / "run.uff").unlink()
+    said = []
+    summary3 = run_test(setup, out=str(tmp_path / "run.h5"), resume=True, echo=said.append)
+    assert summary3["uff"] == str(tmp_path / "run.uff") and not summary3["resumed"]
+    again = read_uff_frf(str(tmp_path / "run.uff"))
+    assert again.outputs == back.outputs and again.inputs == back.inputs
+    np.testing.assert_array_equal(again.freq_hz, back.freq_hz)
+    np.testing.assert_array_equal(again.H[ok], back.H[ok])
+    assert said[0].endswith("the run is complete; nothing to resume"), said

@@ -100,7 +100,7 @@ class SimLab:
             for j, model in enumerate(self.world.amplifiers):
                 self.amplifiers.append(SimAmplifier(model, self._amp_host, self.amp_ports[j], name=f"amp{j}",
                                                    serial=52001 + j).start())
-            self.daq = SimDaq(self.world, self.can_channel, speed=self.speed).start()
+            self.daq = SimDaq(self.world, self.can_channel, speed=self.speed, serial=self.world.fingerprint()).start()
             if self.want_gateway:
                 self.gateway = CanTcpGateway(self.can_channel, self.gateway_port).start()
         except BaseException:

@@ -28,6 +28,7 @@ in sample time; it never sleeps.
 from __future__ import annotations
 
 import threading
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -205,6 +206,21 @@ class World:
         Mc, Cc, Kc = self._structure_with_stand()
         reactions = list(self.stand.reactions) if self.stand else []
         return Mc, Cc, Kc, list(self.dofs) + [f"stand@{r}" for r in reactions]
+
+    def fingerprint(self) -> int:
+        """A 32-bit number that tells simulated structures apart: of the mounted structure's
+        M, C, K (effects and stand included) to 9 digits, its DOFs, the shakers, and each
+        sensor's quantity, place and sensitivity (not its name, range or noise, which a
+        resume may change). The simulated DAQ front end reports it as its serial number, so
+        a run is not resumed on a lab that simulates another structure (as on hardware,
+        where another front end has another serial)."""
+        Mc, Cc, Kc, dofs = self.coupled_model()
+        # Rounded: the same structure assembled in another process must give the same number,
+        # whatever the last bits of its sums.
+        parts = [np.round(a / (np.max(np.abs(a)) or 1.0) * 1e9).astype(np.int64).tobytes() for a in (Mc, Cc, Kc)]
+        parts.append(repr((dofs, self.shakers, [(s.quantity, s.location, f"{s.sensitivity_v_per_unit:.9g}")
+                                                for s in self.sensors])).encode())
+        return zlib.crc32(b"".join(parts))
 
     def _assemble(self) -> None:
         """State-space A, B and the output matrix of sensors and shaker monitors."""

@@ -307,6 +307,34 @@ def test_a_resume_stops_before_driving_when_another_generator_answers(tmp_path, 
     assert cli(["run.h5", "--new-instruments"])[0] == 2  # only with --resume
 
 
+def test_a_resume_stops_before_driving_on_a_lab_that_simulates_another_structure(tmp_path, capsys):
+    """Simulated instruments answer alike whatever they simulate, so a run could be continued
+    on a lab simulating another structure, its file then holding lines of two (QA: a --sim
+    run resumed against an external sim-lab). The simulated DAQ front end's serial is the
+    simulated structure's fingerprint: the resume stops before driving, as with another
+    front end on hardware. (A lab restarted on the same structure answers as before:
+    test_a_resume_reaches_instruments_that_answer_at_new_addresses.)"""
+    text = sine_setup(n_lines=6)
+    run, _, second, _ = interrupted_then_lab_moved(tmp_path, text, 2)
+    second.stop()
+    heavier = text + '\n[[sim.effects]]\ntype = "added_mass"\ndof = "3+Z"\nmass_kg = 0.25\n'
+    other, inst = start_sim_lab(parse_setup(heavier, str(tmp_path / "heavier.toml")))
+    try:
+        new = tmp_path / "new.toml"
+        new.write_text(pointed_at(text, inst))
+        capsys.readouterr()
+        status, _ = cli(["--resume", str(run), str(new), "--quiet"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert status == 3, err
+        assert "not the instruments of the run's last session: the DAQ answers with serial" in err[0], err
+        assert not any(c.startswith("OUTP1 ON") for c in other.lab.generators[0].log)
+        assert all_safe(other.world)
+    finally:
+        other.stop()
+    with h5py.File(run) as f:
+        assert f["acq/n_done"][0] == 2
+
+
 def test_a_resume_stops_when_two_amplifiers_answer_at_each_others_address(tmp_path, capsys):
     """Two amplifiers whose addresses swapped after a restart (their DHCP leases, say): the
     setup would run each shaker's amplifier with the other's gain and read the other's trips.

@@ -129,6 +129,19 @@ def check_output_paths(inputs: list[str], outputs: list[str | None]) -> None:
             raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")
 
 
+def chart_file(text: str) -> str:
+    """A chart's file name whose extension matplotlib can write (png, pdf, svg, ...): checked
+    when the options are read, not after the computation the chart shows."""
+    from matplotlib.figure import Figure
+
+    kinds = Figure().canvas.get_supported_filetypes()
+    ext = Path(text).suffix.lower().lstrip(".")
+    if ext not in kinds:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: a chart is written as one of {', '.join(sorted(kinds))} (by its extension)")
+    return text
+
+
 def write_chart(path: str, draw: Callable[[str], Any], what: str = "the chart") -> Any:
     """Run ``draw(path)`` (a matplotlib writer); a file-system failure becomes one line.
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from ssid.errors import IdentificationError, InputError
 from ssidlab.argtypes import (
+    chart_file,
     check_output_paths,
     fe_normal_modes,
     frequency_hz,
@@ -54,7 +55,7 @@ def add_bands_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("frf", metavar="FRF.h5", help="measured FRFs (ssidlab-frf file, no reactions)")
     p.add_argument("--json", metavar="RESULT.json", required=True,
                    help="bands, every root with its verdict, the modes found (and the model)")
-    p.add_argument("--plot", metavar="ROOTS.png", help="chart of the roots per band (PNG)")
+    p.add_argument("--plot", type=chart_file, metavar="ROOTS.png", help="chart of the roots per band (PNG)")
     p.add_argument("--out", metavar="MODEL.h5",
                    help="modal M, C, K over the FRF file's outputs (ssidlab-model file)")
     p.add_argument("--fmin", type=frequency_hz, metavar="HZ", help="lowest frequency line used")

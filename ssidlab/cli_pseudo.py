@@ -32,6 +32,7 @@ import numpy as np
 
 from ssid.errors import IdentificationError, InputError
 from ssidlab.argtypes import (
+    chart_file,
     check_output_paths,
     open_fraction,
     whole_number,
@@ -62,7 +63,7 @@ def add_pseudo_subcommand(sub: Any) -> argparse.ArgumentParser:
                    "smallest P whose roots repeat with P + 1 (default auto)")
     p.add_argument("--consistency-min", type=open_fraction, default=0.8, metavar="Q",
                    help="partition consistency of a structural root (default 0.8)")
-    p.add_argument("--plot", metavar="STAB.png",
+    p.add_argument("--plot", type=chart_file, metavar="STAB.png",
                    help="stabilisation diagram of the roots per number of partitions (PNG; "
                    "with --partitions auto)")
     p.add_argument("--quiet", action="store_true", help="do not print the root table")

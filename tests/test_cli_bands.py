@@ -183,6 +183,8 @@ def test_bands_without_enough_modes_for_a_model_keeps_what_it_found(reduced):
     (["--targets", "FE", "--target-modes", "99"], "has 8 modes"),
     (["--fmin", "600"], "fewer than two frequency lines"),
     (["--target-modes", "2-1", "--targets", "FE"], "modes count from 1"),
+    # checked with the options, not after the computation (it was an internal error then)
+    (["--plot", "roots.txt"], "a chart is written as one of"),
 ])
 def test_bands_bad_input_is_one_line_and_status_2(reduced, extra, message):
     *_, d = reduced

@@ -23,6 +23,7 @@ import numpy as np
 
 from .errors import InputError
 from .exchange.dmig import NASTRAN_NAME, grid_components, write_dmig
+from .files import written_atomically
 from .io import SYMMETRY_RTOL, Model, validate_model
 
 __all__ = [
@@ -70,11 +71,6 @@ def export_model(path: str | os.PathLike, model: Model, fmt: str | None = None, 
     return fmt
 
 
-def _atomic(path: str | os.PathLike):
-    target = Path(path)
-    return target, target.with_name(f".{target.name}.{os.getpid()}.tmp")
-
-
 def export_model_mat(path: str | os.PathLike, model: Model) -> None:
     """Write ``M``, ``K``, ``C`` (if damped) and ``dofs`` (cellstr) as a MATLAB v5 .mat file.
 
@@ -90,14 +86,9 @@ def export_model_mat(path: str | os.PathLike, model: Model) -> None:
     variables = {"M": m.M, "K": m.K, "dofs": np.array(m.dofs, dtype=object).reshape(-1, 1)}
     if m.C is not None:
         variables["C"] = m.C
-    target, tmp = _atomic(path)
-    try:
-        # appendmat=False: the temporary name must not grow a second ".mat".
-        scipy.io.savemat(tmp, variables, appendmat=False, do_compression=True, oned_as="column")
-        os.replace(tmp, target)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    # The file opened here: savemat reports a file it cannot open without naming it.
+    with written_atomically(path) as tmp, open(tmp, "wb") as out:
+        scipy.io.savemat(out, variables, do_compression=True, oned_as="column")
 
 
 def _names(src: str, names: Sequence[str]) -> tuple[str, str, str]:
@@ -145,13 +136,8 @@ def export_model_op4(path: str | os.PathLike, model: Model, *, binary: bool = Tr
         matrices[damping] = m.C * flip
     matrices[stiffness] = m.K * flip
     matrices["DOFS"] = pairs.astype(float)
-    target, tmp = _atomic(path)
-    try:
+    with written_atomically(path) as tmp:
         op4.write(str(tmp), matrices, binary=binary, digits=16)
-        os.replace(tmp, target)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 def export_model_dmig(path: str | os.PathLike, model: Model, *,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import chain_model
+from conftest import chain_frf, chain_model
 
 from ssid.errors import InputError
 from ssid.export import export_model, export_model_dmig, export_model_mat, export_model_op4
@@ -226,3 +226,26 @@ def test_cli_bad_input_is_one_line_and_status_2(tmp_path, ssidlab, args, expecte
     argv = [a if a.startswith("-") or a.isupper() or "," in a else tmp_path / a for a in args]
     status, _, err = ssidlab("export-model", *argv)
     assert status == 2 and err.count("\n") == 1 and expected in err, err
+
+
+@pytest.mark.parametrize("name", ["out.mat", "out.op4", "out.dmig", "frf.uff", "model.h5"])
+def test_a_file_that_cannot_be_created_is_named_as_asked(tmp_path, name):
+    """Every writer goes through a temporary file beside the target (``ssid.files``): when
+    that cannot be created, the error names the file asked for, not the temporary one (the
+    .mat writer said only "Reader needs file name or open file-like object"), and nothing
+    is left behind."""
+    from ssid.exchange import write_uff_frf
+    from ssid.io import write_model
+
+    (tmp_path / "a_file").write_text("not a directory")
+    target = tmp_path / "a_file" / name
+    model = damped_model(["1+Z", "2+Z", "3+Z"])
+    with pytest.raises(OSError) as e:
+        if name.endswith(".uff"):
+            write_uff_frf(str(target), chain_frf())
+        elif name.endswith(".h5"):
+            write_model(target, model)
+        else:
+            export_model(target, model)
+    assert str(e.value) == f"{target}: cannot write (Not a directory)"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]

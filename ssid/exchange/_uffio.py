@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from ssid.errors import InputError
+from ssid.files import written_atomically
 
 __all__ = ["PYUFF_REQUIREMENT", "read_datasets", "write_datasets"]
 
@@ -195,29 +196,22 @@ def write_datasets(path: str | os.PathLike, datasets: list[dict]) -> None:
     """
     src = os.fspath(path)
     pyuff = _pyuff(src)
-    target = Path(src)
-    tmp_target = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-    try:
-        with tempfile.TemporaryDirectory(prefix="ssidlab-uff-") as tmp, \
-                open(tmp_target, "wb") as out:
-            scratch = os.path.join(tmp, "one.uff")
-            for k, dset in enumerate(datasets):
-                if os.path.exists(scratch):
-                    os.remove(scratch)
-                try:
-                    with warnings.catch_warnings():
-                        # pyuff's 58b writer leaves a file object for the collector to close.
-                        warnings.simplefilter("ignore", ResourceWarning)
-                        pyuff.UFF(scratch).write_sets(dict(dset), mode="add")
-                except Exception as exc:
-                    raise RuntimeError(
-                        f"pyuff could not write dataset {k + 1} (type {dset.get('type')}): {exc}"
-                    ) from exc
-                chunk = Path(scratch).read_bytes()
-                if dset.get("type") == 58 and dset.get("binary"):
-                    chunk = _fix_58b_byte_count(chunk)
-                out.write(chunk)
-        os.replace(tmp_target, target)
-    except BaseException:
-        tmp_target.unlink(missing_ok=True)
-        raise
+    with written_atomically(src) as tmp_target, tempfile.TemporaryDirectory(prefix="ssidlab-uff-") as tmp, \
+            open(tmp_target, "wb") as out:
+        scratch = os.path.join(tmp, "one.uff")
+        for k, dset in enumerate(datasets):
+            if os.path.exists(scratch):
+                os.remove(scratch)
+            try:
+                with warnings.catch_warnings():
+                    # pyuff's 58b writer leaves a file object for the collector to close.
+                    warnings.simplefilter("ignore", ResourceWarning)
+                    pyuff.UFF(scratch).write_sets(dict(dset), mode="add")
+            except Exception as exc:
+                raise RuntimeError(
+                    f"pyuff could not write dataset {k + 1} (type {dset.get('type')}): {exc}"
+                ) from exc
+            chunk = Path(scratch).read_bytes()
+            if dset.get("type") == 58 and dset.get("binary"):
+                chunk = _fix_58b_byte_count(chunk)
+            out.write(chunk)

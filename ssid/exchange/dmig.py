@@ -32,11 +32,11 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 
 from ssid.errors import InputError
+from ssid.files import written_atomically
 
 from .labels import labels_to_node_dirs
 
@@ -141,11 +141,5 @@ def write_dmig(path: str | os.PathLike, matrices: Sequence[tuple[str, np.ndarray
     """Write :func:`format_dmig` text to ``path`` (via a temporary file and a rename)."""
     src = os.fspath(path)
     text = format_dmig(matrices, dofs, src, notes)
-    target = Path(src)
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-    try:
+    with written_atomically(src) as tmp:
         tmp.write_text(text, encoding="ascii")
-        os.replace(tmp, target)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise

@@ -5,13 +5,13 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 
 from ssid.errors import InputError
+from ssid.files import written_atomically
 
 PathLike = str | os.PathLike
 
@@ -194,21 +194,10 @@ def _open_h5(path: PathLike, src: str) -> Iterator[h5py.File]:
 
 
 @contextmanager
-def _create_h5(path: PathLike, src: str) -> Iterator[h5py.File]:
+def _create_h5(path: PathLike) -> Iterator[h5py.File]:
     """Create ``path`` via a temporary file in the same directory and an atomic rename."""
-    target = Path(path)
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-    try:
-        f = h5py.File(tmp, "w")
-    except OSError as exc:
-        raise OSError(f"{src}: cannot create file ({exc})") from exc
-    try:
-        with f:
-            yield f
-        os.replace(tmp, target)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with written_atomically(path) as tmp, h5py.File(tmp, "w") as f:
+        yield f
 
 
 def _check_kind(src: str, f: h5py.File, expected: str) -> None:

@@ -129,7 +129,7 @@ def write_frf(path: PathLike, frf: FRFData) -> None:
     """
     src = os.fspath(path)
     data = validate_frf(frf, src)
-    with _create_h5(path, src) as f:
+    with _create_h5(path) as f:
         _write_extra_attrs(src, f, data.attrs, _FRF_RESERVED_ATTRS)
         f.attrs["format"] = FRF_FORMAT
         f.attrs["format_version"] = FORMAT_VERSION

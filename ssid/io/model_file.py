@@ -118,7 +118,7 @@ def write_model(path: PathLike, model: Model) -> None:
     """
     src = os.fspath(path)
     data = validate_model(model, src)
-    with _create_h5(path, src) as f:
+    with _create_h5(path) as f:
         _write_extra_attrs(src, f, data.attrs, _MODEL_RESERVED_ATTRS)
         f.attrs["format"] = MODEL_FORMAT
         f.attrs["format_version"] = FORMAT_VERSION

@@ -173,7 +173,8 @@ def compare_frfs(a: FRFData, b: FRFData, rtol_hz: float = 1e-9) -> FRFComparison
     Raises
     ------
     InputError
-        No output and input label in common, or no frequency line in common.
+        No output and input label in common, no frequency line in common, or no valid
+        value in common (every common value blanked or non-finite in one of the two).
     """
     require_response(a, "first FRF data")
     require_response(b, "second FRF data")
@@ -205,4 +206,8 @@ def compare_frfs(a: FRFData, b: FRFData, rtol_hz: float = 1e-9) -> FRFComparison
             var_b = None if b.H_var is None else b.H_var[kb, ib, jb][ok]
             row.append(compare_curves(ha[ok], hb[ok], var_a, var_b))
         curves.append(row)
+    if all(c is None for row in curves for c in row):
+        # Otherwise "all 0 FRFs agree": nothing was compared, which is no agreement.
+        raise InputError(f"the two FRF files have no valid value in common ({len(ka)} common "
+                         "frequency lines, every value blanked or non-finite in one of them)")
     return FRFComparison(a.freq_hz[ka], outputs, inputs, curves)

@@ -70,6 +70,15 @@ def test_files_with_other_lines_are_compared_on_the_lines_they_share():
     other = FRFData(F, a.H, [f"x{k}" for k in a.outputs], [f"x{k}" for k in a.inputs])
     with pytest.raises(InputError, match="no output and input DOF labels"):
         compare_frfs(a, other)
+    # Lines in common, but blanked in one file wherever the other has them: nothing to
+    # compare, which is no agreement ("all 0 FRFs agree", exit 0, until QA found it).
+    blanked = _chain()
+    valid = np.ones(blanked.H.shape, dtype=bool)
+    valid[::2] = False
+    blanked.H[::2] = np.nan
+    blanked.valid = valid
+    with pytest.raises(InputError, match="no valid value in common"):
+        compare_frfs(blanked, b)
 
 
 def test_ssidlab_compare_finds_linearity_between_levels_and_a_mass_added(tmp_path, capsys):

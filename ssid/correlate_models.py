@@ -276,6 +276,9 @@ def correlate_with_frf(
     if test.n_freq < 3:
         raise InputError(f"fewer than 3 frequency lines between {lo:g} and {hi:g} Hz (the FRFs "
                          f"cover {frf.freq_hz[0]:g} to {frf.freq_hz[-1]:g} Hz)")
+    # The band may hold none of the valid values the whole file has (a blanked stretch):
+    # FRAC and gap would be NaN.
+    require_response(test, f"FRF data between {lo:g} and {hi:g} Hz")
     valid = test.valid_mask()
     if analysis.C is None:
         from .modal import modal_damping_matrix

@@ -60,6 +60,10 @@ def files(tmp_path_factory):
     write_model(d / "test.h5", Model(red.M, red.K, None, labels))
     frf = accelerance_from_model(M, C, K, dofs, np.linspace(5.0, 900.0, 1200), labels, labels[:2])
     write_frf(d / "frf.h5", frf)
+    blank = (frf.freq_hz > 100.0) & (frf.freq_hz < 200.0)  # a stretch of lines blanked
+    frf.valid = np.broadcast_to(~blank[:, None, None], frf.H.shape).copy()
+    frf.H[blank] = np.nan
+    write_frf(d / "blanked.h5", frf)
     scipy.io.savemat(d / "fem.mat", {"M": M, "K": K, "dofs": np.array(dofs, dtype=object)})
     bad = M.copy()
     bad[0, 0] = np.nan
@@ -152,6 +156,9 @@ def test_mode_list():
          "damping ratio"),
         (["--model", "{d}/fem.h5", "--frf", "{d}/frf.h5", "--fmin", "2000", "--json", "{d}/o.json"],
          "fewer than 3 frequency lines between 2000 and 900 Hz \\(the FRFs cover 5 to 900 Hz\\)"),
+        # a band whose every value is blanked: FRAC and gap came out NaN with exit 0 (QA)
+        (["--model", "{d}/fem.h5", "--frf", "{d}/blanked.h5", "--fmin", "120", "--fmax", "180",
+          "--json", "{d}/o.json"], "FRF data between 120 and 180 Hz: every H value is marked invalid"),
         (["--model", "{d}/test.h5", "--model", "{d}/missing.h5", "--json", "{d}/o.json"],
          "no such file"),
         (["--model", "{d}/test.h5", "--model", "{d}/nan.mat", "--json", "{d}/o.json"], "NaN"),

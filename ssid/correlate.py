@@ -59,6 +59,10 @@ def modal_assurance(phi_a: np.ndarray, phi_b: np.ndarray) -> np.ndarray:
     b = np.atleast_2d(np.asarray(phi_b))
     if a.shape[0] != b.shape[0]:
         raise ValueError(f"shapes have {a.shape[0]} and {b.shape[0]} DOFs")
+    # Each shape to unit length first: the squares of the products below overflow or
+    # underflow for shapes far from unit scale (1e+-100: a model in odd units), which
+    # the MAC, a ratio, does not depend on.
+    a, b = _unit_columns(a), _unit_columns(b)
     num = np.abs(a.conj().T @ b) ** 2
     na = np.real(np.einsum("ij,ij->j", a.conj(), a))
     nb = np.real(np.einsum("ij,ij->j", b.conj(), b))
@@ -66,6 +70,15 @@ def modal_assurance(phi_a: np.ndarray, phi_b: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         mac = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
     return np.clip(mac, 0.0, 1.0)
+
+
+def _unit_columns(phi: np.ndarray) -> np.ndarray:
+    """``phi`` with each nonzero column scaled to unit 2-norm (zero columns left zero)."""
+    phi = np.asarray(phi)
+    big = np.max(np.abs(phi), axis=0) if phi.size else np.zeros(phi.shape[1])
+    phi = phi / np.where(big > 0, big, 1.0)  # largest entry 1 first: the norm's squares stay finite
+    norm = np.linalg.norm(phi, axis=0)
+    return phi / np.where(norm > 0, norm, 1.0)
 
 
 def auto_mac(phi: np.ndarray) -> np.ndarray:

@@ -49,12 +49,20 @@ def frf_assurance(H_test: np.ndarray, H_model: np.ndarray, valid: np.ndarray | N
     H = np.asarray(H_test)
     G = np.asarray(H_model)
     ok = _valid(H, valid) & np.isfinite(G)
-    h = np.where(ok, H, 0)
-    g = np.where(ok, G, 0)
+    # Each FRF to a largest |value| of 1 first: FRAC, a ratio, does not depend on scale,
+    # but the squares below overflow for a model in odd units (|H| near 1e200).
+    h = _peak_scaled(np.where(ok, H, 0))
+    g = _peak_scaled(np.where(ok, G, 0))
     num = np.abs(np.sum(h.conj() * g, axis=0)) ** 2
     den = np.sum(np.abs(h) ** 2, axis=0) * np.sum(np.abs(g) ** 2, axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)
+
+
+def _peak_scaled(h: np.ndarray) -> np.ndarray:
+    """``h`` (n_freq, ...) with each curve divided by its largest |value| (zero curves kept)."""
+    peak = np.max(np.abs(h), axis=0) if h.shape[0] else np.zeros(h.shape[1:])
+    return h / np.where(peak > 0, peak, 1.0)
 
 
 def frf_gap(H_test: np.ndarray, H_model: np.ndarray, valid: np.ndarray | None = None) -> float:

@@ -51,6 +51,10 @@ def test_mac_of_rescaled_shapes_is_unchanged():
     np.testing.assert_allclose(modal_assurance(a * sa, b * sb), ref, atol=1e-12)
     np.testing.assert_allclose(np.diag(auto_mac(a)), 1.0, atol=1e-12)
     assert np.all((ref >= 0) & (ref <= 1))
+    # Far from unit scale (a model in odd units) the products' squares would overflow or
+    # underflow: the MAC of 1e200 shapes was 0 (QA).
+    for scale in (1e-200, 1e200, 1e300):
+        np.testing.assert_allclose(modal_assurance(a * scale, b), ref, atol=1e-12)
 
 
 def test_mac_zero_shape_and_dof_mismatch():
@@ -152,6 +156,9 @@ def test_frac_and_gap(frfs):
     assert frf_gap_db(H, G) == pytest.approx(20 * np.log10(1.1), rel=1e-9)
     # A frequency shift lowers FRAC below 1.
     assert np.nanmax(frf_assurance(H[:-40], H[40:])) < 0.9
+    # Nor does FRAC depend on a scale far from 1 (it was NaN from overflow at 1e200).
+    np.testing.assert_allclose(frf_assurance(H, 1e200 * G), 1.0, atol=1e-12)
+    np.testing.assert_allclose(frf_assurance(1e-200 * H, H[::-1]), frf_assurance(H, H[::-1]), atol=1e-12)
 
 
 def test_blanked_values_are_skipped(frfs):

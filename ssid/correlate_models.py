@@ -14,6 +14,7 @@ reported separately (``tam_natural_freq_hz``) as a measure of the TAM's accuracy
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -78,10 +79,22 @@ class CorrelationStudy:
 
 
 def _modes(model: Model, who: str) -> tuple[np.ndarray, np.ndarray]:
+    """Normal modes: frequencies in Hz (a negative omega^2 as a negative frequency) and
+    shapes. An analysis model with a clearly negative omega^2 is refused (not a stable
+    structure: as ``ssidlab place`` and ``discrepancy`` refuse it); a test model's is said
+    in a warning (an identified model that is not physical is still worth correlating)."""
     try:
         lam, phi = normal_modes(model.M, model.K)
     except np.linalg.LinAlgError:
         raise InputError(f"{who} model: M is not positive definite, it has no normal modes") from None
+    # Round-off on rigid-body modes (within 1e-8 of the largest below 0) counts as 0 Hz.
+    unstable = int(np.sum(lam < -1e-8 * np.max(np.abs(lam)))) if lam.size else 0
+    if unstable and who == "analysis":
+        raise InputError(f"analysis model: K is not positive semi-definite (mode 1 has omega^2 = "
+                         f"{lam[0]:.4g} (rad/s)^2): not the stiffness of a stable structure")
+    if unstable:
+        warnings.warn(f"{who} model: {unstable} mode(s) with omega^2 < 0 (K not positive "
+                      "semi-definite), shown with negative frequencies", stacklevel=2)
     return np.sign(lam) * np.sqrt(np.abs(lam)) / (2 * np.pi), phi
 
 

@@ -58,6 +58,7 @@ def files(tmp_path_factory):
     # "Identified" model: the Guyan TAM of a structure 3 % heavier than the FEM.
     red = guyan_reduce(1.03 * M, K, a)
     write_model(d / "test.h5", Model(red.M, red.K, None, labels))
+    write_model(d / "unstable.h5", Model(red.M, -red.K, None, labels))  # K negative definite
     frf = accelerance_from_model(M, C, K, dofs, np.linspace(5.0, 900.0, 1200), labels, labels[:2])
     write_frf(d / "frf.h5", frf)
     blank = (frf.freq_hz > 100.0) & (frf.freq_hz < 200.0)  # a stretch of lines blanked
@@ -161,6 +162,9 @@ def test_mode_list():
           "--json", "{d}/o.json"], "FRF data between 120 and 180 Hz: every H value is marked invalid"),
         (["--model", "{d}/test.h5", "--model", "{d}/missing.h5", "--json", "{d}/o.json"],
          "no such file"),
+        # read as -200 % frequency errors and a passing orthogonality, exit 0 (QA)
+        (["--model", "{d}/test.h5", "--model", "{d}/unstable.h5", "--json", "{d}/o.json"],
+         "analysis model: K is not positive semi-definite"),
         (["--model", "{d}/test.h5", "--model", "{d}/nan.mat", "--json", "{d}/o.json"], "NaN"),
         (["--model", "{d}/test.h5", "--model", "{d}/nan.h5", "--json", "{d}/o.json"],
          "not an HDF5|recognised"),
@@ -179,3 +183,14 @@ def test_bad_input_is_one_line_and_status_2(files, argv, match):
     assert status == 2
     assert "\n" not in err and err.startswith("ssidlab correlate: error:")
     assert pytest.importorskip("re").search(match, err), err
+
+
+def test_a_test_model_that_is_not_stable_is_correlated_with_a_warning(files):
+    """An identified model need not be physical and is still worth correlating; its modes
+    with omega^2 < 0 show as negative frequencies, and a warning says why."""
+    out = files / "unstable.json"
+    with pytest.warns(UserWarning, match=f"test model: {len(NODES)} mode\\(s\\) with omega\\^2 < 0"):
+        status, _ = run(["--model", str(files / "unstable.h5"), "--model", str(files / "fem.h5"),
+                         "--json", str(out), "--quiet"])
+    assert status == 0
+    assert all(f < 0 for f in json.loads(out.read_text())["test_natural_freq_hz"])

@@ -102,10 +102,13 @@ def run_place(args: argparse.Namespace) -> int:
                                     required=args.require)
     phi_a = phi[np.ix_([dofs.index(d) for d in chosen], targets)]
     am = auto_mac(phi_a)
-    np.fill_diagonal(am, 0.0)
     pair = None  # the two targets the chosen DOFs tell apart least (none for one target)
     if targets.size > 1:
-        i, j = np.unravel_index(int(np.argmax(am)), am.shape)
+        # Over pairs of two different targets only: with every off-diagonal term 0 (modes
+        # at disjoint DOFs) an argmax over the zeroed matrix named "modes 1 and 1".
+        upper_i, upper_j = np.triu_indices(targets.size, k=1)
+        k = int(np.argmax(am[upper_i, upper_j]))
+        i, j = upper_i[k], upper_j[k]
         pair = {"value": float(am[i, j]), "modes": [int(targets[i]) + 1, int(targets[j]) + 1]}
     sv = np.linalg.svd(phi_a, compute_uv=False)
     out = {

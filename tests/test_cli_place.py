@@ -116,3 +116,16 @@ def test_place_refuses_an_unstable_model_but_takes_a_free_one(tmp_path):
     r = run(str(unstable), "--sensors", "3", "--json", str(tmp_path / "u.json"))
     assert r.returncode == 2 and "K is not positive semi-definite" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "u.json").exists()
+
+
+def test_place_names_two_different_targets_when_none_look_alike(tmp_path):
+    """Three uncoupled oscillators (diagonal M and K): every pair of target shapes has MAC 0
+    at the chosen DOFs. The pair named must still be two different modes (it said "modes 1
+    and 1")."""
+    dofs = ["1+Z", "2+Z", "3+Z"]
+    model = tmp_path / "uncoupled.h5"
+    write_model(str(model), Model(M=np.diag([1.0, 2.0, 3.0]), K=np.diag([1e4, 5e4, 2e5]), C=None, dofs=dofs))
+    r = run(str(model), "--sensors", "2", "--json", str(tmp_path / "u.json"))
+    assert r.returncode == 0, r.stderr
+    pair = json.loads((tmp_path / "u.json").read_text())["max_offdiag_auto_mac"]
+    assert pair["value"] == 0.0 and pair["modes"][0] != pair["modes"][1], pair

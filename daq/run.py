@@ -279,6 +279,11 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         state = "interrupted"
         clear_interrupts()
         raise
+    except BrokenPipeError:
+        # The printout's reader went away (`| head`, a dead logger): stopped as a Unix tool
+        # is by SIGPIPE, the file resumable as after Ctrl-C.
+        state = "stopped: the output's reader went away (broken pipe)"
+        raise
     except BaseException as exc:
         state = f"failed: {type(exc).__name__}: {exc}"
         raise

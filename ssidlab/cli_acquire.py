@@ -22,7 +22,8 @@ program dies, however it dies, the run stops safely instead of driving on unatte
 
 Exit status: 0 the run is complete; 2 bad input (setup file, run file, options; one line
 ``ssidlab acquire: error: ...``); 3 the run was stopped safely by a fault (a line
-``ssidlab acquire: stopped: <why>``); 130 interrupted (Ctrl-C or SIGTERM). After 3 or 130
+``ssidlab acquire: stopped: <why>``); 130 interrupted (Ctrl-C or SIGTERM); 141 stopped
+because the reader of stdout went away (``| head``, a logger that died). After 3, 130 or 141
 the run file is resumable, and a second line names it with the command that continues it
 (after a DAQ overload, an instrument not reached, an amplifier trip or other instruments
 answering, a third says what to change: ``daq.safety.resume_remedy``).
@@ -213,6 +214,10 @@ def run_acquire(args: argparse.Namespace) -> int:
         print("ssidlab acquire: interrupted (outputs off, amplifiers disabled)", file=sys.stderr)
         _write_summary(args.json, _say_how_to_continue(run_path, args.sim, args.setup, bool(args.resume)))
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        reader_gone = True
+    else:
+        reader_gone = False
     finally:
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGINT, previous_int)
@@ -222,11 +227,30 @@ def run_acquire(args: argparse.Namespace) -> int:
         # The instruments are safe and the file closed: give the reader a few seconds for
         # the rest, but do not let one that stopped reading keep the process alive.
         pump.close()
+    if reader_gone:
+        return _stopped_by_reader_gone(run_path, args)
     _write_summary(args.json, summary)
     if not args.quiet and "n_lines" in summary:
         print(f"done: {summary['file']} ({summary['state']}; {summary['n_lines']} lines, "
               f"{summary['test_time_s']:.1f} s test time{_caveats(summary)})")
     return 0
+
+
+def _stopped_by_reader_gone(run_path: Path, args: argparse.Namespace) -> int:
+    """After the reader of stdout went away: said on stderr if that still works (stdout alone
+    may have been piped), exit 141 as a tool killed by SIGPIPE (the shell's code for it)."""
+    from ssidlab.cli import EXIT_BROKEN_PIPE
+
+    try:
+        print("ssidlab acquire: stopped: the reader of the output went away (broken pipe); "
+              "outputs off, amplifiers disabled", file=sys.stderr, flush=True)
+        said = _say_how_to_continue(run_path, args.sim, args.setup, bool(args.resume))
+    except OSError:  # stderr went with it
+        said = {}
+    _write_summary(args.json, said)
+    # Nothing more may reach the dead pipe, not even the interpreter's last flush.
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return EXIT_BROKEN_PIPE
 
 
 def _write_summary(path: str | None, summary: dict) -> None:

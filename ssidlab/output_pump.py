@@ -49,7 +49,7 @@ class _QueuedStream(io.TextIOBase):
     def flush(self) -> None:
         # Nothing to wait for: the pump writes as soon as the reader reads. A reader that
         # went away is reported here as on a plain stream.
-        self._pump._raise_if_broken()
+        self._pump._raise_if_broken(self._target)
 
     def writable(self) -> bool:
         return True
@@ -84,7 +84,8 @@ class OutputPump:
         self.n_dropped_lines = 0
         self._n_said_dropped = 0  # dropped lines a queued note already counts
         self._at_line_start, self._dropping = True, False
-        self._broken: BrokenPipeError | None = None
+        # Per stream: a reader of stdout gone (``| head``) leaves stderr to say so.
+        self._broken: dict[int, BrokenPipeError] = {}
         self._saved: tuple[TextIO, TextIO] | None = None
         self._notes: TextIO = sys.stderr  # where the pump's own line goes
         self._thread: threading.Thread | None = None
@@ -145,7 +146,7 @@ class OutputPump:
 
     # --------------------------------------------------------------------- the run's side
     def _put(self, target: TextIO, s: str) -> None:
-        self._raise_if_broken()
+        self._raise_if_broken(target)
         if not s:
             return
         # Whole lines are kept or dropped (print writes a line's text and its newline apart).
@@ -171,9 +172,10 @@ class OutputPump:
         self._chars_in += len(note)
         self._queue.put((self._notes, note))
 
-    def _raise_if_broken(self) -> None:
-        if self._broken is not None:
-            raise BrokenPipeError(self._broken.errno, self._broken.strerror)
+    def _raise_if_broken(self, target: TextIO) -> None:
+        broken = self._broken.get(id(target))
+        if broken is not None:
+            raise BrokenPipeError(broken.errno, broken.strerror)
 
     # --------------------------------------------------------------------- the writer
     def _write_out(self) -> None:
@@ -182,7 +184,7 @@ class OutputPump:
             if item is _CLOSE:
                 return
             target, s = item
-            if self._broken is None:
+            if id(target) not in self._broken:
                 self._write(target, s)
             self._chars_out += len(s)
 
@@ -200,6 +202,6 @@ class OutputPump:
             while data:
                 data = data[os.write(fd, data):]
         except BrokenPipeError as exc:
-            self._broken = exc
+            self._broken[id(target)] = exc
         except OSError:
             pass  # a terminal gone; nothing to tell it

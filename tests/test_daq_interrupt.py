@@ -103,6 +103,32 @@ def test_kill_9_mid_run_then_resume_gives_the_same_file(tmp_path):
     _same_frf(read_frf(tmp_path / "killed.h5"), read_frf(tmp_path / "full.h5"))
 
 
+def test_a_reader_of_the_output_gone_stops_the_run_and_stderr_says_how_to_continue(tmp_path):
+    """`ssidlab acquire ... | head`: the reader of stdout goes away mid-run. The run stops as
+    a Unix tool does on SIGPIPE (exit 141), instruments safe and file resumable, and stderr,
+    which still works, says so and how to continue (it said nothing, and the file's state
+    was "failed: BrokenPipeError")."""
+    proc = _acquire_sim(tmp_path)
+    k = 0
+    for line in proc.stdout:
+        k += line.startswith("  shaker")
+        if k == 3:
+            break
+    proc.stdout.close()  # the reader goes away
+    try:
+        err = proc.stderr.read()
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 141, err
+    assert "ssidlab acquire: stopped: the reader of the output went away (broken pipe)" in err, err
+    assert f"continue with: ssidlab acquire --resume {tmp_path / 'run.h5'} --sim" in err, err
+    with h5py.File(tmp_path / "run.h5") as f:
+        assert f["acq"].attrs["state"] == "stopped: the output's reader went away (broken pipe)"
+        assert f["acq/n_done"][0] >= 3
+
+
 def test_sigint_stops_a_run_started_with_sigint_ignored(tmp_path):
     """A run started in the background by a non-interactive shell inherits SIGINT as ignored;
     Ctrl-C (or the TUI's abort) must still stop it safely, not be lost while the drive runs."""

@@ -181,6 +181,13 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         Ctrl-C / SIGTERM (instruments safe, file resumable).
     """
     path = Path(out or setup.output_file)
+    world = None
+    if sim:
+        from .simlab import build_world
+
+        # Before the run file exists: a bad [sim] table must not leave a failed file that
+        # blocks the corrected setup's run ("exists already") and its resume alike.
+        world = build_world(setup)
     if resume:
         rf = RunFile.open(path)
         try:
@@ -226,7 +233,7 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         if sim:
             from .simlab import start_sim_lab
 
-            handle, inst_setup = start_sim_lab(setup)
+            handle, inst_setup = start_sim_lab(setup, world)
             echo("simulated lab started (generators, amplifiers, CAN FD DAQ on their real transports)")
         rig = (rig_factory or InstrumentRig)(inst_setup)
         meta = rf.meta

@@ -166,11 +166,12 @@ class SimHandle:
         self.lab.stop()
 
 
-def start_sim_lab(setup: TestSetup) -> tuple[SimHandle, TestSetup]:
-    """Start the simulated lab for ``setup``; the handle and the setup pointed at it."""
+def start_sim_lab(setup: TestSetup, world=None) -> tuple[SimHandle, TestSetup]:
+    """Start the simulated lab for ``setup`` (on ``world``, :func:`build_world`'s for it, if
+    built already); the handle and the setup pointed at it."""
     from sim_devices.lab import SimLab
 
-    world = build_world(setup)
+    world = build_world(setup) if world is None else world
     transport = setup.sim.get("generator_transport", "tcp")
     lab = SimLab(world, generator_transport=transport).start()
     try:

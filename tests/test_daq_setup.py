@@ -244,3 +244,16 @@ def test_the_advice_after_a_stop_follows_the_fault_that_stopped_the_run():
                   "interrupted", "complete", "running", None,
                   overload + "; safe state not confirmed: gen0: no reply"]:
         assert resume_remedy(plain, sim=False) is None, plain
+
+
+def test_a_bad_sim_table_is_refused_before_the_run_file_exists(tmp_path):
+    """The simulated world is built before the run file is created: a bad [sim] table left
+    a file in state "failed" at the output path, which then blocked both the corrected
+    setup's run ("exists already") and a resume ("differs in [sim]")."""
+    from daq.run import run_test
+
+    text = sine_setup(n_lines=3).replace("[sim]\n", "[sim]\noversample = 0\n")
+    setup = parse_setup(text, str(tmp_path / "s.toml"))
+    with pytest.raises(InputError, match=r"\[sim\] oversample: must be in \[1, 64\], got 0"):
+        run_test(setup, out=str(tmp_path / "run.h5"), sim=True, echo=lambda m: None)
+    assert not (tmp_path / "run.h5").exists()

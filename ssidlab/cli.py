@@ -20,7 +20,9 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -36,6 +38,7 @@ from ssidlab.argtypes import check_output_paths, frequency_hz
 EXIT_OK = 0
 EXIT_INTERNAL = 1
 EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a tool killed by it
 
 DEBUG_ENV = "SSIDLAB_DEBUG"
@@ -62,7 +65,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     int
         0 on success, 2 on bad input, 1 on an internal error.
     """
-    parser, subcommands = _build_parser()
+    _interruptible()
+    try:
+        # Building the parser imports every subcommand (about a second): a Ctrl-C then is
+        # an interrupt like any other, not a traceback from inside an import.
+        parser, subcommands = _build_parser()
+    except KeyboardInterrupt:
+        _say("ssidlab: interrupted")
+        return EXIT_INTERRUPTED
     try:
         args, extras = parser.parse_known_args(argv)
         if extras:
@@ -99,7 +109,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         _say(f"{prog}: interrupted")
-        return 130
+        return EXIT_INTERRUPTED
     except Exception as exc:
         if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
             raise
@@ -413,6 +423,18 @@ _SUBCOMMANDS = (
 # ----------------------------------------------------------------------------------------------
 # Output helpers
 # ----------------------------------------------------------------------------------------------
+
+
+def _interruptible() -> None:
+    """SIGINT raises KeyboardInterrupt from the first line, also in a process started with
+    SIGINT ignored (in the background by a non-interactive shell or a CI runner, or by a
+    controlling program). ``ssidlab acquire`` takes SIGINT from such a start on purpose (its
+    run handler, ``daq.control``); before that handler was in place, an interrupt in the
+    command's first second was lost and the run went on to drive. Only an ignored SIGINT is
+    changed (a program embedding ``main`` keeps its own handler), and only in the main
+    thread, the only one that may set one."""
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def _say(message: str) -> None:

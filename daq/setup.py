@@ -243,9 +243,12 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
     raw_time = out.bool("raw_time", False)
     out.done()
 
+    from drivers.daq import can_interfaces
+
     dq = TomlTable(src, "[daq]", doc.get("daq", {}))
     daq = DaqSpec(
-        interface=dq.str("interface", "virtual"), channel=dq.str("channel", "ssidlab-daq"),
+        # A misspelt interface is a setup error (exit 2), not a lost link to check (exit 3).
+        interface=dq.str("interface", "virtual", choices=can_interfaces()), channel=dq.str("channel", "ssidlab-daq"),
         sample_rate_hz=dq.int("sample_rate_hz", 4096, lo=1, hi=102400),
         nominal_bitrate=dq.int("nominal_bitrate", 1_000_000, lo=10_000, hi=1_000_000),
         data_bitrate=dq.int("data_bitrate", 5_000_000, lo=100_000, hi=8_000_000),

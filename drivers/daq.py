@@ -98,6 +98,11 @@ class SampleBlock:
         return (self.first_index + np.arange(self.data.shape[1])) / self.sample_rate_hz
 
 
+def can_interfaces() -> tuple[str, ...]:
+    """The CAN interfaces :func:`open_can_bus` takes: python-can's, and ``tcp``."""
+    return tuple(sorted(set(can.VALID_INTERFACES) | {"tcp"}))
+
+
 def open_can_bus(interface: str, channel: str, nominal_bitrate: int, data_bitrate: int, **kwargs) -> can.BusABC:
     """A CAN FD bus: ``virtual`` (in-process), ``tcp`` (``channel="host:port"``, the sim-lab
     gateway, see :mod:`drivers.can_tcp`), or any python-can interface (socketcan, ...)."""

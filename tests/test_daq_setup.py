@@ -49,6 +49,8 @@ def test_free_example_is_the_stand_example_off_its_stand():
     (("force_n = 1.0", "force_n = -1"), "[stepped_sine] force_n"),
     (("sample_rate_hz = 4096", "sample_rate_hz = 4096.5"), "[daq] sample_rate_hz"),
     (("sample_rate_hz = 4096", "sample_rate_hz = 4096\npassband_fraction = 0.6"), "[daq] passband_fraction"),
+    # was an instrument "lost (link down)" to check, exit 3, once the run had started (QA)
+    (("sample_rate_hz = 4096", 'sample_rate_hz = 4096\ninterface = "socketcann"'), "[daq] interface: must be one of"),
     (("sensitivity_mv_per_unit = 22.5", "sensitivity_mv_per_unit = 0"), "[[channels]] #1 sensitivity_mv_per_unit"),
     (('quantity = "force"', 'quantity = "forse"'), "[[channels]] #1 quantity"),
     (('force_channel = "force 1+Z"', 'force_channel = "acc 1+Z"'), "[[shakers]] #1 force_channel"),

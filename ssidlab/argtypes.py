@@ -8,6 +8,7 @@ import json
 import math
 import os
 import re
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -127,6 +128,12 @@ def check_output_paths(inputs: list[str], outputs: list[str | None]) -> None:
         parent = Path(path).parent
         if not parent.is_dir():
             raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")
+        try:  # a directory that takes no file (read-only, /proc): said now, not after the work
+            with tempfile.NamedTemporaryFile(dir=parent, prefix=".ssidlab-probe-"):
+                pass
+        except OSError as exc:
+            raise InputError(f"{path}: cannot write in directory {str(parent)!r} "
+                             f"({exc.strerror or exc})") from None
 
 
 def chart_file(text: str) -> str:

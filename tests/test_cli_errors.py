@@ -127,6 +127,9 @@ BAD_ARGUMENTS = [
     ("out-is-input", ["--out", "frf.h5", "--json", "r.json"], "would overwrite the input file"),
     ("out-twice", ["--out", "m.h5", "--json", "m.h5"], "given for two different outputs"),
 ]
+if os.path.isdir("/proc/self"):  # a directory that takes no file, even for root (Linux)
+    BAD_ARGUMENTS.append(("json-dir-takes-no-file", ["--out", "m.h5", "--json", "/proc/r.json"],
+                          "/proc/r.json: cannot write in directory '/proc'"))
 
 
 @pytest.mark.parametrize(

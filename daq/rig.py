@@ -133,7 +133,8 @@ class InstrumentRig(Rig):
         self._function: dict[int, str] = {}
         self._beats: dict[str, tuple[int, float]] = {}
         self._status: dict[str, dict] = {}
-        # A safe state was attempted since the last command to a shaker's instruments.
+        # A safe state was attempted since the last command that drives or starts anything
+        # (a shaker's instruments, the DAQ).
         self._safe_state_tried = False
         try:
             self._open()
@@ -212,6 +213,7 @@ class InstrumentRig(Rig):
 
     def acquire(self, n: int) -> np.ndarray:
         self.check()
+        self._safe_state_tried = False
         self.daq.start(n)
         try:
             blk = self.daq.read(n, timeout_s=n / self.fs_hz + 10.0)
@@ -283,10 +285,10 @@ class InstrumentRig(Rig):
     def close(self) -> None:
         """Safe state, unless one was attempted since the last drive, then release every
         instrument without another: an instrument that did not answer that attempt would
-        cost each further one its time-outs (the drivers' own close tried again, and a
-        frozen lab took 30 s to let the command exit instead of 10), and one that did
-        confirm has been sent nothing since. That attempt's problems were reported by
-        :meth:`safe_state`'s caller."""
+        cost each further one its time-outs (with the drivers' own close trying again, a
+        frozen lab took 30 s to let the command exit), and one that did confirm has been
+        sent nothing since. That attempt's problems were reported by :meth:`safe_state`'s
+        caller."""
         try:
             if not self._safe_state_tried:
                 self.safe_state()

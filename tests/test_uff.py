@@ -223,9 +223,12 @@ def rows(fields: list[str], per_line: int) -> list[str]:
     return ["".join(fields[k:k + per_line]) for k in range(0, len(fields), per_line)]
 
 
-def commercial_file() -> tuple[str, dict]:
+def commercial_file(acc_rsp=("PT1", 1, 3), mob_rsp=("PT2", 2, -2), ref=("PT1", 1, 3),
+                    acc_den=13) -> tuple[str, dict]:
     """A UFF in the style of a commercial test package: CRLF, Fortran 0.d exponents, D
-    exponents, mm units (164), even abscissa, single and double precision, a 0 Hz line."""
+    exponents, mm units (164), even abscissa, single and double precision, a 0 Hz line.
+    Its accelerance's and mobility's response (name, node, direction), their reference, and
+    the accelerance's denominator type can be changed."""
     rng = np.random.default_rng(3)
     f0, df, n = 0.0, 12.5, 5
     acc = rng.normal(size=n) + 1j * rng.normal(size=n)  # (mm/s^2)/N, single precision
@@ -243,14 +246,14 @@ def commercial_file() -> tuple[str, dict]:
         "   0.5000000000000000D+03   0.0000000000000000D+00   0.2500000000000000D+02",
         "    -1",
     ]
-    lines += header58("PT1:+Z/PT1:+Z", 4, ("PT1", 1, 3), ("PT1", 1, 3), 5, n, f0, df,
-                      (12, "Acceleration", "mm/s^2"), (13, "Force", "N"))
+    lines += header58("PT1:+Z/PT1:+Z", 4, acc_rsp, ref, 5, n, f0, df,
+                      (12, "Acceleration", "mm/s^2"), (acc_den, "Force", "N"))
     lines += rows(acc_txt, 6) + ["    -1"]
-    lines += header58("PT2:-Y/PT1:+Z", 4, ("PT2", 2, -2), ("PT1", 1, 3), 6, n, f0, df,
+    lines += header58("PT2:-Y/PT1:+Z", 4, mob_rsp, ref, 6, n, f0, df,
                       (11, "Velocity", "mm/s"), (13, "Force", "N"))
     lines += rows(mob_txt, 4) + ["    -1"]
-    for k, rsp in enumerate([("PT1", 1, 3), ("PT2", 2, -2)]):
-        lines += header58("Multiple coherence", 26, rsp, ("PT1", 1, 3), 2, n, f0, df,
+    for k, rsp in enumerate([acc_rsp, mob_rsp]):
+        lines += header58("Multiple coherence", 26, rsp, ref, 2, n, f0, df,
                           (0, "Coherence", "NONE"), (0, "NONE", "NONE"))
         lines += rows([fortran(v) for v in coh[k]], 6) + ["    -1"]
     text = "\r\n".join(lines) + "\r\n"
@@ -292,6 +295,73 @@ def test_unknown_ordinate_type_is_taken_as_accelerance_with_a_warning(tmp_path):
         frf = read_uff_frf(path)
     assert any("taken as acceleration" in str(w.message) for w in record)
     np.testing.assert_allclose(frf.H[:, 0, 0], expected["acc"][1:] / 1000, rtol=1e-15)
+
+
+@pytest.mark.parametrize("mob_dir, ref_dir, acc_factor, mob_factor", [
+    (4, 3, 1e-3, 1.0),  # 2+RX per force: (rad/s^2)/N takes no length factor
+    (4, 4, 1e3, 1e3),  # per moment N*mm: (mm/s^2)/(N*mm) and (rad/s^2)/(N*mm)
+])
+def test_units_go_by_what_each_dof_is(tmp_path, mob_dir, ref_dir, acc_factor, mob_factor):
+    """Dataset 164 in mm: a translation per force is divided by the length factor (1000), a
+    rotation (radians) takes none, a moment (N mm) the force times the length factor. Every
+    FRF was divided by 1000, whatever its DOFs (QA)."""
+    rsp = ("PT1", 1, ref_dir)  # the accelerance is a driving point
+    text, expected = commercial_file(acc_rsp=rsp, mob_rsp=("PT2", 2, mob_dir), ref=rsp)
+    path = tmp_path / "rot.unv"
+    path.write_bytes(text.encode("ascii"))
+    with pytest.warns(UFFWarning, match="0 Hz"):
+        frf = read_uff_frf(path)
+    names = {3: "Z", 4: "RX"}
+    assert frf.outputs == [f"1+{names[ref_dir]}", "2+RX"] and frf.inputs == [f"1+{names[ref_dir]}"]
+    f = expected["freq"][1:]
+    np.testing.assert_allclose(frf.H[:, 0, 0], expected["acc"][1:] * acc_factor, rtol=1e-14)
+    np.testing.assert_allclose(frf.H[:, 1, 0], 1j * 2 * np.pi * f * expected["mob"][1:] * mob_factor,
+                               rtol=1e-14)
+
+
+def test_an_frf_not_per_force_is_refused_and_an_unknown_denominator_warned(tmp_path):
+    """A transmissibility (acceleration per acceleration) was read as an accelerance without
+    a word (QA)."""
+    path = tmp_path / "t.uff"
+    path.write_text(commercial_file(acc_den=12)[0])
+    with pytest.raises(InputError, match=r"dataset 3 \(58\): FRF per acceleration; an FRF file holds "
+                                         "responses per input force"):
+        read_uff_frf(path)
+    text, expected = commercial_file(acc_den=0)
+    path.write_text(text)
+    with pytest.warns(UFFWarning) as record:
+        frf = read_uff_frf(path)
+    assert any("1 FRF(s) do not say what the ordinate or the denominator is" in str(w.message) for w in record)
+    np.testing.assert_allclose(frf.H[:, 0, 0], expected["acc"][1:] / 1000, rtol=1e-15)
+
+
+def test_one_dof_named_in_both_senses_is_one_dof(tmp_path):
+    """An accelerometer mounted upside down at the driving point: response 1-Z per input
+    1+Z. It was refused (the input not among the outputs); elsewhere one DOF became two
+    outputs. The -Z function is folded onto 1+Z, its values negated; a -Y alone stays."""
+    text, expected = commercial_file(acc_rsp=("PT1", 1, -3))
+    path = tmp_path / "inverted.unv"
+    path.write_bytes(text.encode("ascii"))
+    with pytest.warns(UFFWarning, match="0 Hz"):
+        frf = read_uff_frf(path)
+    assert frf.outputs == ["1+Z", "2-Y"] and frf.inputs == ["1+Z"]
+    np.testing.assert_allclose(frf.H[:, 0, 0], -expected["acc"][1:] / 1000, rtol=1e-15)
+    np.testing.assert_allclose(frf.coherence[:, 0, 0], expected["coh"][0, 1:], rtol=1e-15)
+
+
+def test_a_delimiter_with_trailing_blanks_loses_no_dataset(tmp_path):
+    """pyuff takes "    -1" with trailing blanks for a delimiter only when they reach column
+    80; one such line made it pair the others wrongly and drop two FRFs without a word (QA)."""
+    frf = chain_frf(n_freq=8)
+    path = tmp_path / "padded.uff"
+    write_uff_frf(path, frf)
+    lines = path.read_text().split("\n")
+    k = [i for i, line in enumerate(lines) if line == "    -1"][3]  # the end of the first FRF
+    lines[k] = "    -1  "
+    path.write_text("\n".join(lines))
+    back = read_uff_frf(path)
+    assert back.outputs == frf.outputs and back.inputs == frf.inputs
+    np.testing.assert_allclose(back.H, frf.H, rtol=1e-10)
 
 
 # ----------------------------------------------------------------------------------------------

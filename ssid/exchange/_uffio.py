@@ -58,7 +58,8 @@ def _err(src: str, problem: str) -> InputError:
 
 
 def _normalise(raw: bytes) -> tuple[bytes, bool]:
-    """``D`` exponents -> ``E`` and trailing blanks removed, on numeric lines of ASCII datasets.
+    """``D`` exponents -> ``E`` and trailing blanks removed, on numeric lines of ASCII datasets
+    and on the ``-1`` delimiter lines.
 
     Binary (58b) datasets are left byte for byte: their payload is not text. The flag is True
     when the file ends inside a dataset (no closing ``-1``: a truncated file).
@@ -80,7 +81,10 @@ def _normalise(raw: bytes) -> tuple[bytes, bool]:
         if _DELIM.match(body):
             in_block = not in_block
             expect_type = in_block
-            out.append(line)
+            # Without its trailing blanks: pyuff takes "    -1" followed by blanks for a
+            # delimiter only when they reach column 80, and otherwise pairs the others wrongly
+            # (datasets after it were lost without a word).
+            out.append(b"    -1" + ending)
             continue
         if expect_type:
             # "    58b ..." marks a binary dataset: nothing in it is touched.

@@ -250,7 +250,10 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
       ordinate type (0 or 1) is taken as acceleration, with a warning; ordinate reaction force
       (9) makes an interface reaction. Function types 6 and 26 are coherence. Others are
       skipped with a warning.
-    * A dataset 164 converts the file's units to SI (``H * force_factor / length_factor``).
+    * A dataset 164 converts the file's units to SI: ``H * force_factor / length_factor`` for
+      a translation per force, with a rotation (radians) taking no factor and a moment the
+      force factor times the length factor. An FRF must be per force (denominator type 13;
+      an unknown one, 0/1, is taken so, with a warning).
     * Lines at or below 0 Hz are dropped with a warning (the FRF file needs f > 0).
 
     Raises
@@ -271,13 +274,17 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
         ftype = d.get("func_type")
         if ftype == FUNC_FRF:
             spec = d.get("ordinate_spec_data_type", 0)
+            per_force = _per_force(src, d)
             if spec == SPEC_REACTION:
-                reacts.append(_read_function(src, d, "reaction"))
+                f = _read_function(src, d, "reaction")
+                f.y = f.y * _si_factor(f, length, force)
+                reacts.append(f)
+                unknown_units += not per_force
                 continue
             f = _read_function(src, d, "frf")
             factor, known = _to_accelerance(src, d, spec, 2 * np.pi * f.x)
-            unknown_units += not known
-            f.y = f.y * factor * (force / length)
+            unknown_units += not (known and per_force)
+            f.y = f.y * factor * _si_factor(f, length, force)
             frfs.append(f)
         elif ftype in (FUNC_COHERENCE, FUNC_MULTIPLE_COHERENCE):
             cohs.append(_read_function(src, d, "coherence"))
@@ -290,10 +297,11 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
         warnings.warn(f"{src}: skipped {skipped} dataset(s) 58 that are neither FRFs nor "
                       "coherence", UFFWarning, stacklevel=2)
     if unknown_units:
-        warnings.warn(f"{src}: {unknown_units} FRF(s) do not say what the ordinate is "
-                      "(specific data type 0/1); taken as acceleration per force (accelerance)",
-                      UFFWarning, stacklevel=2)
+        warnings.warn(f"{src}: {unknown_units} FRF(s) do not say what the ordinate or the "
+                      "denominator is (specific data type 0/1); taken as acceleration (or "
+                      "reaction force) per force", UFFWarning, stacklevel=2)
 
+    _fold_opposite_directions(frfs + cohs + reacts)
     freq, lines = _frequency_grid(src, frfs + cohs + reacts)
     outputs = _merged_order(frfs + cohs, "rsp", "ref")
     inputs = _merged_order(frfs + cohs, "ref", "rsp")
@@ -319,6 +327,21 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
                   valid=None if valid.all() else valid, H_reaction=H_reaction,
                   reactions=reactions, attrs={"converted_from": os.path.basename(src)})
     return validate_frf(frf, src)
+
+
+def _fold_opposite_directions(functions: list[_Function]) -> None:
+    """Where a file names one DOF in both senses (``4+Z`` somewhere, ``4-Z`` elsewhere: an
+    inverted sensor at a driving point, one accelerometer mounted upside down), the ``-``
+    labels become the ``+`` ones and the values they carry change sign (coherence excepted).
+    Left apart, one DOF became two outputs, or the driving point was refused for want of
+    its input among the outputs. A ``-`` label alone stays as written (docs/exchange.md)."""
+    labels = {lab for f in functions for lab in (f.rsp, f.ref)}
+    flip = {lab for lab in labels if "-" in lab and lab.replace("-", "+") in labels}
+    for f in functions:
+        n = (f.rsp in flip) + (f.ref in flip)
+        if n % 2 and f.kind != "coherence":
+            f.y = -f.y
+        f.rsp, f.ref = (lab.replace("-", "+") if lab in flip else lab for lab in (f.rsp, f.ref))
 
 
 def _where(d: dict) -> str:
@@ -401,6 +424,38 @@ def _read_function(src: str, d: dict, kind: str) -> _Function:
             y = y.real
         y = y.astype(float)
     return _Function(kind, d["_index"], rsp, ref, x, y)
+
+
+def _per_force(src: str, d: dict) -> bool:
+    """Whether the FRF's denominator is said to be a force (excitation force, 13); False when
+    the file does not say (0, 1). Anything else (per acceleration: a transmissibility; per
+    pressure) is no FRF of the file's kind, and refused."""
+    den = d.get("orddenom_spec_data_type", 0)
+    if den == SPEC_FORCE:
+        return True
+    if den in (0, SPEC_GENERAL):
+        return False
+    name = {SPEC_ACCELERATION: "acceleration", SPEC_VELOCITY: "velocity", SPEC_DISPLACEMENT:
+            "displacement", SPEC_REACTION: "reaction force"}.get(den) or _SPEC_NAMES.get(
+        den, f"specific data type {den}")
+    raise InputError(f"{src}: {_where(d)}: FRF per {name}; an FRF file holds responses per "
+                     "input force (denominator: excitation force, specific data type 13)")
+
+
+def _si_factor(f: _Function, length: float, force: float) -> float:
+    """Factor from the file's units (dataset 164) to SI for the function's response over its
+    reference: a value in file units divided by its unit's factor is in SI. A translation
+    (or a force, for a reaction) goes with the length (force) factor, a rotation in radians
+    with none, a moment with force x length; a scalar point is taken as a translation."""
+    def rotational(label: str) -> bool:
+        return label.endswith(("RX", "RY", "RZ"))
+
+    if f.kind == "reaction":
+        response = force * length if rotational(f.rsp) else force
+    else:
+        response = 1.0 if rotational(f.rsp) else length
+    reference = force * length if rotational(f.ref) else force
+    return reference / response
 
 
 def _to_accelerance(src: str, d: dict, spec: int, omega: np.ndarray) -> tuple[Any, bool]:

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from .errors import IdentificationError
+from .fit_checks import misfit_warning, unresolved_damping_warning
 from .frf import FRFData, accelerance_under_test_loads, require_response
 from .jsonutil import to_jsonable
 from .modal import (
@@ -25,7 +26,12 @@ from .modal import (
     root_frequency_damping,
     unit_max_shapes,
 )
-from .noise import data_noise_weights, fit_additive_proportional, frf_noise_weights, roughness_weights
+from .noise import (
+    data_noise_weights,
+    fit_additive_proportional,
+    frf_noise_weights,
+    roughness_weights,
+)
 from .reciprocity import reciprocity_check
 from .step1 import (
     Step1Data,
@@ -35,13 +41,13 @@ from .step1 import (
     reaction_transfer,
     step1_data,
 )
+from .step1_eiv import refine_with_reactions
 from .step1_refine import (
     output_error_cost,
     refine_line_weighted,
     refine_output_error,
     refine_sanathanan_koerner,
 )
-from .step1_eiv import refine_with_reactions
 from .step2 import assemble_mck, modal_scale_factors, state_space_modes
 
 __all__ = ["SSIDResult", "identify_mck", "identify_step1", "SOLVERS", "DAMPING_OPTIONS",
@@ -456,6 +462,8 @@ def identify_mck(
     checks.update({k: v for k, v in asm.items()})
     checks["frf_relative_rms_error"] = info["damping_choice"]["frf_relative_rms_error"][damping]
     warnings.extend(chk_warn)
+    warnings.extend(w for w in (misfit_warning(data, checks["frf_relative_rms_error"]),
+                                unresolved_damping_warning(data, wn / (2 * np.pi), zeta)) if w)
     return SSIDResult(
         M=M,
         C=C,

@@ -1,0 +1,106 @@
+"""What the measured lines say about an identified model that its own checks cannot.
+
+:func:`ssid.modal.physical_checks` asks whether M, C, K can be a structure's. A model can be
+physical and still not describe the data: a fit that failed under noise, a band holding more
+than the model can hold, a free-free structure whose mass the lines do not fix. Nor do the
+lines determine every number a model carries: a resonance narrower than the line spacing is
+seen only on its skirts, which do not depend on its damping. These checks compare the
+written model with the data it came from, and say so where the numbers are not backed by it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .frf import FRFData
+from .noise import data_noise_weights
+
+__all__ = ["DAMPING_SIGNATURE_FLOOR", "MISFIT_FLOOR", "MISFIT_NOISE_RATIO", "misfit_warning",
+           "relative_noise_level", "unresolved_damping_warning"]
+
+#: Relative RMS difference between the model's FRFs and the data above which, when it is
+#: also MISFIT_NOISE_RATIO times the data's own noise, the model is said not to reproduce
+#: the data. 5 %: on the audits behind this check, models whose modes and matrices were right
+#: reproduced their data within 3 % (1 % noise), and those badly wrong were 12-99 % off.
+MISFIT_FLOOR = 0.05
+#: The data's relative noise (from the file's variances or coherence, else the FRFs'
+#: roughness, which can understate it several times) times this is what a right model may
+#: miss by.
+MISFIT_NOISE_RATIO = 3.0
+
+
+def relative_noise_level(frf: FRFData) -> float:
+    """The data's noise relative to its response, ``sqrt(sum sigma^2) / ||H||`` over the valid
+    values (:func:`ssid.noise.data_noise_weights`)."""
+    w = data_noise_weights(frf)
+    ok = w > 0
+    sigma = np.where(ok, 1.0 / np.where(ok, w, 1.0), 0.0)
+    scale = float(np.linalg.norm(np.where(ok, frf.H, 0.0)))
+    return float(np.sqrt(np.sum(sigma**2)) / scale) if scale > 0 else np.inf
+
+
+def misfit_warning(frf: FRFData, frf_relative_rms_error: float) -> str | None:
+    """A warning when the written model's FRFs differ from ``frf`` (the band it was fitted
+    to) by more than :data:`MISFIT_FLOOR` and :data:`MISFIT_NOISE_RATIO` times the noise.
+
+    Parameters
+    ----------
+    frf : FRFData
+        The measured FRFs of the band the model was identified on.
+    frf_relative_rms_error : float
+        ``||H - H_model|| / ||H||`` of the written M, C, K over the valid values.
+    """
+    e = float(frf_relative_rms_error)
+    noise = relative_noise_level(frf)
+    if not np.isfinite(e) or (e > MISFIT_FLOOR and e > MISFIT_NOISE_RATIO * noise):
+        return (f"the written M, C, K reproduce the measured FRFs only to {100 * e:.3g} % (RMS; "
+                f"the data's noise is about {100 * noise:.2g} %): the fit failed, or the band "
+                "holds what a model of this order cannot (more modes than DOFs, modes outside "
+                "it, a free-free structure); check its modes against the data (e.g. ssidlab "
+                "bands) before using the matrices")
+    return None
+
+
+#: Below this share of the response at the nearest line, a resonance's damping is taken as
+#: not seen (whatever the data's stated noise: calibration and nonlinearity alone exceed it).
+DAMPING_SIGNATURE_FLOOR = 0.01
+
+
+def unresolved_damping_warning(frf: FRFData, freq_hz: np.ndarray, zeta: np.ndarray) -> str | None:
+    """A warning naming the modes inside the band whose damping the lines do not see.
+
+    At a line ``d`` Hz from a resonance at ``f``, the damping term of the mode's response is
+    about ``zeta f / d`` of the rest (the imaginary part of ``1 / (f_n^2 - f^2 + 2 j zeta f_n
+    f)`` over its real part); when that is below the data's noise (times
+    :data:`MISFIT_NOISE_RATIO`) or :data:`DAMPING_SIGNATURE_FLOOR` at the line nearest the
+    mode, the lines see only the skirts of the resonance and its damping ratio (and C) is not
+    determined by them. When no mode lies in the band at all, that is the warning instead:
+    every resonance is seen only by its tail.
+
+    Parameters
+    ----------
+    frf : FRFData
+        The measured FRFs of the band the model was identified on.
+    freq_hz, zeta : (m,) arrays
+        The model's modes: natural frequencies, Hz, and damping ratios.
+    """
+    lines = np.asarray(frf.freq_hz, dtype=float)
+    f = np.asarray(freq_hz, dtype=float)
+    z = np.asarray(zeta, dtype=float)
+    inside = (f >= lines[0]) & (f <= lines[-1])
+    if f.size and not inside.any():
+        return (f"no mode of the model lies in the band ({lines[0]:g}-{lines[-1]:g} Hz): the lines "
+                "see only the tails of its resonances, so its frequencies and damping are "
+                "extrapolated, not measured")
+    nearest = np.min(np.abs(lines[None, :] - f[:, None]), axis=1) if f.size else f
+    with np.errstate(divide="ignore", invalid="ignore"):
+        signature = np.where(nearest > 0, z * f / np.where(nearest > 0, nearest, 1.0), np.inf)
+    floor = max(DAMPING_SIGNATURE_FLOOR, MISFIT_NOISE_RATIO * relative_noise_level(frf))
+    unseen = inside & (z > 0) & (signature < floor)
+    if not unseen.any():
+        return None
+    listed = ", ".join(f"{v:.4g}" for v in f[unseen])
+    return (f"mode(s) at {listed} Hz: so lightly damped for the line spacing that their damping "
+            f"shows at the nearest line as under {100 * floor:.2g} % of the response, within "
+            "the noise: the lines do not determine their damping (nor C); measure with finer "
+            "lines around them")

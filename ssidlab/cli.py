@@ -17,6 +17,7 @@ Never a traceback otherwise: scripts and acceptance checks read stderr.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -24,7 +25,7 @@ import signal
 import sys
 import threading
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -63,9 +64,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns
     -------
     int
-        0 on success, 2 on bad input, 1 on an internal error.
+        0 on success, 2 on bad input, 1 on an internal error, 130 interrupted.
     """
-    _interruptible()
+    with _interruptible():
+        return _run(argv)
+
+
+def _run(argv: Sequence[str] | None) -> int:
     try:
         # Building the parser imports every subcommand (about a second): a Ctrl-C then is
         # an interrupt like any other, not a traceback from inside an import.
@@ -425,16 +430,23 @@ _SUBCOMMANDS = (
 # ----------------------------------------------------------------------------------------------
 
 
-def _interruptible() -> None:
+@contextlib.contextmanager
+def _interruptible() -> Iterator[None]:
     """SIGINT raises KeyboardInterrupt from the first line, also in a process started with
     SIGINT ignored (in the background by a non-interactive shell or a CI runner, or by a
     controlling program). ``ssidlab acquire`` takes SIGINT from such a start on purpose (its
     run handler, ``daq.control``); before that handler was in place, an interrupt in the
     command's first second was lost and the run went on to drive. Only an ignored SIGINT is
-    changed (a program embedding ``main`` keeps its own handler), and only in the main
-    thread, the only one that may set one."""
-    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    changed, only in the main thread (the only one that may set one), and it is ignored
+    again afterwards (for a program embedding ``main``)."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) != signal.SIG_IGN:
+        yield
+        return
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _say(message: str) -> None:

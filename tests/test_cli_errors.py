@@ -310,7 +310,8 @@ def test_an_ignored_sigint_is_taken_from_the_first_line():
     """A process started with SIGINT ignored (in the background by a script or a CI runner)
     lost an interrupt in the command's first second, before ``ssidlab acquire`` put its run
     handler in place, and the run then went on to drive. ``main`` makes SIGINT raise
-    KeyboardInterrupt first thing; a handler of a program embedding it is left alone."""
+    KeyboardInterrupt first thing, for its own run; a handler of a program embedding it is
+    left alone."""
     import signal
 
     from ssidlab.cli import _interruptible
@@ -318,14 +319,15 @@ def test_an_ignored_sigint_is_taken_from_the_first_line():
     before = signal.getsignal(signal.SIGINT)
     try:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        _interruptible()
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        with _interruptible():
+            assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN  # as the embedding program had it
 
         def own(signum, frame):
             pass
 
         signal.signal(signal.SIGINT, own)
-        _interruptible()
-        assert signal.getsignal(signal.SIGINT) is own
+        with _interruptible():
+            assert signal.getsignal(signal.SIGINT) is own
     finally:
         signal.signal(signal.SIGINT, before)

@@ -267,6 +267,16 @@ def test_a_resume_reaches_instruments_that_answer_at_new_addresses(tmp_path, cap
     assert load_resume_setup(run).generators[0].url == inst.generators[0].url
 
 
+def _resume_on(tmp_path, run, setup_text: str, capsys):
+    """``ssidlab acquire --resume RUN new.toml --quiet`` with ``setup_text`` in new.toml:
+    the setup file, the exit status and the lines on stderr."""
+    new = tmp_path / "new.toml"
+    new.write_text(setup_text)
+    capsys.readouterr()
+    status, _ = cli(["--resume", str(run), str(new), "--quiet"])
+    return new, status, capsys.readouterr().err.strip().splitlines()
+
+
 def test_a_resume_stops_before_driving_when_another_generator_answers(tmp_path, capsys):
     """After a restart another generator (another serial in its *IDN?) answers at the
     setup's address: a swapped port would drive one shaker with another's signal. The
@@ -277,11 +287,7 @@ def test_a_resume_stops_before_driving_when_another_generator_answers(tmp_path, 
     run, _, second, inst = interrupted_then_lab_moved(tmp_path, text, 2)
     try:
         second.lab.generators[0].serial = "SN04711"
-        new = tmp_path / "new.toml"
-        new.write_text(pointed_at(text, inst))
-        capsys.readouterr()
-        status, _ = cli(["--resume", str(run), str(new), "--quiet"])
-        err = capsys.readouterr().err.strip().splitlines()
+        new, status, err = _resume_on(tmp_path, run, pointed_at(text, inst), capsys)
         assert status == 3, err
         assert ("not the instruments of the run's last session: gen0 answers as 'ssidlab,SIM-33522,SN04711,1.0', "
                 "in the last session as 'ssidlab,SIM-33522,SN00000,1.0'") in err[0], err
@@ -320,11 +326,7 @@ def test_a_resume_stops_before_driving_on_a_lab_that_simulates_another_structure
     heavier = text + '\n[[sim.effects]]\ntype = "added_mass"\ndof = "3+Z"\nmass_kg = 0.25\n'
     other, inst = start_sim_lab(parse_setup(heavier, str(tmp_path / "heavier.toml")))
     try:
-        new = tmp_path / "new.toml"
-        new.write_text(pointed_at(text, inst))
-        capsys.readouterr()
-        status, _ = cli(["--resume", str(run), str(new), "--quiet"])
-        err = capsys.readouterr().err.strip().splitlines()
+        _, status, err = _resume_on(tmp_path, run, pointed_at(text, inst), capsys)
         assert status == 3, err
         assert "not the instruments of the run's last session: the DAQ answers with serial" in err[0], err
         assert not any(c.startswith("OUTP1 ON") for c in other.lab.generators[0].log)

@@ -29,29 +29,29 @@ MISFIT_FLOOR = 0.05
 MISFIT_NOISE_RATIO = 3.0
 
 
-def relative_noise_level(frf: FRFData) -> float:
+def relative_noise_level(frf: FRFData, w: np.ndarray | None = None) -> float:
     """The data's noise relative to its response, ``sqrt(sum sigma^2) / ||H||`` over the valid
-    values (:func:`ssid.noise.data_noise_weights`)."""
-    w = data_noise_weights(frf)
+    values, from the noise weights ``w = 1 / sigma`` (default
+    :func:`ssid.noise.data_noise_weights`; 0 where a value is left out)."""
+    w = data_noise_weights(frf) if w is None else w
     ok = w > 0
     sigma = np.where(ok, 1.0 / np.where(ok, w, 1.0), 0.0)
     scale = float(np.linalg.norm(np.where(ok, frf.H, 0.0)))
     return float(np.sqrt(np.sum(sigma**2)) / scale) if scale > 0 else np.inf
 
 
-def misfit_warning(frf: FRFData, frf_relative_rms_error: float) -> str | None:
-    """A warning when the written model's FRFs differ from ``frf`` (the band it was fitted
-    to) by more than :data:`MISFIT_FLOOR` and :data:`MISFIT_NOISE_RATIO` times the noise.
+def misfit_warning(frf_relative_rms_error: float, noise: float) -> str | None:
+    """A warning when the written model's FRFs differ from the data of the band it was fitted
+    to by more than :data:`MISFIT_FLOOR` and :data:`MISFIT_NOISE_RATIO` times the noise.
 
     Parameters
     ----------
-    frf : FRFData
-        The measured FRFs of the band the model was identified on.
     frf_relative_rms_error : float
         ``||H - H_model|| / ||H||`` of the written M, C, K over the valid values.
+    noise : float
+        The data's relative noise level (:func:`relative_noise_level`).
     """
     e = float(frf_relative_rms_error)
-    noise = relative_noise_level(frf)
     if not np.isfinite(e) or (e > MISFIT_FLOOR and e > MISFIT_NOISE_RATIO * noise):
         return (f"the written M, C, K reproduce the measured FRFs only to {100 * e:.3g} % (RMS; "
                 f"the data's noise is about {100 * noise:.2g} %): the fit failed, or the band "
@@ -66,7 +66,8 @@ def misfit_warning(frf: FRFData, frf_relative_rms_error: float) -> str | None:
 DAMPING_SIGNATURE_FLOOR = 0.01
 
 
-def unresolved_damping_warning(frf: FRFData, freq_hz: np.ndarray, zeta: np.ndarray) -> str | None:
+def unresolved_damping_warning(line_freq_hz: np.ndarray, freq_hz: np.ndarray, zeta: np.ndarray,
+                               noise: float) -> str | None:
     """A warning naming the modes inside the band whose damping the lines do not see.
 
     At a line ``d`` Hz from a resonance at ``f``, the damping term of the mode's response is
@@ -79,12 +80,14 @@ def unresolved_damping_warning(frf: FRFData, freq_hz: np.ndarray, zeta: np.ndarr
 
     Parameters
     ----------
-    frf : FRFData
-        The measured FRFs of the band the model was identified on.
+    line_freq_hz : (n_freq,) array
+        The lines of the band the model was identified on, Hz.
     freq_hz, zeta : (m,) arrays
         The model's modes: natural frequencies, Hz, and damping ratios.
+    noise : float
+        The data's relative noise level (:func:`relative_noise_level`).
     """
-    lines = np.asarray(frf.freq_hz, dtype=float)
+    lines = np.asarray(line_freq_hz, dtype=float)
     f = np.asarray(freq_hz, dtype=float)
     z = np.asarray(zeta, dtype=float)
     inside = (f >= lines[0]) & (f <= lines[-1])
@@ -95,7 +98,7 @@ def unresolved_damping_warning(frf: FRFData, freq_hz: np.ndarray, zeta: np.ndarr
     nearest = np.min(np.abs(lines[None, :] - f[:, None]), axis=1) if f.size else f
     with np.errstate(divide="ignore", invalid="ignore"):
         signature = np.where(nearest > 0, z * f / np.where(nearest > 0, nearest, 1.0), np.inf)
-    floor = max(DAMPING_SIGNATURE_FLOOR, MISFIT_NOISE_RATIO * relative_noise_level(frf))
+    floor = max(DAMPING_SIGNATURE_FLOOR, MISFIT_NOISE_RATIO * noise)
     unseen = inside & (z > 0) & (signature < floor)
     if not unseen.any():
         return None

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from .errors import IdentificationError
-from .fit_checks import misfit_warning, unresolved_damping_warning
+from .fit_checks import misfit_warning, relative_noise_level, unresolved_damping_warning
 from .frf import FRFData, accelerance_under_test_loads, require_response
 from .jsonutil import to_jsonable
 from .modal import (
@@ -271,7 +271,7 @@ def _step2(d: Step1Data, est: Step1Estimate, solver: str):
 
 
 def _choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, zeta: np.ndarray,
-                    damping: str, modal_possible: bool) -> tuple[np.ndarray, str, dict]:
+                    damping: str, modal_possible: bool, w: np.ndarray) -> tuple[np.ndarray, str, dict]:
     """The damping matrix the delivered model carries, and how it compares with the data.
 
     ``identified`` is the A_s partition of Eq. 3.15; ``modal`` the identified damping ratios
@@ -281,8 +281,8 @@ def _choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, z
     the roots' damping: on the payload's 10-DOF models, noise-free, its own modes were 39-457 %
     off in damping where the roots were within 2-15 %, and its FRFs 13-49 % off the data
     where the modal C gave 6-9 %. ``auto`` keeps whichever predicts the band's measurements
-    better (:func:`model_output_error`, noise weights from the data); a full-order model with
-    non-proportional damping keeps the identified C, which only it can represent.
+    better (:func:`model_output_error` with ``w``, the data's noise weights); a full-order
+    model with non-proportional damping keeps the identified C, which only it can represent.
 
     Returns
     -------
@@ -297,7 +297,6 @@ def _choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, z
         options["modal"] = modal_damping_matrix(M, K, zeta)
     if damping != "auto":
         options = {damping: options[damping]}
-    w = data_noise_weights(frf)
     cost, rel = {}, {}
     for name, Cx in options.items():
         cost[name], rel[name] = model_frf_errors(frf, M, Cx, K, w)
@@ -456,14 +455,17 @@ def identify_mck(
         undamped = wu / (2 * np.pi)
     except np.linalg.LinAlgError:
         undamped, phi = np.full(d.n, np.nan), None
+    w = data_noise_weights(data)  # one estimate for the damping choice and the fit checks
     C, damping, info["damping_choice"] = _choose_damping(data, M, C, K, zeta, damping,
-                                                         phi is not None)
+                                                         phi is not None, w)
     checks, chk_warn = physical_checks(M, C, K, zeta)
     checks.update({k: v for k, v in asm.items()})
     checks["frf_relative_rms_error"] = info["damping_choice"]["frf_relative_rms_error"][damping]
     warnings.extend(chk_warn)
-    warnings.extend(w for w in (misfit_warning(data, checks["frf_relative_rms_error"]),
-                                unresolved_damping_warning(data, wn / (2 * np.pi), zeta)) if w)
+    noise = relative_noise_level(data, w)
+    warnings.extend(said for said in (misfit_warning(checks["frf_relative_rms_error"], noise),
+                                      unresolved_damping_warning(data.freq_hz, wn / (2 * np.pi), zeta, noise))
+                    if said)
     return SSIDResult(
         M=M,
         C=C,

@@ -43,7 +43,8 @@ __all__ = ["UFFWarning", "frf_datasets", "read_uff_frf", "write_uff_frf"]
 FUNC_FRF, FUNC_COHERENCE, FUNC_MULTIPLE_COHERENCE = 4, 6, 26
 SPEC_GENERAL, SPEC_DISPLACEMENT, SPEC_REACTION = 1, 8, 9
 SPEC_VELOCITY, SPEC_ACCELERATION, SPEC_FORCE, SPEC_FREQUENCY = 11, 12, 13, 18
-_SPEC_NAMES = {2: "stress", 3: "strain", 5: "temperature", 6: "heat flux", 13: "excitation force",
+_SPEC_NAMES = {2: "stress", 3: "strain", 5: "temperature", 6: "heat flux", 8: "displacement",
+               9: "reaction force", 11: "velocity", 12: "acceleration", 13: "excitation force",
                15: "pressure", 16: "mass", 17: "time", 18: "frequency", 19: "rpm", 20: "order"}
 # Relative gap below which abscissa values of different functions are the same line (a few
 # ulp: even-spaced abscissae computed as min + k * inc by different readers).
@@ -435,9 +436,7 @@ def _per_force(src: str, d: dict) -> bool:
         return True
     if den in (0, SPEC_GENERAL):
         return False
-    name = {SPEC_ACCELERATION: "acceleration", SPEC_VELOCITY: "velocity", SPEC_DISPLACEMENT:
-            "displacement", SPEC_REACTION: "reaction force"}.get(den) or _SPEC_NAMES.get(
-        den, f"specific data type {den}")
+    name = _SPEC_NAMES.get(den, f"specific data type {den}")
     raise InputError(f"{src}: {_where(d)}: FRF per {name}; an FRF file holds responses per "
                      "input force (denominator: excitation force, specific data type 13)")
 

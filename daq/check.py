@@ -12,10 +12,9 @@ Setup tab (F4).
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
-from drivers.amplifier import SyncShakerAmplifier
+from drivers.amplifier import SyncShakerAmplifier, modbus_log_held_back
 from drivers.daq import CanFdDaq, firmware_text
 from drivers.errors import AmplifierFault, InstrumentError
 from drivers.siggen import SignalGenerator
@@ -111,15 +110,8 @@ def check_instruments(setup: TestSetup, timeout_s: float = 1.0, reset_faults: bo
     fault is reset first (a deliberate act of the engineer: only once its cause is gone,
     which the amplifier checks itself); the state is read after it.
     """
-    # The result says what failed; the Modbus library's own error log lines would only be
-    # noise on a terminal (and garble a full-screen UI), so they are held back meanwhile.
-    quiet = logging.getLogger("pymodbus")
-    level = quiet.level
-    quiet.setLevel(logging.CRITICAL + 1)
-    try:
+    with modbus_log_held_back():  # the result says what failed
         return _check_each(setup, timeout_s, reset_faults)
-    finally:
-        quiet.setLevel(level)
 
 
 def _check_each(setup: TestSetup, timeout_s: float, reset_faults: bool) -> list[InstrumentState]:

@@ -13,10 +13,12 @@ between calls).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 from pymodbus.client import AsyncModbusTcpClient
@@ -56,7 +58,23 @@ MODBUS_EXCEPTIONS = {
 }
 
 
+@contextlib.contextmanager
+def modbus_log_held_back() -> Iterator[None]:
+    """Hold the Modbus library's own log lines back for the block. The drivers say what
+    failed in their own words; pymodbus's lines of the same failure ("No response
+    received ...", when an amplifier stops answering) would only be noise on a terminal, and
+    garble a full-screen UI."""
+    log = logging.getLogger("pymodbus")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
 @dataclass(frozen=True)
+
 class AmpStatus:
     """One reading of the amplifier's status registers (SI units)."""
 

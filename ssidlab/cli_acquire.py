@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import faulthandler
-import logging
 import os
 import shlex
 import signal
@@ -165,6 +164,7 @@ def run_acquire(args: argparse.Namespace) -> int:
     from daq.run import run_test
     from daq.safety import RunStopped
     from daq.setup import load_setup
+    from drivers.amplifier import modbus_log_held_back
     from ssidlab.argtypes import check_output_paths
 
     if args.resume and args.out:
@@ -196,16 +196,12 @@ def run_acquire(args: argparse.Namespace) -> int:
     if control is not None:
         threading.Thread(target=_read_control, args=(control, sys.stdin), name="acquire-control", daemon=True).start()
     run_path = Path(out or setup.output_file)
-    # The drivers say what failed in their own words; the Modbus library's log lines of the
-    # same failure (a lab that stopped answering) would only be noise on the terminal.
-    modbus_log = logging.getLogger("pymodbus")
-    modbus_level = modbus_log.level
-    modbus_log.setLevel(logging.CRITICAL + 1)
     # From here the run never waits for whoever reads its output (ssidlab.output_pump).
     pump = OutputPump().start()
     try:
-        summary = run_test(setup, out=out, resume=bool(args.resume), sim=args.sim, echo=echo, control=control,
-                           events=_print_event if args.events else None, new_instruments=args.new_instruments)
+        with modbus_log_held_back():
+            summary = run_test(setup, out=out, resume=bool(args.resume), sim=args.sim, echo=echo, control=control,
+                               events=_print_event if args.events else None, new_instruments=args.new_instruments)
     except RunStopped as exc:
         print(f"ssidlab acquire: stopped: {' '.join(str(exc).splitlines())}", file=sys.stderr)
         _write_summary(args.json, _say_how_to_continue(run_path, args.sim, args.setup, bool(args.resume)))
@@ -221,7 +217,6 @@ def run_acquire(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGINT, previous_int)
-        modbus_log.setLevel(modbus_level)
         if stacks_on_usr1:
             faulthandler.unregister(signal.SIGUSR1)
         # The instruments are safe and the file closed: give the reader a few seconds for

@@ -34,6 +34,7 @@ ends.
 from __future__ import annotations
 
 import argparse
+import errno
 import faulthandler
 import os
 import shlex
@@ -41,7 +42,7 @@ import signal
 import sys
 import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from ssid.errors import InputError
 from ssidlab.output_pump import OutputPump
@@ -223,7 +224,7 @@ def run_acquire(args: argparse.Namespace) -> int:
         # the rest, but do not let one that stopped reading keep the process alive.
         pump.close()
     if reader_gone:
-        return _stopped_by_reader_gone(run_path, args)
+        _stopped_by_reader_gone(run_path, args)
     _write_summary(args.json, summary)
     if not args.quiet and "n_lines" in summary:
         print(f"done: {summary['file']} ({summary['state']}; {summary['n_lines']} lines, "
@@ -231,11 +232,10 @@ def run_acquire(args: argparse.Namespace) -> int:
     return 0
 
 
-def _stopped_by_reader_gone(run_path: Path, args: argparse.Namespace) -> int:
+def _stopped_by_reader_gone(run_path: Path, args: argparse.Namespace) -> NoReturn:
     """After the reader of stdout went away: said on stderr if that still works (stdout alone
-    may have been piped), exit 141 as a tool killed by SIGPIPE (the shell's code for it)."""
-    from ssidlab.cli import EXIT_BROKEN_PIPE
-
+    may have been piped), then the broken pipe goes on to ``ssidlab.cli.main``, which ends
+    quietly with exit 141 as a tool killed by SIGPIPE would."""
     try:
         print("ssidlab acquire: stopped: the reader of the output went away (broken pipe); "
               "outputs off, amplifiers disabled", file=sys.stderr, flush=True)
@@ -243,9 +243,7 @@ def _stopped_by_reader_gone(run_path: Path, args: argparse.Namespace) -> int:
     except OSError:  # stderr went with it
         said = {}
     _write_summary(args.json, said)
-    # Nothing more may reach the dead pipe, not even the interpreter's last flush.
-    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-    return EXIT_BROKEN_PIPE
+    raise BrokenPipeError(errno.EPIPE, "the reader of the output went away")
 
 
 def _write_summary(path: str | None, summary: dict) -> None:

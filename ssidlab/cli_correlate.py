@@ -15,6 +15,8 @@ import argparse
 import json
 import os
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -111,23 +113,48 @@ def run_correlate(args: argparse.Namespace) -> int:
         raise InputError(f"--targets: mode {max(args.targets)} but the analysis model has "
                          f"{analysis.n} modes")
     if args.frf:
-        frf = read_measured_frf(args.frf)
-        study = correlate_with_frf(
-            frf, analysis, tam=args.tam, interface=args.interface, targets=args.targets,
-            zeta=args.zeta, f_min_hz=args.fmin, f_max_hz=args.fmax, reactions=args.reactions,
-        )
         test_source, analysis_source = args.frf, models[0]
+        frf = read_measured_frf(args.frf)
+        _require_dofs_in(frf.outputs, "output", args.frf, analysis.dofs, models[0])
+        with _models_named(test_source, analysis_source):
+            study = correlate_with_frf(
+                frf, analysis, tam=args.tam, interface=args.interface, targets=args.targets,
+                zeta=args.zeta, f_min_hz=args.fmin, f_max_hz=args.fmax, reactions=args.reactions,
+            )
     else:
-        test = read_analysis_model(models[0])
-        study = correlate_models(test, analysis, tam=args.tam, interface=args.interface,
-                                 targets=args.targets)
         test_source, analysis_source = models[0], models[1]
+        test = read_analysis_model(models[0])
+        _require_dofs_in(test.dofs, "DOF", models[0], analysis.dofs, models[1])
+        with _models_named(test_source, analysis_source):
+            study = correlate_models(test, analysis, tam=args.tam, interface=args.interface,
+                                     targets=args.targets)
     summary = {"test_source": test_source, "analysis_source": analysis_source, **study.summary}
     summary["plots"] = _write_plots(study, args.plots) if args.plots is not None else []
     Path(args.json).write_text(json.dumps(jsonable(summary), indent=1) + "\n", encoding="utf-8")
     if not args.quiet:
         print(pair_table(summary))
     return 0
+
+
+def _require_dofs_in(dofs: list[str], kind: str, source: str, analysis_dofs: list[str], analysis_source: str) -> None:
+    """The library refuses test DOFs the analysis model lacks; here the message names both files."""
+    missing = [d for d in dofs if d not in set(analysis_dofs)]
+    if missing:
+        raise InputError(f"{source}: {kind} {missing[0]!r} is not a DOF of the analysis model {analysis_source}")
+
+
+@contextmanager
+def _models_named(test_source: str, analysis_source: str) -> Iterator[None]:
+    """The library's errors about a model begin "test model:" or "analysis model:"; the
+    user needs to know which file that is."""
+    try:
+        yield
+    except InputError as exc:
+        msg = str(exc)
+        for who, path in (("analysis model", analysis_source), ("test model", test_source)):
+            if msg.startswith(who + ":"):
+                raise InputError(f"{path} ({who}):{msg[len(who) + 1:]}") from None
+        raise
 
 
 def _check_plot_dir(path: str, sources: list[str]) -> None:

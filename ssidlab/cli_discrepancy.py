@@ -89,11 +89,15 @@ def run_discrepancy(args: argparse.Namespace) -> int:
         _check_plot_dir(args.plots, inputs)
 
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
-    from ssid.discrepancy import find_discrepancy
+    from ssid.discrepancy import check_model, find_discrepancy
     from ssid.io import read_measured_frf, write_model
     from ssid.matrix_io import read_analysis_model
 
     model = read_analysis_model(args.model)
+    try:
+        check_model(model)
+    except InputError as exc:
+        raise InputError(f"{args.model}: {exc}") from None
     frf = read_measured_frf(args.measured)
     lo = -math.inf if args.fmin is None else args.fmin
     hi = math.inf if args.fmax is None else args.fmax

@@ -14,7 +14,7 @@ from test_tam_models import beam_model, translations
 
 from ssid.errors import InputError
 from ssid.frf import accelerance_from_model
-from ssid.io import Model, write_frf, write_model
+from ssid.io import Model, read_model, write_frf, write_model
 from ssid.modal import modal_damping_matrix
 from ssid.tam import guyan_reduce
 from ssidlab.cli_correlate import add_correlate_subcommand, parse_mode_list
@@ -139,7 +139,7 @@ def test_mode_list():
         (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--fmin", "3", "--json", "{d}/o.json"],
          "--frf only"),
         (["--model", "{d}/fem.h5", "--model", "{d}/test.h5", "--json", "{d}/o.json"],
-         "is not among the analysis model's DOFs"),
+         "fem.h5: DOF '[^']+' is not a DOF of the analysis model .*test.h5$"),
         (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--tam", "cb", "--json", "{d}/o.json"],
          "interface"),
         (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--interface", "2+Z",
@@ -164,7 +164,7 @@ def test_mode_list():
          "no such file"),
         # read as -200 % frequency errors and a passing orthogonality, exit 0 (QA)
         (["--model", "{d}/test.h5", "--model", "{d}/unstable.h5", "--json", "{d}/o.json"],
-         "analysis model: K is not positive semi-definite"),
+         "unstable.h5 \\(analysis model\\): K is not positive semi-definite"),
         (["--model", "{d}/test.h5", "--model", "{d}/nan.mat", "--json", "{d}/o.json"], "NaN"),
         (["--model", "{d}/test.h5", "--model", "{d}/nan.h5", "--json", "{d}/o.json"],
          "not an HDF5|recognised"),
@@ -183,6 +183,17 @@ def test_bad_input_is_one_line_and_status_2(files, argv, match):
     assert status == 2
     assert "\n" not in err and err.startswith("ssidlab correlate: error:")
     assert pytest.importorskip("re").search(match, err), err
+
+
+def test_frf_outputs_missing_from_the_analysis_model_name_both_files(files):
+    m = read_model(files / "test.h5")
+    keep = m.dofs[:-1]
+    write_model(files / "short.h5", Model(m.M[:-1, :-1], m.K[:-1, :-1], None, keep))
+    status, err = run(["--model", str(files / "short.h5"), "--frf", str(files / "frf.h5"),
+                       "--json", str(files / "o.json")])
+    assert status == 2
+    assert err.endswith(f"frf.h5: output {m.dofs[-1]!r} is not a DOF of the analysis model "
+                        f"{files / 'short.h5'}"), err
 
 
 def test_a_test_model_that_is_not_stable_is_correlated_with_a_warning(files):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 
 import h5py
 import numpy as np
@@ -97,6 +98,18 @@ def test_outputs_missing_from_the_model_are_refused(files, tmp_path):
     args = _parse(["--model", str(tmp_path / "small.h5"), "--measured", str(d / "frf.h5"),
                    "--json", str(tmp_path / "e.json")])
     with pytest.raises(InputError, match="not a DOF of the model"):
+        args.run(args)
+
+
+def test_an_unstable_model_is_refused_naming_its_file(files, tmp_path):
+    d, case = files
+    from ssid.io import Model
+
+    m = case.nominal
+    path = tmp_path / "unstable.h5"
+    write_model(path, Model(M=m.M, K=-m.K, C=m.C, dofs=m.dofs))
+    args = _parse(["--model", str(path), "--measured", str(d / "frf.h5"), "--json", str(tmp_path / "e.json")])
+    with pytest.raises(InputError, match=rf"^{re.escape(str(path))}: the model's K has the eigenvalue"):
         args.run(args)
 
 

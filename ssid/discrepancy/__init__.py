@@ -24,7 +24,7 @@ from .effects import (
     apply_effect_to_model,
 )
 from .report import GAP_METRIC, DiscrepancyResult
-from .workflow import find_discrepancy
+from .workflow import check_model, find_discrepancy
 
 __all__ = [
     "EFFECT_NAMES",
@@ -34,5 +34,6 @@ __all__ = [
     "Effect",
     "apply_effect",
     "apply_effect_to_model",
+    "check_model",
     "find_discrepancy",
 ]

@@ -91,6 +91,12 @@ def _check(model: Model, frf: FRFData) -> None:
         raise InputError(f"FRF input {not_out[0]!r} is not among the FRF outputs")
     if frf.H.shape != (frf.n_freq, len(frf.outputs), len(frf.inputs)):
         raise InputError(f"H has shape {frf.H.shape}, expected (n_freq, n_out, n_in)")
+    check_model(model)
+
+
+def check_model(model: Model) -> None:
+    """Raise InputError unless ``model`` is the finite, square M, (C,) K of a physical
+    structure: M positive semi-definite and not zero, K positive semi-definite."""
     for name in ("M", "K"):
         A = getattr(model, name)
         if A.shape != (model.n, model.n) or not np.isfinite(A).all():

@@ -206,15 +206,16 @@ def fortran(x: float, width: int = 13, digits: int = 5, letter: str = "E") -> st
 
 
 def header58(id1: str, func: int, rsp: tuple, ref: tuple, ord_type: int, n: int, f0: float,
-             df: float, num: tuple, den: tuple) -> list[str]:
+             df: float, num: tuple, den: tuple, abscissa: str = "Hz",
+             exps: tuple = ((0, 0), (0, 0))) -> list[str]:
     return [
         "    -1", "    58", id1, "Run 12 hammer test", "12-MAR-24 10:11:12", "NONE", "NONE",
         (f"{func:5d}{1:10d}{1:5d}{0:10d} {rsp[0]:<10s}{rsp[1]:10d}{rsp[2]:4d} "
          f"{ref[0]:<10s}{ref[1]:10d}{ref[2]:4d}"),
         f"{ord_type:10d}{n:10d}{1:10d}{fortran(f0)}{fortran(df)}{fortran(0.0)}",
-        f"{18:10d}{0:5d}{0:5d}{0:5d} {'Frequency':<20s} {'Hz':<20s}",
-        f"{num[0]:10d}{0:5d}{0:5d}{0:5d} {num[1]:<20s} {num[2]:<20s}",
-        f"{den[0]:10d}{0:5d}{0:5d}{0:5d} {den[1]:<20s} {den[2]:<20s}",
+        f"{18:10d}{0:5d}{0:5d}{0:5d} {'Frequency':<20s} {abscissa:<20s}",
+        f"{num[0]:10d}{exps[0][0]:5d}{exps[0][1]:5d}{0:5d} {num[1]:<20s} {num[2]:<20s}",
+        f"{den[0]:10d}{exps[1][0]:5d}{exps[1][1]:5d}{0:5d} {den[1]:<20s} {den[2]:<20s}",
         f"{0:10d}{0:5d}{0:5d}{0:5d} {'NONE':<20s} {'NONE':<20s}",
     ]
 
@@ -224,11 +225,13 @@ def rows(fields: list[str], per_line: int) -> list[str]:
 
 
 def commercial_file(acc_rsp=("PT1", 1, 3), mob_rsp=("PT2", 2, -2), ref=("PT1", 1, 3),
-                    acc_den=13) -> tuple[str, dict]:
+                    acc_den=13, acc_units=("mm/s^2", "N"), mob_units=("mm/s", "N"),
+                    units_164=True) -> tuple[str, dict]:
     """A UFF in the style of a commercial test package: CRLF, Fortran 0.d exponents, D
     exponents, mm units (164), even abscissa, single and double precision, a 0 Hz line.
-    Its accelerance's and mobility's response (name, node, direction), their reference, and
-    the accelerance's denominator type can be changed."""
+    Its accelerance's and mobility's response (name, node, direction), their reference, the
+    accelerance's denominator type, the unit labels (ordinate, denominator) of both, and
+    whether there is a dataset 164 can be changed."""
     rng = np.random.default_rng(3)
     f0, df, n = 0.0, 12.5, 5
     acc = rng.normal(size=n) + 1j * rng.normal(size=n)  # (mm/s^2)/N, single precision
@@ -240,6 +243,8 @@ def commercial_file(acc_rsp=("PT1", 1, 3), mob_rsp=("PT2", 2, -2), ref=("PT1", 1
         "    -1", "   164", f"{9:10d}{'mm N s degC':<20s}{2:10d}",
         "  0.10000000000000000D+04  0.10000000000000000D+01  0.10000000000000000D+01",
         "  0.27314999389648438D+03", "    -1",
+    ] if units_164 else []
+    lines += [
         "    -1", "  2411",
         f"{1:10d}{0:10d}{0:10d}{11:10d}", "   0.0000000000000000D+00" * 3,
         f"{2:10d}{0:10d}{0:10d}{11:10d}",
@@ -247,10 +252,10 @@ def commercial_file(acc_rsp=("PT1", 1, 3), mob_rsp=("PT2", 2, -2), ref=("PT1", 1
         "    -1",
     ]
     lines += header58("PT1:+Z/PT1:+Z", 4, acc_rsp, ref, 5, n, f0, df,
-                      (12, "Acceleration", "mm/s^2"), (acc_den, "Force", "N"))
+                      (12, "Acceleration", acc_units[0]), (acc_den, "Force", acc_units[1]))
     lines += rows(acc_txt, 6) + ["    -1"]
     lines += header58("PT2:-Y/PT1:+Z", 4, mob_rsp, ref, 6, n, f0, df,
-                      (11, "Velocity", "mm/s"), (13, "Force", "N"))
+                      (11, "Velocity", mob_units[0]), (13, "Force", mob_units[1]))
     lines += rows(mob_txt, 4) + ["    -1"]
     for k, rsp in enumerate([acc_rsp, mob_rsp]):
         lines += header58("Multiple coherence", 26, rsp, ref, 2, n, f0, df,
@@ -287,7 +292,7 @@ def test_reads_a_commercial_style_file(tmp_path):
 
 
 def test_unknown_ordinate_type_is_taken_as_accelerance_with_a_warning(tmp_path):
-    text, expected = commercial_file()
+    text, expected = commercial_file(acc_units=("NONE", "N"))
     path = tmp_path / "x.uff"
     path.write_text(text.replace("        12    0    0    0 Acceleration",
                                  "         0    0    0    0 Acceleration"))
@@ -306,7 +311,9 @@ def test_units_go_by_what_each_dof_is(tmp_path, mob_dir, ref_dir, acc_factor, mo
     rotation (radians) takes none, a moment (N mm) the force times the length factor. Every
     FRF was divided by 1000, whatever its DOFs (QA)."""
     rsp = ("PT1", 1, ref_dir)  # the accelerance is a driving point
-    text, expected = commercial_file(acc_rsp=rsp, mob_rsp=("PT2", 2, mob_dir), ref=rsp)
+    # Unlabelled axes: the units are dataset 164's, by what each DOF is.
+    text, expected = commercial_file(acc_rsp=rsp, mob_rsp=("PT2", 2, mob_dir), ref=rsp,
+                                     acc_units=("NONE", "NONE"), mob_units=("NONE", "NONE"))
     path = tmp_path / "rot.unv"
     path.write_bytes(text.encode("ascii"))
     with pytest.warns(UFFWarning, match="0 Hz"):
@@ -327,7 +334,7 @@ def test_an_frf_not_per_force_is_refused_and_an_unknown_denominator_warned(tmp_p
     with pytest.raises(InputError, match=r"dataset 3 \(58\): FRF per acceleration; an FRF file holds "
                                          "responses per input force"):
         read_uff_frf(path)
-    text, expected = commercial_file(acc_den=0)
+    text, expected = commercial_file(acc_den=0, acc_units=("mm/s^2", "NONE"))
     path.write_text(text)
     with pytest.warns(UFFWarning) as record:
         frf = read_uff_frf(path)

@@ -36,16 +36,20 @@ from ssid.io import validate_frf
 
 from ._uffio import read_datasets, write_datasets
 from .labels import format_dof_label, labels_to_node_dirs
-from .uff_geometry import Geometry, geometry_dataset, si_units_dataset, unit_factors
+from .uff_geometry import Geometry, geometry_dataset, si_units_dataset
+from .uff_units import (
+    SPEC_ACCELERATION,
+    SPEC_FORCE,
+    SPEC_FREQUENCY,
+    SPEC_GENERAL,
+    SPEC_NAMES,
+    SPEC_REACTION,
+    FileUnits,
+)
 
 __all__ = ["UFFWarning", "frf_datasets", "read_uff_frf", "write_uff_frf"]
 
 FUNC_FRF, FUNC_COHERENCE, FUNC_MULTIPLE_COHERENCE = 4, 6, 26
-SPEC_GENERAL, SPEC_DISPLACEMENT, SPEC_REACTION = 1, 8, 9
-SPEC_VELOCITY, SPEC_ACCELERATION, SPEC_FORCE, SPEC_FREQUENCY = 11, 12, 13, 18
-_SPEC_NAMES = {2: "stress", 3: "strain", 5: "temperature", 6: "heat flux", 8: "displacement",
-               9: "reaction force", 11: "velocity", 12: "acceleration", 13: "excitation force",
-               15: "pressure", 16: "mass", 17: "time", 18: "frequency", 19: "rpm", 20: "order"}
 # Relative gap below which abscissa values of different functions are the same line (a few
 # ulp: even-spaced abscissae computed as min + k * inc by different readers).
 _SAME_LINE_RTOL = 1e-12
@@ -248,24 +252,29 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
     -----
     * Function type 4 with ordinate acceleration (12) is taken as is; velocity (11) and
       displacement (8) FRFs are converted with ``j omega`` and ``-omega^2``; an unknown
-      ordinate type (0 or 1) is taken as acceleration, with a warning; ordinate reaction force
-      (9) makes an interface reaction. Function types 6 and 26 are coherence. Others are
-      skipped with a warning.
-    * A dataset 164 converts the file's units to SI: ``H * force_factor / length_factor`` for
-      a translation per force, with a rotation (radians) taking no factor and a moment the
-      force factor times the length factor. An FRF must be per force (denominator type 13;
-      an unknown one, 0/1, is taken so, with a warning).
+      ordinate type (0 or 1) is what its unit label says, else acceleration, with a warning;
+      ordinate reaction force (9) makes an interface reaction. Function types 6 and 26 are
+      coherence. Others are skipped with a warning.
+    * Units (:mod:`ssid.exchange.uff_units`): a recognised axis unit label (``g``,
+      ``in/s^2``, ``lbf``, ``rad/s`` on the abscissa) gives its axis's unit, and wins over a
+      dataset 164 that disagrees (with a warning); an axis without one is in the units of the
+      dataset 164 (SI without one): ``H * force_factor / length_factor`` for a translation
+      per force, a rotation (radians) taking no factor and a moment the force factor times
+      the length factor. Unrecognised labels are reported in one warning. An FRF must be per
+      force (denominator type 13, or a force label; an unknown one is taken so, with a
+      warning).
     * Lines at or below 0 Hz are dropped with a warning (the FRF file needs f > 0).
 
     Raises
     ------
     InputError
         Unreadable or malformed file, no FRF, inconsistent functions (duplicates, real FRFs,
-        a non-frequency abscissa), or data the FRF file layout refuses.
+        a non-frequency abscissa, a unit label contradicting its axis's data type or DOF), or
+        data the FRF file layout refuses.
     """
     src = os.fspath(path)
     datasets = read_datasets(path, types={58, 164})
-    length, force = unit_factors(src, datasets)
+    units = FileUnits.of(src, datasets)
     functions = [d for d in datasets if d["type"] == 58]
     if not functions:
         raise InputError(f"{src}: no function datasets (58) in the file")
@@ -274,21 +283,14 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
     for d in functions:
         ftype = d.get("func_type")
         if ftype == FUNC_FRF:
-            spec = d.get("ordinate_spec_data_type", 0)
-            per_force = _per_force(src, d)
-            if spec == SPEC_REACTION:
-                f = _read_function(src, d, "reaction")
-                f.y = f.y * _si_factor(f, length, force)
-                reacts.append(f)
-                unknown_units += not per_force
-                continue
-            f = _read_function(src, d, "frf")
-            factor, known = _to_accelerance(src, d, spec, 2 * np.pi * f.x)
-            unknown_units += not (known and per_force)
-            f.y = f.y * factor * _si_factor(f, length, force)
-            frfs.append(f)
+            kind = "reaction" if d.get("ordinate_spec_data_type") == SPEC_REACTION else "frf"
+            f = _read_function(src, d, kind, units)
+            factor, known = units.frf_factor(d, kind, f.x)
+            f.y = f.y * factor
+            unknown_units += not known
+            (reacts if kind == "reaction" else frfs).append(f)
         elif ftype in (FUNC_COHERENCE, FUNC_MULTIPLE_COHERENCE):
-            cohs.append(_read_function(src, d, "coherence"))
+            cohs.append(_read_function(src, d, "coherence", units))
         else:
             skipped += 1
     if not frfs:
@@ -299,8 +301,10 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
                       "coherence", UFFWarning, stacklevel=2)
     if unknown_units:
         warnings.warn(f"{src}: {unknown_units} FRF(s) do not say what the ordinate or the "
-                      "denominator is (specific data type 0/1); taken as acceleration (or "
-                      "reaction force) per force", UFFWarning, stacklevel=2)
+                      "denominator is (specific data type 0/1, no known unit label); taken as "
+                      "acceleration (or reaction force) per force", UFFWarning, stacklevel=2)
+    for message in units.warnings():
+        warnings.warn(message, UFFWarning, stacklevel=2)
 
     _fold_opposite_directions(frfs + cohs + reacts)
     freq, lines = _frequency_grid(src, frfs + cohs + reacts)
@@ -389,7 +393,7 @@ def _merged_order(functions: list[_Function], key: str, group: str,
     return order if len(order) == len(first) else sorted(first, key=first.get)
 
 
-def _read_function(src: str, d: dict, kind: str) -> _Function:
+def _read_function(src: str, d: dict, kind: str, units: FileUnits) -> _Function:
     where = _where(d)
     complex_ = kind != "coherence"
     try:
@@ -410,8 +414,9 @@ def _read_function(src: str, d: dict, kind: str) -> _Function:
         raise InputError(f"{src}: {where}: {x.size} abscissa values for {y.size} data values")
     abscissa = d.get("abscissa_spec_data_type", 0)
     if abscissa not in (0, SPEC_GENERAL, SPEC_FREQUENCY):
-        name = _SPEC_NAMES.get(abscissa, f"type {abscissa}")
+        name = SPEC_NAMES.get(abscissa, f"type {abscissa}")
         raise InputError(f"{src}: {where}: abscissa is {name}, not frequency")
+    x = x * units.abscissa_factor(d)  # in Hz (rad/s, rpm, kHz labels)
     if not np.all(np.isfinite(x)) or np.any(np.diff(x) <= 0):
         raise InputError(f"{src}: {where}: abscissa (frequency) is not finite and strictly "
                          "increasing")
@@ -425,51 +430,6 @@ def _read_function(src: str, d: dict, kind: str) -> _Function:
             y = y.real
         y = y.astype(float)
     return _Function(kind, d["_index"], rsp, ref, x, y)
-
-
-def _per_force(src: str, d: dict) -> bool:
-    """Whether the FRF's denominator is said to be a force (excitation force, 13); False when
-    the file does not say (0, 1). Anything else (per acceleration: a transmissibility; per
-    pressure) is no FRF of the file's kind, and refused."""
-    den = d.get("orddenom_spec_data_type", 0)
-    if den == SPEC_FORCE:
-        return True
-    if den in (0, SPEC_GENERAL):
-        return False
-    name = _SPEC_NAMES.get(den, f"specific data type {den}")
-    raise InputError(f"{src}: {_where(d)}: FRF per {name}; an FRF file holds responses per "
-                     "input force (denominator: excitation force, specific data type 13)")
-
-
-def _si_factor(f: _Function, length: float, force: float) -> float:
-    """Factor from the file's units (dataset 164) to SI for the function's response over its
-    reference: a value in file units divided by its unit's factor is in SI. A translation
-    (or a force, for a reaction) goes with the length (force) factor, a rotation in radians
-    with none, a moment with force x length; a scalar point is taken as a translation."""
-    def rotational(label: str) -> bool:
-        return label.endswith(("RX", "RY", "RZ"))
-
-    if f.kind == "reaction":
-        response = force * length if rotational(f.rsp) else force
-    else:
-        response = 1.0 if rotational(f.rsp) else length
-    reference = force * length if rotational(f.ref) else force
-    return reference / response
-
-
-def _to_accelerance(src: str, d: dict, spec: int, omega: np.ndarray) -> tuple[Any, bool]:
-    """Factor turning the function's ordinate into accelerance, and whether it was known."""
-    if spec == SPEC_ACCELERATION:
-        return 1.0, True
-    if spec == SPEC_VELOCITY:  # mobility: a = j omega v
-        return 1j * omega, True
-    if spec == SPEC_DISPLACEMENT:  # receptance: a = -omega^2 x
-        return -(omega**2), True
-    if spec in (0, SPEC_GENERAL):
-        return 1.0, False
-    name = _SPEC_NAMES.get(spec, f"specific data type {spec}")
-    raise InputError(f"{src}: {_where(d)}: FRF ordinate is {name}; only acceleration, velocity "
-                     "or displacement per force can become an accelerance")
 
 
 def _frequency_grid(src: str, functions: list[_Function]) -> tuple[np.ndarray, list[np.ndarray]]:

@@ -6,7 +6,8 @@ import json
 
 import numpy as np
 import pytest
-from conftest import chain_model, full_frf
+from conftest import chain_frf, chain_model, full_frf
+from test_uff_units import G, labelled_file
 
 from ssid.exchange import read_uff_frf, read_uff_geometry, read_uff_modes
 from ssid.io import read_frf, write_frf, write_model
@@ -113,3 +114,20 @@ def test_labels_without_node_direction_fail_cleanly(tmp_path, ssidlab):
     write_frf(tmp_path / "frf.h5", frf)
     status, _, err = ssidlab("convert", tmp_path / "frf.h5", tmp_path / "out.uff")
     assert status == 2 and "'drive'" in err and err.count("\n") == 1
+
+
+def test_unit_labels_convert_and_warn_in_one_line_each(tmp_path, ssidlab):
+    """A lab file in g per N without a 164 becomes SI in the FRF file; an unknown label is one
+    warning line; a label contradicting its axis is a one-line error, status 2."""
+    frf = chain_frf(n_freq=8)
+    labelled_file(tmp_path / "g.uff", frf, ordinate="g", scale=G, units_164=False)
+    status, _, err = ssidlab("convert", tmp_path / "g.uff", tmp_path / "g.h5")
+    assert status == 0 and err == ""
+    np.testing.assert_allclose(read_frf(tmp_path / "g.h5").H, frf.H, rtol=1e-14)
+    labelled_file(tmp_path / "odd.uff", frf, denominator="poundal")
+    status, _, err = ssidlab("convert", tmp_path / "odd.uff", tmp_path / "odd.h5")
+    assert status == 0 and err.count("\n") == 1 and err.startswith("warning: ")
+    assert "'poundal' not recognised" in err
+    labelled_file(tmp_path / "bad.uff", frf, ordinate="mm/s")
+    status, _, err = ssidlab("convert", tmp_path / "bad.uff", tmp_path / "bad.h5")
+    assert status == 2 and err.count("\n") == 1 and "'mm/s' is a velocity unit" in err

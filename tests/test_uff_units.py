@@ -26,12 +26,15 @@ SCALED_RTOL = 1e-14
 
 
 def labelled_file(path, frf, *, ordinate=None, denominator=None, abscissa=None, scale=1.0,
-                  x_scale=1.0, units_164=True, edit=None):
+                  x_scale=1.0, units_164=True, length=1.0, edit=None):
     """Write ``frf`` as binary 58b (pyuff) with the FRFs' values divided by ``scale`` and their
-    abscissae multiplied by ``x_scale``, the given unit labels, and with or without ssidlab's
-    SI dataset 164; ``edit(d)`` may change each FRF's dictionary further."""
+    abscissae multiplied by ``x_scale``, the given unit labels, and with or without a dataset
+    164 (ssidlab's SI one, or with the length factor ``length``); ``edit(d)`` may change each
+    FRF's dictionary further."""
     datasets = frf_datasets(str(path), frf, binary=True)
-    if not units_164:
+    if units_164:
+        datasets[0]["length"] = length
+    else:
         datasets = [d for d in datasets if d["type"] != 164]
     for d in datasets:
         if d["type"] != 58 or d["func_type"] != 4:
@@ -163,6 +166,22 @@ def test_a_label_that_disagrees_with_the_164_wins_with_one_warning(tmp_path):
     found = [m for m in messages(record) if "disagree with dataset 164" in m]
     assert len(found) == 1 and "'g'" in found[0] and "labels were followed" in found[0]
     assert f"{frf.n_out * frf.n_in} axis unit label(s)" in found[0]
+    np.testing.assert_allclose(back.H, frf.H, rtol=SCALED_RTOL)
+
+
+def test_a_scalar_dof_labelled_as_a_rotation_agrees_with_a_164(tmp_path):
+    """164 in mm: a scalar output labelled rad/s^2 is an angular acceleration, which the 164
+    leaves alone, so it agrees; the translations labelled mm/s^2 agree too. No warning."""
+    frf = chain_frf(n_freq=8)
+    frf.outputs = ["1+Z", "2+Z", "30"]
+    frf.inputs = ["1+Z", "2+Z"]
+
+    def label(d):
+        scalar = d["rsp_dir"] == 0
+        d["ordinate_axis_units_lab"] = "rad/s^2" if scalar else "mm/s^2"
+        d["data"] = d["data"] * (1.0 if scalar else 1e3)
+
+    back = read_quietly(labelled_file(tmp_path / "s.uff", frf, length=1e3, edit=label))
     np.testing.assert_allclose(back.H, frf.H, rtol=SCALED_RTOL)
 
 

@@ -5,7 +5,7 @@ which units: a units label (``g``, ``in/s^2``, ``lbf``, ``rad/s``) and length/fo
 relative to the file's dataset 164. :class:`FileUnits` turns these into the factors that make
 a function an accelerance in SI ((m/s^2)/N, (rad/s^2)/(N m) ...) over an abscissa in Hz.
 
-Rules (the reasons are in ``docs/exchange.md``, "Units"):
+Rules (the reasons are in ``docs/exchange.md``, "Units of other programs' files"):
 
 * a **recognised label** gives its axis's unit outright, whatever a dataset 164 says; where
   the two disagree the label is followed and the file gets one warning;
@@ -173,14 +173,18 @@ class FileUnits:
         self.unrecognised.setdefault(text, d["_index"])
         return None, False
 
-    def _factor_164(self, d: dict, axis: str, spec: int, direction: int, is_force: bool) -> float:
+    def _factor_164(self, d: dict, axis: str, spec: int, direction: int, is_force: bool,
+                    unit: _Unit | None) -> float:
         """The dataset-164 factor of an axis (file units per SI unit). The standard makes the
         length/force exponents relevant for a general or unknown data type and for a scalar
-        DOF; all zero (what most writers put) means "not given"."""
+        DOF; all zero (what most writers put) means "not given". A scalar DOF is a rotation
+        when its label says so, else a translation."""
         exps = [int(d.get(f"{axis}_{q}_unit_exp") or 0) for q in ("len", "force")]
         if (spec in _UNKNOWN or direction == 0) and any(exps):
             return self.length ** exps[0] * self.force ** exps[1]
-        rotation = bool(_rotational(direction))
+        rotation = _rotational(direction)
+        if rotation is None:
+            rotation = unit is not None and unit.rotational
         if is_force:  # a moment is force x length
             return self.force * self.length if rotation else self.force
         return 1.0 if rotation else self.length  # radians take no factor
@@ -190,7 +194,7 @@ class FileUnits:
         """(unit the label names or None, SI per file unit) of the ordinate or denominator."""
         label = d.get(f"{axis}_axis_units_lab")
         unit, wrong_table = self._lookup(d, label, table, other)
-        f164 = self._factor_164(d, axis, spec, direction, table is _FORCE)
+        f164 = self._factor_164(d, axis, spec, direction, table is _FORCE, unit)
         if unit is None:
             return None, 1.0 / f164
         expected = _SPEC_KIND.get(spec)

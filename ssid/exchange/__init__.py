@@ -3,6 +3,7 @@
 * :mod:`ssid.exchange.uff` -- FRFs and coherence as UFF dataset 58 / 58b (pyuff);
 * :mod:`ssid.exchange.uff_modes` -- mode shapes as dataset 55;
 * :mod:`ssid.exchange.uff_geometry` -- units (164) and nodes (2411, 15);
+* :mod:`ssid.exchange.uff_units` -- the units of dataset 58's axes (labels, exponents, 164);
 * :mod:`ssid.exchange.dmig` -- Nastran DMIG bulk-data cards;
 * :mod:`ssid.exchange.labels` -- DOF labels <-> node and direction.
 

@@ -13,10 +13,10 @@ import numpy as np
 
 from .band_scaling import root_shapes, scale_selected_roots, strongest_roots
 from .bands import BandResult, band_layout, default_band_width_hz, process_bands
+from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from .errors import IdentificationError
 from .frf import FRFData
 from .identify import SSIDResult, identify_mck, model_accelerance, model_frf_errors, model_output_error
-from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from .modal import modal_phase_collinearity, physical_checks, real_modes, unit_max_shapes
 from .noise import data_noise_weights
 
@@ -221,10 +221,14 @@ def identify_mck_band_select(
     2. The whole band, and the ``n_refine`` other bands whose best candidate scores best, are
        identified again with the default ``ml`` (costly: O(n^2 p^2) per line). The whole-band
        ``ml`` candidate is :func:`identify_mck`'s default result, so the search can only
-       return a model that is physical where that one is not, or predicts the data better.
+       return a model that is physical where that one is not, predicts the data better, or
+       is the modal model below.
        With ``modal`` (and no reactions), the whole band's band-processed modal model
        (:func:`identify_mck_modal`, solver ``"bands"``) competes too.
-    3. Choice: among candidates whose M, C, K are physical (:func:`result_problems` is 0),
+    3. Choice: the modal model when it is physical (:func:`result_problems` is 0): each
+       of its modes was found in two overlapping bands, evidence no output error gives (a
+       model that bends its modes to absorb those it cannot hold can predict the lines better
+       than the structure itself). Otherwise, among the physical candidates,
        the one with the lowest weighted output error of its M, C, K
        over **all** measured lines, ``sum_kij w_kij^2 |H_kij - H^model_kij|^2`` (Eq. 3.6 solved
        for the accelerance, :func:`model_accelerance`), with ``w = 1/sigma`` the noise
@@ -298,6 +302,16 @@ def identify_mck_band_select(
     if candidates is not None:
         candidates.update({(float(h), s): res for _, h, s, res in cands})
     score, hi, solver, r = min(cands, key=lambda c: c[0])
+    how = "lowest output error over all lines"
+    modal_physical = [c for c in cands if c[2] == "bands" and not c[0][0]]
+    if modal_physical:
+        # Output error cannot tell a model that bends its modes to absorb the ones it cannot
+        # hold from one that holds its modes right: the bent one can predict the lines better
+        # than the structure itself (docs/algorithm.md). The band-processed model's modes carry
+        # evidence the others' lack: each was found again in an overlapping band, with a
+        # collinear shape (section 5.2's criteria), and it holds them exactly.
+        score, hi, solver, r = modal_physical[0]
+        how = "band-processed: every mode it holds was found in two overlapping bands"
     default = [c for c in cands if c[1] == his[0] and c[2] == "ml"]
     if score[0] and default:
         # No physical candidate: a non-physical model that fits the lines better is no
@@ -305,7 +319,7 @@ def identify_mck_band_select(
         score, hi, solver, r = default[0]
     choice = (f"band and solver chosen from the data: {solver} on "
               f"{r.band_hz[0]:g}-{r.band_hz[1]:g} Hz "
-              + ("(physical, lowest output error over all lines)" if not score[0] else
+              + (f"(physical, {how})" if not score[0] else
                  "(no candidate was physical: the default is kept)"))
     r.info["band_select"] = {
         "band_max_hz": float(hi),

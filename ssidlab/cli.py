@@ -197,7 +197,7 @@ def _add_identify(sub: Any) -> None:
     p.add_argument(
         "--select-band", action="store_true",
         help="reduced-order model (more modes in the band than sensors): choose the band and "
-        "solver from the data, a band-processed modal model among the candidates "
+        "solver from the data, the band-processed modal model when it is physical "
         "(docs/algorithm.md); the solver is then chosen too",
     )
     p.add_argument("--quiet", action="store_true", help="do not print the mode table")

@@ -33,6 +33,7 @@ from .noise import (
     roughness_weights,
 )
 from .reciprocity import reciprocity_check
+from .rigid_body import choose_rigid_body_modes
 from .step1 import (
     Step1Data,
     Step1Estimate,
@@ -48,7 +49,7 @@ from .step1_refine import (
     refine_output_error,
     refine_sanathanan_koerner,
 )
-from .step2 import assemble_mck, modal_scale_factors, state_space_modes
+from .step2 import assemble_mck, state_space_modes
 
 __all__ = ["SSIDResult", "identify_mck", "identify_step1", "SOLVERS", "DAMPING_OPTIONS",
            "model_accelerance", "model_frf_errors", "model_output_error"]
@@ -83,6 +84,10 @@ class SSIDResult:
         Mass-normalised real modes of (K, M).
     real_roots : (q,)
         Real (non-oscillatory) state-space roots, rad/s; a clean identification has none.
+    n_rigid_body_modes : int
+        Rigid-body modes of a free-free structure (:mod:`ssid.rigid_body`): K (and C) are
+        singular in their directions by design, and the first ``n_rigid_body_modes`` values
+        of ``undamped_freq_hz`` are 0. They are not among ``natural_freq_hz``.
     band_result : ssid.bands.BandResult or None
         For a band-processed modal model (``solver == "bands"``), the band-processing result
         it was assembled from: every root and its verdict (for
@@ -107,6 +112,7 @@ class SSIDResult:
     checks: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     info: dict = field(default_factory=dict)
+    n_rigid_body_modes: int = 0
     band_result: Any = field(default=None, repr=False)
 
     def to_model(self):
@@ -134,6 +140,7 @@ class SSIDResult:
             if self.real_mode_shapes is None
             else self.real_mode_shapes.tolist(),
             "real_roots_rad_per_s": [float(v) for v in self.real_roots],
+            "n_rigid_body_modes": int(self.n_rigid_body_modes),
             "solver": self.solver,
             "damping_matrix": self.damping,
             "band_hz": [float(self.band_hz[0]), float(self.band_hz[1])],
@@ -261,13 +268,18 @@ def _step2_weights(d: Step1Data, est: Step1Estimate) -> np.ndarray:
 
 
 def _step2(d: Step1Data, est: Step1Estimate, solver: str):
-    """Eq. 3.12, the scale factors (Eq. 3.23) and M, C, K for one step-1 estimate."""
+    """Eq. 3.12, the scale factors (Eq. 3.23) and M, C, K for one step-1 estimate.
+
+    Roots below the lowest line that the data cannot tell from rigid-body modes become
+    rigid-body modes (:mod:`ssid.rigid_body`). Returns (modes, M, C, K, assembly info,
+    rigid-body info).
+    """
     modes = state_space_modes(est.C_hat, est.K_hat)
     if solver == "ml":
         d.weight = _step2_weights(d, est)
-    u = modal_scale_factors(d, modes)
-    M, C, K, asm = assemble_mck(modes, u)
-    return modes, M, C, K, asm
+    modes, fit, rigid = choose_rigid_body_modes(d, est.C_hat, est.K_hat, modes)
+    M, C, K, asm = assemble_mck(modes, fit.u, fit.rigid_inv_mass)
+    return modes, M, C, K, asm, rigid
 
 
 def _choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, zeta: np.ndarray,
@@ -303,6 +315,31 @@ def _choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, z
     chosen = min(cost, key=cost.get)
     return options[chosen], chosen, {"weighted_output_error": cost,
                                      "frf_relative_rms_error": rel, "chosen": chosen}
+
+
+def _rigid_body_note(n_rigid: int, rigid: dict) -> str:
+    """What the result says about the rigid-body modes it holds (``rigid``: the info of
+    :func:`ssid.rigid_body.choose_rigid_body_modes`)."""
+    test = rigid["tests"][n_rigid - 1]
+    f_line = rigid["lowest_line_rad_per_s"] / (2 * np.pi)
+    return (f"{n_rigid} rigid-body mode(s) (free-free structure): K is singular by design, its null space "
+            f"the rigid-body shapes, and C is zero on them; the {2 * n_rigid} roots nearest 0 "
+            f"(|lambda| <= {max(test['roots_abs_rad_per_s']):.3g} rad/s, below the lowest line at "
+            f"{f_line:.4g} Hz) fit the data as well as rigid-body motion does, and are taken as such")
+
+
+def _real_roots_warning(real_roots: np.ndarray, m: int, n: int, n_rigid: int, rigid: dict) -> str:
+    """The warning for real roots; those below the lowest line that failed the rigid-body test
+    are named as what they are: not rigid-body modes, by the data."""
+    said = (f"{real_roots.size} real (non-oscillatory) root(s): the model has {m} oscillatory modes"
+            f"{f' and {n_rigid} rigid-body mode(s)' if n_rigid else ''} for {n} DOFs")
+    tests = rigid.get("tests", []) if rigid else []
+    rejected = tests[n_rigid] if len(tests) > n_rigid else None
+    if rejected is not None:
+        return (f"{said}; the roots nearest 0 (|lambda| <= {max(rejected['roots_abs_rad_per_s']):.3g} rad/s, "
+                "below the lowest line) fit the data significantly better than rigid-body modes "
+                "would (a likelihood-ratio test), so K is not made singular there")
+    return f"{said} (noise or too few modes in the band)"
 
 
 def _hard_problems(modes, M: np.ndarray, K: np.ndarray) -> int:
@@ -413,7 +450,7 @@ def identify_mck(
                     "transducers before trusting the model" for p in reciprocity_check(data) if not p.reciprocal)
 
     step1_weight = d.weight
-    modes, M, C, K, asm = _step2(d, est, solver)
+    modes, M, C, K, asm, rigid = _step2(d, est, solver)
     if solver == "ml" and _hard_problems(modes, M, K):
         # The refinement fits the data best but cannot hold what the data lack (e.g. a
         # reduced-order model with modes outside its reach); a start that is physical wins.
@@ -431,35 +468,42 @@ def identify_mck(
                 best = (name, res)
         info["candidates"] = {k: {"problems": v[0], "output_error": v[1]} for k, v in tried.items()}
         if best is not None:
-            modes, M, C, K, asm = best[1]
+            modes, M, C, K, asm, rigid = best[1]
             info["selected"] = best[0]
             warnings.append(
                 f"the maximum-likelihood refinement gave a non-physical model; the "
                 f"{best[0]} start, with fewer problems, is used instead"
             )
     info.update(asm)
+    if rigid:
+        info["rigid_body"] = rigid
+    n_rigid = modes.n_rigid
 
     m = modes.n_pairs
     wn, zeta = root_frequency_damping(modes.lam[:m])
     shapes = unit_max_shapes(modes.theta_x[:, :m])
     mpc = modal_phase_collinearity(shapes)
     real_roots = modes.lam[2 * m :].real
+    if n_rigid:
+        warnings.append(_rigid_body_note(n_rigid, rigid))
     if real_roots.size:
-        warnings.append(
-            f"{real_roots.size} real (non-oscillatory) root(s): the model has "
-            f"{m} oscillatory modes for {d.n} DOFs (noise or too few modes in the band)"
-        )
+        warnings.append(_real_roots_warning(real_roots, m, d.n, n_rigid, rigid))
 
     try:
         wu, phi = real_modes(M, K)
         undamped = wu / (2 * np.pi)
+        # K is singular by design in the rigid-body directions; eig(K, M) there is round-off.
+        undamped[np.argsort(np.abs(wu))[:n_rigid]] = 0.0
     except np.linalg.LinAlgError:
         undamped, phi = np.full(d.n, np.nan), None
     w = data_noise_weights(data)  # one estimate for the damping choice and the fit checks
-    C, damping, info["damping_choice"] = _choose_damping(data, M, C, K, zeta, damping,
+    # The modal C takes the ratios in the order of eig(K, M), whose first r are rigid (0 Hz).
+    zeta_all = np.concatenate([np.zeros(n_rigid), zeta])
+    C, damping, info["damping_choice"] = _choose_damping(data, M, C, K, zeta_all, damping,
                                                          phi is not None, w)
     checks, chk_warn = physical_checks(M, C, K, zeta)
     checks.update({k: v for k, v in asm.items()})
+    checks["n_rigid_body_modes"] = n_rigid
     checks["frf_relative_rms_error"] = info["damping_choice"]["frf_relative_rms_error"][damping]
     warnings.extend(chk_warn)
     noise = relative_noise_level(data, w)
@@ -478,6 +522,7 @@ def identify_mck(
         undamped_freq_hz=undamped,
         real_mode_shapes=phi,
         real_roots=real_roots,
+        n_rigid_body_modes=n_rigid,
         solver=solver,
         damping=damping,
         band_hz=(float(data.freq_hz[0]), float(data.freq_hz[-1])),

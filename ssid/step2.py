@@ -26,7 +26,8 @@ import numpy as np
 from .errors import IdentificationError
 from .step1 import Step1Data
 
-__all__ = ["StateSpaceModes", "state_space_modes", "modal_scale_factors", "assemble_mck"]
+__all__ = ["StateSpaceModes", "ScaleFactors", "state_space_modes", "fit_scale_factors", "modal_scale_factors",
+           "assemble_mck"]
 
 
 @dataclass
@@ -42,15 +43,26 @@ class StateSpaceModes:
         Eigenvectors ``[phi; lambda phi]``, columns in the order of ``lam``.
     n_pairs : int
         Number of complex-conjugate pairs.
+    rigid_shapes : (n, r) float or None
+        Rigid-body modes (free-free structure, :mod:`ssid.rigid_body`), orthonormal columns:
+        each is a double root at ``lambda = 0`` with one eigenvector ``[phi; 0]`` and one
+        principal vector ``[0; phi]`` (a Jordan block, which no eigenvector basis holds), and
+        is not among ``lam``, ``theta``. None: no rigid-body modes.
     """
 
     lam: np.ndarray
     theta: np.ndarray
     n_pairs: int
+    rigid_shapes: np.ndarray | None = None
 
     @property
     def n(self) -> int:
         return self.theta.shape[0] // 2
+
+    @property
+    def n_rigid(self) -> int:
+        """Number of rigid-body modes ``r``."""
+        return 0 if self.rigid_shapes is None else self.rigid_shapes.shape[1]
 
     @property
     def theta_x(self) -> np.ndarray:
@@ -101,52 +113,45 @@ def _factor_weights(w2: np.ndarray, max_terms: int = 4) -> list[tuple[np.ndarray
     return [(U[:, t] * s[t], Vt[t]) for t in range(rank)]
 
 
-def modal_scale_factors(d: Step1Data, modes: StateSpaceModes) -> np.ndarray:
-    """Weighted least-squares estimate of ``1/a~_r`` from Eq. 3.23.
+@dataclass
+class ScaleFactors:
+    """The fit of Eq. 3.23: modal scale factors and, for rigid-body modes, their mass line.
 
-    Parameters
+    Attributes
     ----------
-    d : Step1Data
-        Measured accelerances ``H`` (L, n, n_in), reactions ``Hr`` and weights ``1/sigma``.
-    modes : StateSpaceModes
+    u : (q,) complex
+        ``1/a~_r`` for the roots ``modes.lam``; a conjugate root's is its partner's conjugate.
+    rigid_inv_mass : (r, r) float
+        ``(Phi0^T M Phi0)^-1`` for the rigid-body shapes ``Phi0`` (``modes.rigid_shapes``):
+        their accelerance is the mass line ``Phi0 rigid_inv_mass Phi0^T``, constant in
+        frequency. (0, 0) without rigid-body modes.
+    cost : float or None
+        Weighted residual ``sum w^2 |H - H_fit|^2`` of the fit (``with_cost``), else None.
+    """
+
+    u: np.ndarray
+    rigid_inv_mass: np.ndarray
+    cost: float | None = None
+
+
+def _fit_terms(modes: StateSpaceModes, n_families: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The terms of the fitted accelerance and their real parametrisation.
+
+    The model is ``H_kj = sum_t c_t basis[:, i_t] P[kj, j_t]``: one term ``(r, r)`` per root,
+    and for the rigid-body shapes (basis columns ``ns + a``) ``n_families`` symmetric families
+    ``Phi0 G_f Phi0^T`` times the family's frequency factor (P columns ``ns + f r + b``), with
+    terms ``(a, b)``. ``c = T v`` with ``v`` real: a conjugate pair shares (Re, Im), a real root
+    has a real factor, ``G_f[a, b] = G_f[b, a]`` is one real unknown.
 
     Returns
     -------
-    u : (2n,) complex
-        ``1/a~_r``, with ``u`` of a conjugate mode equal to the conjugate of its partner's.
+    (i_t, j_t, T): (n_terms,) int twice and (n_terms, n_unknowns) complex.
     """
-    theta_x = modes.theta_x
-    n, ns = theta_x.shape
-    lam = modes.lam
-    w = d.omega[:, None]
-    R = -(w**2) / (1j * w - lam[None, :])  # Eq. 3.19, (L, ns)
-    # q_kjr = theta_r^T (D_f e_j + D_r h_r,kj) of Eq. 3.24, (L, n_in, ns)
-    q = np.broadcast_to(theta_x[d.in_idx][None], (d.omega.size, d.n_in, ns))
-    if d.n_r:
-        q = q + np.einsum("mr,kmj->kjr", theta_x[d.r_idx], d.Hr)
-    P = (R[:, None, :] * q).reshape(-1, ns)  # rows (k, j)
-    Hkj = np.swapaxes(d.H, 1, 2).reshape(-1, n)  # (L n_in, n)
-    w2 = (np.swapaxes(d.weight, 1, 2) ** 2).reshape(-1, n)
-
-    # Right-hand side: sum_kj conj(P_kjr) (theta_x^H (w^2 o h_kj))_r
-    rhs = np.sum(P.conj() * ((w2 * Hkj) @ theta_x.conj()), axis=0)
-    terms = _factor_weights(w2)
-    if terms is not None:
-        N = np.zeros((ns, ns), dtype=complex)
-        for a, b in terms:
-            N += (theta_x.conj().T @ (b[:, None] * theta_x)) * (P.conj().T @ (a[:, None] * P))
-    else:
-        N = np.zeros((ns, ns), dtype=complex)
-        chunk = max(1, 2**20 // (n * ns))
-        for s in range(0, P.shape[0], chunk):
-            Y = P[s : s + chunk, None, :] * theta_x[None, :, :]  # (c, n, ns)
-            Yw = Y * np.sqrt(w2[s : s + chunk])[:, :, None]
-            Y2 = Yw.reshape(-1, ns)
-            N += Y2.conj().T @ Y2
-
-    # Real parametrisation u = T v: a pair shares (Re, Im); a real root has a real factor.
+    ns = modes.lam.size
+    r = modes.n_rigid
     m = modes.n_pairs
-    T = np.zeros((ns, ns), dtype=complex)
+    n_sym = r * (r + 1) // 2
+    T = np.zeros((ns + n_families * r * r, ns + n_families * n_sym), dtype=complex)
     i = np.arange(m)
     T[i, i] = 1.0
     T[i, m + i] = 1j
@@ -154,6 +159,91 @@ def modal_scale_factors(d: Step1Data, modes: StateSpaceModes) -> np.ndarray:
     T[m + i, m + i] = -1j
     j = np.arange(2 * m, ns)
     T[j, j] = 1.0
+    a, b = np.divmod(np.arange(r * r), r)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    # Unknown G_f[lo, hi] in the upper-triangle order of np.triu_indices(r).
+    tri = lo * r - lo * (lo - 1) // 2 + (hi - lo)
+    it, jt = [np.arange(ns)], [np.arange(ns)]
+    for f in range(n_families):
+        T[ns + f * r * r + np.arange(r * r), ns + f * n_sym + tri] = 1.0
+        it.append(ns + a)
+        jt.append(ns + f * r + b)
+    return np.concatenate(it), np.concatenate(jt), T
+
+
+def fit_scale_factors(d: Step1Data, modes: StateSpaceModes, with_cost: bool = False,
+                      rigid_stiffness_test: bool = False) -> ScaleFactors:
+    """Weighted least-squares estimate of ``1/a~_r`` from Eq. 3.23, and of the rigid-body
+    modes' mass line when ``modes`` has rigid-body shapes.
+
+    A rigid-body mode (a double root at 0 with eigenvector ``[phi; 0]`` and principal vector
+    ``[0; phi]``) adds ``phi phi^T / (phi^T M phi)`` to the accelerance at every line: the
+    mass line. For several, ``Phi0 (Phi0^T M Phi0)^-1 Phi0^T``, whose symmetric ``r x r``
+    middle factor is fitted with the scale factors (it is linear in the data, as they are).
+
+    Parameters
+    ----------
+    d : Step1Data
+        Measured accelerances ``H`` (L, n, n_in), reactions ``Hr`` and weights ``1/sigma``.
+    modes : StateSpaceModes
+    with_cost : bool
+        Also return the weighted residual of the fit (``ScaleFactors.cost``).
+    rigid_stiffness_test : bool
+        Fit the rigid-body shapes' accelerance to first order in a stiffness ``Kr`` and a
+        damping ``Cr`` between them and the ground instead of as a pure mass line:
+        ``Phi0 (Mr - Kr / w^2 + Cr / (j w))^-1 Phi0^T`` is, to first order,
+        ``Phi0 (G + S_K / w^2 + j S_C / w) Phi0^T`` with ``S_K = G Kr G``, ``S_C = G Cr G``
+        symmetric: ``r (r + 1)`` more unknowns, linear as the others. Its residual is what
+        :func:`ssid.rigid_body.choose_rigid_body_modes` tests the mass line alone against.
+
+    Returns
+    -------
+    ScaleFactors
+    """
+    theta_x = modes.theta_x
+    n, ns = theta_x.shape
+    r = modes.n_rigid
+    basis = theta_x if r == 0 else np.hstack([theta_x, modes.rigid_shapes])  # (n, ns + r)
+    nb = basis.shape[1]
+    lam = modes.lam
+    w = d.omega[:, None]
+    R = -(w**2) / (1j * w - lam[None, :])  # Eq. 3.19, (L, ns)
+    n_families = 3 if rigid_stiffness_test else 1
+    if r:
+        # The mass line is constant; the stiffness and damping terms of the test go as
+        # 1/w^2 and j/w (see rigid_stiffness_test).
+        factors = [np.ones(d.omega.size), 1.0 / d.omega**2, 1j / d.omega][:n_families]
+        R = np.hstack([R] + [np.repeat(f[:, None], r, axis=1) for f in factors])
+    # q_kjr = theta_r^T (D_f e_j + D_r h_r,kj) of Eq. 3.24, (L, n_in, nb)
+    q = np.broadcast_to(basis[d.in_idx][None], (d.omega.size, d.n_in, nb))
+    if d.n_r:
+        q = q + np.einsum("mr,kmj->kjr", basis[d.r_idx], d.Hr)
+    if r:
+        q = np.concatenate([q] + [q[:, :, ns:]] * (n_families - 1), axis=2)
+    P = (R[:, None, :] * q).reshape(-1, R.shape[1])  # rows (k, j)
+    Hkj = np.swapaxes(d.H, 1, 2).reshape(-1, n)  # (L n_in, n)
+    w2 = (np.swapaxes(d.weight, 1, 2) ** 2).reshape(-1, n)
+    it, jt, T = _fit_terms(modes, n_families)
+    # One column per term: the roots' alone are the report's Eq. 3.23, left as they were.
+    Bt, Pt = (basis, P) if r == 0 else (basis[:, it], P[:, jt])  # (n, nt), (L n_in, nt)
+    nt = it.size
+
+    # Right-hand side: sum_kj conj(Pt_kj,t) (Bt^H (w^2 o h_kj))_t
+    rhs = np.sum(Pt.conj() * ((w2 * Hkj) @ Bt.conj()), axis=0)
+    terms = _factor_weights(w2)
+    if terms is not None:
+        N = np.zeros((nt, nt), dtype=complex)
+        for a, b in terms:
+            N += (Bt.conj().T @ (b[:, None] * Bt)) * (Pt.conj().T @ (a[:, None] * Pt))
+    else:
+        N = np.zeros((nt, nt), dtype=complex)
+        chunk = max(1, 2**20 // (n * nt))
+        for s in range(0, Pt.shape[0], chunk):
+            Y = Pt[s : s + chunk, None, :] * Bt[None, :, :]  # (c, n, nt)
+            Yw = Y * np.sqrt(w2[s : s + chunk])[:, :, None]
+            Y2 = Yw.reshape(-1, nt)
+            N += Y2.conj().T @ Y2
+
     Nr = (T.conj().T @ N @ T).real
     br = (T.conj().T @ rhs).real
     s = np.sqrt(np.abs(np.diag(Nr)))
@@ -162,37 +252,97 @@ def modal_scale_factors(d: Step1Data, modes: StateSpaceModes) -> np.ndarray:
             "a mode has no valid data to fix its scale (Eq. 3.23): widen the band or add lines"
         )
     v = np.linalg.lstsq(Nr / s[:, None] / s[None, :], br / s, rcond=None)[0] / s
-    return T @ v
+    c = T @ v
+    cost = None
+    if with_cost:
+        fitted = (Pt * c) @ Bt.T  # (L n_in, n)
+        cost = float(np.sum(w2 * np.abs(Hkj - fitted) ** 2))
+    return ScaleFactors(u=c[:ns], rigid_inv_mass=c[ns : ns + r * r].real.reshape(r, r), cost=cost)
+
+
+def modal_scale_factors(d: Step1Data, modes: StateSpaceModes) -> np.ndarray:
+    """``1/a~_r`` of Eq. 3.23 (:func:`fit_scale_factors`), (q,) complex, for modes without
+    rigid-body shapes."""
+    return fit_scale_factors(d, modes).u
 
 
 def assemble_mck(
-    modes: StateSpaceModes, u: np.ndarray
+    modes: StateSpaceModes, u: np.ndarray, rigid_inv_mass: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """Rebuild M, C, K from the modes and their scale factors (Eqs. 3.25-3.26, 3.15).
+
+    Parameters
+    ----------
+    modes : StateSpaceModes
+    u : (q,) complex
+        ``1/a~_r`` of the roots ``modes.lam``.
+    rigid_inv_mass : (r, r) float, optional
+        For ``modes.rigid_shapes`` ``Phi0``: ``(Phi0^T M Phi0)^-1`` (:class:`ScaleFactors`).
 
     Returns
     -------
     (M, C, K, info): ``info`` holds the relative imaginary residue of A_s, B_s and the relative
-    disagreement between the three copies of M in A_s and B_s (both ~0 for a consistent fit).
+    disagreement between the three copies of M in A_s and B_s (both ~0 for a consistent fit);
+    with rigid-body modes also ``rigid_damping_removed``, the relative part of C taken out to
+    make ``C Phi0 = 0`` (of the order of that disagreement).
+
+    Notes
+    -----
+    Rigid-body modes enter Eq. 3.26 as Jordan blocks: with ``V0 = [[Phi0, 0], [0, Phi0]]``
+    (eigenvectors ``[Phi0; 0]``, principal vectors ``[0; Phi0]``) and ``Mr = Phi0^T M Phi0``,
+    the structure of A_s, B_s (Eq. 3.15) with ``K Phi0 = 0``, ``C Phi0 = 0`` gives
+    ``V0^T A_s V0 = [[0, Mr], [Mr, 0]]`` and ``V0^T B_s V0 = [[0, 0], [0, -Mr]]``, and both are
+    orthogonal to the other modes. ``Theta = [theta, V0]`` then stays well conditioned where
+    the eigenvectors of a (nearly) defective double root at 0 are (nearly) parallel.
     """
     n = modes.n
     if np.any(u == 0) or not np.all(np.isfinite(u)):
         raise IdentificationError("a modal scale factor 1/a~_r is zero or not finite (Eq. 3.23)")
     a = 1.0 / u
     b = -modes.lam * a  # Eq. 3.25
-    Ti = np.linalg.inv(modes.theta)
-    As = Ti.T @ (a[:, None] * Ti)  # Eq. 3.26
-    Bs = Ti.T @ (b[:, None] * Ti)
+    r = modes.n_rigid
+    if r == 0:
+        Ti = np.linalg.inv(modes.theta)
+        As = Ti.T @ (a[:, None] * Ti)  # Eq. 3.26
+        Bs = Ti.T @ (b[:, None] * Ti)
+    else:
+        G = np.asarray(rigid_inv_mass, dtype=float)
+        if G.shape != (r, r) or not np.all(np.isfinite(G)) or np.linalg.cond(G) > 1e14:
+            raise IdentificationError("the rigid-body modes' mass line is singular or not finite (Eq. 3.23)")
+        Mr = np.linalg.inv((G + G.T) / 2)
+        Phi0, Z = modes.rigid_shapes, np.zeros((n, r))
+        Ti = np.linalg.inv(np.hstack([modes.theta, np.block([[Phi0, Z], [Z, Phi0]])]))
+        q = a.size
+        Ablk = np.zeros((q + 2 * r, q + 2 * r), dtype=complex)
+        Bblk = np.zeros_like(Ablk)
+        Ablk[:q, :q] = np.diag(a)
+        Bblk[:q, :q] = np.diag(b)
+        Ablk[q : q + r, q + r :] = Mr
+        Ablk[q + r :, q : q + r] = Mr
+        Bblk[q + r :, q + r :] = -Mr
+        As = Ti.T @ Ablk @ Ti
+        Bs = Ti.T @ Bblk @ Ti
     M = -Bs[n:, n:].real
     C = As[:n, :n].real
     K = Bs[:n, :n].real
     scale = max(np.abs(As).max(), np.abs(Bs).max())
+    extra = {}
+    if r:
+        # K Phi0 = 0 holds exactly (B_s V0 has no column there); C Phi0 = 0 only as far as the
+        # fit is one second-order system (as the copies of M agree). Projecting C onto the
+        # motions M-orthogonal to Phi0 makes it hold and leaves the damping of those motions,
+        # the elastic modes', as it was.
+        C_full = C
+        Pm = np.eye(n) - Phi0 @ np.linalg.solve(Phi0.T @ M @ Phi0, Phi0.T @ M)
+        C = Pm.T @ C @ Pm
+        extra["rigid_damping_removed"] = float(np.linalg.norm(C_full - C) / max(np.linalg.norm(C_full), 1e-300))
     info = {
         "imag_residue": float(max(np.abs(As.imag).max(), np.abs(Bs.imag).max()) / scale),
         "mass_copies_mismatch": float(
             max(np.abs(As[:n, n:].real - M).max(), np.abs(As[n:, :n].real - M).max())
             / max(np.abs(M).max(), 1e-300)
         ),
+        **extra,
     }
     # A_s and B_s are symmetric by construction; remove rounding asymmetry only.
     return (M + M.T) / 2, (C + C.T) / 2, (K + K.T) / 2, info

@@ -320,7 +320,7 @@ def _choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, z
 def _rigid_body_note(n_rigid: int, rigid: dict) -> str:
     """What the result says about the rigid-body modes it holds (``rigid``: the info of
     :func:`ssid.rigid_body.choose_rigid_body_modes`)."""
-    test = rigid["tests"][n_rigid - 1]
+    test = next(t for t in rigid["tests"] if t["n_rigid_body_modes"] == n_rigid)
     f_line = rigid["lowest_line_rad_per_s"] / (2 * np.pi)
     return (f"{n_rigid} rigid-body mode(s) (free-free structure): K is singular by design, its null space "
             f"the rigid-body shapes, and C is zero on them; the {2 * n_rigid} roots nearest 0 "
@@ -334,7 +334,7 @@ def _real_roots_warning(real_roots: np.ndarray, m: int, n: int, n_rigid: int, ri
     said = (f"{real_roots.size} real (non-oscillatory) root(s): the model has {m} oscillatory modes"
             f"{f' and {n_rigid} rigid-body mode(s)' if n_rigid else ''} for {n} DOFs")
     tests = rigid.get("tests", []) if rigid else []
-    rejected = tests[n_rigid] if len(tests) > n_rigid else None
+    rejected = tests[-1] if tests and tests[-1]["n_rigid_body_modes"] > n_rigid else None
     if rejected is not None:
         return (f"{said}; the roots nearest 0 (|lambda| <= {max(rejected['roots_abs_rad_per_s']):.3g} rad/s, "
                 "below the lowest line) fit the data significantly better than rigid-body modes "

@@ -141,12 +141,12 @@ def choose_rigid_body_modes(
     for cluster in clusters:
         cand = with_rigid_body_modes(modes, C_hat, K_hat, cluster)
         if cand is None:
-            break
+            continue
         try:
             fit = fit_scale_factors(d, cand, with_cost=True)
             soft = fit_scale_factors(d, cand, with_cost=True, rigid_stiffness_test=True)
         except IdentificationError:
-            break
+            continue
         r = cand.n_rigid
         # The residual per value estimates the noise's level relative to the weights (1 when
         # they are right; above 1 with model error): the chi2 of the test is scaled by it.
@@ -155,9 +155,11 @@ def choose_rigid_body_modes(
         tests.append({"n_rigid_body_modes": r, "weighted_residual": fit.cost,
                       "weighted_residual_with_stiffness": soft.cost, "limit": float(limit),
                       "roots_abs_rad_per_s": np.sort(np.abs(modes.lam[cluster])).tolist()})
-        if not fit.cost <= limit:
-            break
-        chosen = (cand, fit)
+        # Every candidate is tested and the most rigid-body modes that pass are kept: with
+        # fewer than the structure has, the others stay as (nearly) defective roots, whose
+        # ill-conditioned fit can fail the test for the modes taken.
+        if fit.cost <= limit:
+            chosen = (cand, fit)
     if chosen[1] is None:
         chosen = (modes, fit_scale_factors(d, modes))
     info = {"n_rigid_body_modes": chosen[0].n_rigid, "lowest_line_rad_per_s": float(np.min(d.omega)),

@@ -270,13 +270,18 @@ def _check_band(source: str, frf, f_min: float | None, f_max: float | None) -> N
 def _mode_table(summary: dict) -> str:
     """The roots (step 1) and, beside them, the undamped frequencies of the written M, K: the
     two agree for a full-order fit and may not for a reduced-order one (a free test), whose
-    M, K are step 2's fit to those roots."""
+    M, K are step 2's fit to those roots. Rigid-body modes (``R1``...) head the table."""
     freqs = summary.get("natural_freq_hz", [])
     zetas = summary.get("damping_ratio", [])
     undamped = summary.get("undamped_freq_hz", [])
+    # A free-free model's rigid-body modes come first in eig(K, M) (at 0 Hz) and have no
+    # root among the modes: they get their own rows, and the modes pair with the rest.
+    n_rigid = int(summary.get("n_rigid_body_modes") or 0)
     lines = [f"{'mode':>4}  {'f_n [Hz]':>12}  {'damping [%]':>11}  {'M,K f [Hz]':>12}"]
+    lines += [f"{f'R{k}':>4}  {'rigid body':>12}  {'-':>11}  {_fmt(0.0, 1.0, '.4f'):>12}"
+              for k in range(1, n_rigid + 1)]
     for k, (f_n, zeta) in enumerate(zip(freqs, zetas), start=1):
-        f_mk = undamped[k - 1] if k <= len(undamped) else None
+        f_mk = undamped[n_rigid + k - 1] if n_rigid + k <= len(undamped) else None
         lines.append(f"{k:>4}  {_fmt(f_n, 1.0, '.4f'):>12}  {_fmt(zeta, 100.0, '.3f'):>11}  "
                      f"{_fmt(f_mk, 1.0, '.4f'):>12}")
     return "\n".join(lines)

@@ -263,9 +263,10 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   band-processing roots by hand in section 4), it holds every target (`FE targets first`)
   on noise-free data, and under the report's noise at 16 DOFs too. Its worst errors are the
   suspension modes', whose half-power bands are narrower than the line spacing (section 4),
-  so the lines hardly determine them: 0.84 % in frequency (1.29 Hz, seed 3) and 3.0 % in
-  damping (6.2 Hz, seed 1). Rounding moves them: with the refinement's normal equations
-  solved by LU the row read 0.32 % / 13.5 %, and the 1.29 Hz mode's damping was 47 % off on
+  so the lines hardly determine them: 2.5 % in frequency and 10.9 % in damping (both the
+  1.29 Hz mode, seed 1). Rounding moves them: on the machine of the previous run the row
+  read 0.84 % (1.29 Hz, seed 3) / 3.0 % (6.2 Hz, seed 1), with the refinement's normal
+  equations solved by LU 0.32 % / 13.5 %, and the 1.29 Hz mode's damping was 47 % off on
   seed 1 with two BLAS threads.
   Band processing lost that mode on seed 3 of the 12-DOF `bands` row (as 650 Hz) until a
   low-edge band gave it a third estimate (section 4); the row now holds all 12 targets.
@@ -283,6 +284,11 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   1-300 Hz: one thread 2.1 % / 15 %, a non-physical refinement replaced by its TLS start;
   two threads 2.1 % / 3.1 %), and so did summing the refinement's normal equations over
   their upper triangles and solving them by Cholesky instead of LU, which change nothing but
-  rounding (the same row, one thread, now 2.2 % / 3.1 % from a physical refinement). This
-  bench runs its cases two at a time with one BLAS thread each.
+  rounding (the same row, one thread, now 2.2 % / 3.1 % from a physical refinement). So
+  does the machine: regenerated on another one (same code, a fresh install of the same
+  version ranges), section 3's 10-DOF 1-300 Hz `ml` row went from 0.59 / 27 % to 3.9 / 142 %
+  (three targets missed on both), the 12-DOF `bands` row (as 650 Hz) from 0.58 / 6.6 % to
+  0.30 / 7.2 % and the 16-DOF one from 0.84 / 3.0 % to 2.5 / 10.9 %, and section 4's noisy
+  cells; the noise-free rows moved in their last digits only. This bench runs its cases two
+  at a time with one BLAS thread each.
 """

@@ -224,7 +224,7 @@ def identify_mck_band_select(
        return a model that is physical where that one is not, predicts the data better, or
        is the modal model below.
        With ``modal`` (and no reactions), the whole band's band-processed modal model
-       (:func:`identify_mck_modal`, solver ``"bands"``) competes too.
+       (:func:`identify_mck_modal`, solver ``"bands"``) is a candidate too.
     3. Choice: the modal model when it is physical (:func:`result_problems` is 0): each
        of its modes was found in two overlapping bands, evidence no output error gives (a
        model that bends its modes to absorb those it cannot hold can predict the lines better

@@ -74,7 +74,6 @@ def modbus_log_held_back() -> Iterator[None]:
 
 
 @dataclass(frozen=True)
-
 class AmpStatus:
     """One reading of the amplifier's status registers (SI units)."""
 

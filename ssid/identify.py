@@ -26,12 +26,7 @@ from .modal import (
     root_frequency_damping,
     unit_max_shapes,
 )
-from .noise import (
-    data_noise_weights,
-    fit_additive_proportional,
-    frf_noise_weights,
-    roughness_weights,
-)
+from .noise import data_noise_weights, fit_additive_proportional, frf_noise_weights, roughness_weights
 from .reciprocity import reciprocity_check
 from .rigid_body import choose_rigid_body_modes
 from .step1 import (

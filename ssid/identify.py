@@ -498,7 +498,6 @@ def identify_mck(
                                                          phi is not None, w)
     checks, chk_warn = physical_checks(M, C, K, zeta)
     checks.update({k: v for k, v in asm.items()})
-    checks["n_rigid_body_modes"] = n_rigid
     checks["frf_relative_rms_error"] = info["damping_choice"]["frf_relative_rms_error"][damping]
     warnings.extend(chk_warn)
     noise = relative_noise_level(data, w)

@@ -272,9 +272,10 @@ def _step2(d: Step1Data, est: Step1Estimate, solver: str):
     modes = state_space_modes(est.C_hat, est.K_hat)
     if solver == "ml":
         d.weight = _step2_weights(d, est)
-    modes, fit, rigid = choose_rigid_body_modes(d, est.C_hat, est.K_hat, modes)
-    M, C, K, asm = assemble_mck(modes, fit.u, fit.rigid_inv_mass)
-    return modes, M, C, K, asm, rigid
+    used, fit, rigid = choose_rigid_body_modes(d, est.C_hat, est.K_hat, modes)
+    M, C, K, asm = assemble_mck(used, fit.u, fit.rigid_inv_mass)
+    # Near-rigid roots are assembled as one block but are step 1's roots, reported as such.
+    return (modes if used.near_rigid_kc is not None else used), M, C, K, asm, rigid
 
 
 def _choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, zeta: np.ndarray,

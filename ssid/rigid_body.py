@@ -26,6 +26,17 @@ increase under the rigid-body model, when that model is true, is ``chi2_q / 2`` 
 rigid-body modes set to zero), scaled by the residual's own level (the weights are estimates).
 A suspension mode the lines resolve (a grounded structure with a mode below the band,
 noise-free) fails the test and is kept as it is.
+
+Near-rigid roots. Roots the test keeps (K not singular there) can be as nearly defective as
+rigid-body modes: noise-free data of a free-free structure synthesised in floating point have a
+rounding-level stiffness on the rigid-body shapes that the lines, exact to 1e-12, do show
+(free-free beam, 2 rigid-body modes: roots near 1e-4 rad/s against a first line of 126 rad/s).
+Through their eigenvectors Eq. 3.26 then loses M (7 times off from the maximum-likelihood fit,
+1e9 times from total least squares). So the same shapes also enter step 2 as one block with the
+stiffness and damping step 1 gives them (:class:`ssid.step2.StateSpaceModes`,
+``near_rigid_kc``), and of the two assemblies, through the eigenvectors or through the block,
+the one whose written M, C, K reproduce the data better is kept: the eigenvectors where they
+are well conditioned (a suspension mode the lines resolve), the block where they are not.
 """
 
 from __future__ import annotations
@@ -35,10 +46,12 @@ import scipy.linalg as sla
 from scipy.stats import chi2
 
 from .errors import IdentificationError
-from .step1 import Step1Data
-from .step2 import ScaleFactors, StateSpaceModes, fit_scale_factors
+from .step1 import Step1Data, Step1Estimate
+from .step1_refine import output_error_cost
+from .step2 import ScaleFactors, StateSpaceModes, assemble_mck, fit_scale_factors
 
-__all__ = ["RIGID_BODY_SIGNIFICANCE", "rigid_body_clusters", "with_rigid_body_modes", "choose_rigid_body_modes"]
+__all__ = ["RIGID_BODY_SIGNIFICANCE", "rigid_body_clusters", "with_rigid_body_modes", "near_rigid_modes",
+           "written_output_error", "choose_rigid_body_modes"]
 
 #: Significance level of the likelihood-ratio test: roots below the band are kept as they are
 #: (K not singular there) only when the data contradict rigid-body modes at this level.
@@ -98,7 +111,12 @@ def with_rigid_body_modes(modes: StateSpaceModes, C_hat: np.ndarray, K_hat: np.n
     hi = float(lam_abs[cluster].max())
     tau = hi + 0.5 * (float(lam_abs[rest].min()) - hi) if rest.size else np.inf
     comp = np.block([[np.zeros((n, n)), np.eye(n)], [-K_hat, -C_hat]])
-    _, Z, sdim = sla.schur(comp, output="real", sort=lambda re, im: np.hypot(re, im) < tau)
+    try:
+        _, Z, sdim = sla.schur(comp, output="real", sort=lambda re, im: np.hypot(re, im) < tau)
+    except np.linalg.LinAlgError:
+        # Reordering moved roots across tau: the cluster is not separated from the next root
+        # by more than rounding (roots within round-off of a defective double root at 0).
+        return None
     if sdim != r2:
         return None
     U = np.linalg.svd(Z[:n, :r2], full_matrices=False)[0]
@@ -108,6 +126,27 @@ def with_rigid_body_modes(modes: StateSpaceModes, C_hat: np.ndarray, K_hat: np.n
     keep = np.concatenate([keep_pairs, keep_pairs + modes.n_pairs, keep_real])
     return StateSpaceModes(lam=modes.lam[keep], theta=modes.theta[:, keep], n_pairs=int(keep_pairs.size),
                            rigid_shapes=phi0)
+
+
+def near_rigid_modes(rigid: StateSpaceModes, C_hat: np.ndarray, K_hat: np.ndarray) -> StateSpaceModes:
+    """``rigid`` (from :func:`with_rigid_body_modes`) with its shapes ``Phi0`` taken as near-rigid:
+    their block keeps step 1's stiffness and damping per unit mass ``Phi0^T K^ Phi0``,
+    ``Phi0^T C^ Phi0`` instead of zero."""
+    phi0 = rigid.rigid_shapes
+    return StateSpaceModes(lam=rigid.lam, theta=rigid.theta, n_pairs=rigid.n_pairs, rigid_shapes=phi0,
+                           near_rigid_kc=(phi0.T @ K_hat @ phi0, phi0.T @ C_hat @ phi0))
+
+
+def written_output_error(d: Step1Data, modes: StateSpaceModes, fit: ScaleFactors) -> float:
+    """Weighted output error ``sum w^2 |H - H_model|^2`` of the M, C, K that Eq. 3.26 writes from
+    ``modes`` and ``fit`` (inf when they cannot be written or M is singular)."""
+    try:
+        M, C, K, _ = assemble_mck(modes, fit.u, fit.rigid_inv_mass)
+        M_inv = np.linalg.inv(M)
+    except (IdentificationError, np.linalg.LinAlgError):
+        return np.inf
+    # The step-1 form of the written model: M^-1 C, M^-1 K and the forces' M^-1 D_f, M^-1 D_r.
+    return output_error_cost(d, Step1Estimate(M_inv @ C, M_inv @ K, M_inv[:, d.in_idx], M_inv[:, d.r_idx]))
 
 
 def choose_rigid_body_modes(
@@ -169,8 +208,24 @@ def choose_rigid_body_modes(
         # ill-conditioned fit can fail the test for the modes taken.
         if fit.cost <= limit:
             chosen = (cand, fit)
-    if chosen[1] is None:
-        chosen = (modes, fit_scale_factors(d, modes))
     info = {"n_rigid_body_modes": chosen[0].n_rigid, "lowest_line_rad_per_s": float(np.min(d.omega)),
             "tests": tests}
+    if chosen[1] is None:
+        chosen = (modes, fit_scale_factors(d, modes))
+        if fits:
+            # Not rigid: through the eigenvectors, or as one near-rigid block on the shapes of
+            # every root below the lowest line (the largest cluster), whichever writes the
+            # M, C, K closer to the data (module docstring).
+            near = near_rigid_modes(fits[-1][1], C_hat, K_hat)
+            try:
+                near_fit = fit_scale_factors(d, near)
+            except IdentificationError:
+                near_fit = None
+            if near_fit is not None:
+                errors = {"eigenvectors": written_output_error(d, modes, chosen[1]),
+                          "near_rigid_block": written_output_error(d, near, near_fit)}
+                used = min(errors, key=errors.get)
+                info["near_rigid"] = {"n_shapes": near.n_block, "weighted_output_error": errors, "used": used}
+                if used == "near_rigid_block":
+                    chosen = (near, near_fit)
     return chosen[0], chosen[1], info

@@ -48,21 +48,34 @@ class StateSpaceModes:
         each is a double root at ``lambda = 0`` with one eigenvector ``[phi; 0]`` and one
         principal vector ``[0; phi]`` (a Jordan block, which no eigenvector basis holds), and
         is not among ``lam``, ``theta``. None: no rigid-body modes.
+    near_rigid_kc : ((r, r), (r, r)) float or None
+        When set, ``rigid_shapes`` hold ``2 r`` roots near 0 that are *not* rigid-body modes
+        (the data show their stiffness): ``(Phi0^T K^ Phi0, Phi0^T C^ Phi0)``, the stiffness
+        and damping per unit mass of the ``r``-DOF motion in those shapes. Such roots are as
+        nearly defective as rigid-body modes, so they too enter step 2 as one block on their
+        shapes rather than through their nearly parallel eigenvectors. None: the shapes are
+        rigid-body modes (``K^ Phi0 = C^ Phi0 = 0``).
     """
 
     lam: np.ndarray
     theta: np.ndarray
     n_pairs: int
     rigid_shapes: np.ndarray | None = None
+    near_rigid_kc: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def n(self) -> int:
         return self.theta.shape[0] // 2
 
     @property
-    def n_rigid(self) -> int:
-        """Number of rigid-body modes ``r``."""
+    def n_block(self) -> int:
+        """Number of shapes ``r`` in ``rigid_shapes`` (rigid or near-rigid)."""
         return 0 if self.rigid_shapes is None else self.rigid_shapes.shape[1]
+
+    @property
+    def n_rigid(self) -> int:
+        """Number of rigid-body modes ``r`` (0 when the shapes are near-rigid)."""
+        return 0 if self.near_rigid_kc is not None else self.n_block
 
     @property
     def theta_x(self) -> np.ndarray:
@@ -134,24 +147,11 @@ class ScaleFactors:
     cost: float | None = None
 
 
-def _fit_terms(modes: StateSpaceModes, n_families: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The terms of the fitted accelerance and their real parametrisation.
-
-    The model is ``H_kj = sum_t c_t basis[:, i_t] P[kj, j_t]``: one term ``(r, r)`` per root,
-    and for the rigid-body shapes (basis columns ``ns + a``) ``n_families`` symmetric families
-    ``Phi0 G_f Phi0^T`` times the family's frequency factor (P columns ``ns + f r + b``), with
-    terms ``(a, b)``. ``c = T v`` with ``v`` real: a conjugate pair shares (Re, Im), a real root
-    has a real factor, ``G_f[a, b] = G_f[b, a]`` is one real unknown.
-
-    Returns
-    -------
-    (i_t, j_t, T): (n_terms,) int twice and (n_terms, n_unknowns) complex.
-    """
-    ns = modes.lam.size
-    r = modes.n_rigid
-    m = modes.n_pairs
-    n_sym = r * (r + 1) // 2
-    T = np.zeros((ns + n_families * r * r, ns + n_families * n_sym), dtype=complex)
+def _root_terms(modes: StateSpaceModes) -> np.ndarray:
+    """``c = T v`` for the roots' scale factors, with ``v`` real: a conjugate pair shares
+    (Re, Im), a real root has a real factor. (ns, ns) complex."""
+    ns, m = modes.lam.size, modes.n_pairs
+    T = np.zeros((ns, ns), dtype=complex)
     i = np.arange(m)
     T[i, i] = 1.0
     T[i, m + i] = 1j
@@ -159,16 +159,31 @@ def _fit_terms(modes: StateSpaceModes, n_families: int = 1) -> tuple[np.ndarray,
     T[m + i, m + i] = -1j
     j = np.arange(2 * m, ns)
     T[j, j] = 1.0
-    a, b = np.divmod(np.arange(r * r), r)
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    # Unknown G_f[lo, hi] in the upper-triangle order of np.triu_indices(r).
-    tri = lo * r - lo * (lo - 1) // 2 + (hi - lo)
-    it, jt = [np.arange(ns)], [np.arange(ns)]
-    for f in range(n_families):
-        T[ns + f * r * r + np.arange(r * r), ns + f * n_sym + tri] = 1.0
-        it.append(ns + a)
-        jt.append(ns + f * r + b)
-    return np.concatenate(it), np.concatenate(jt), T
+    return T
+
+
+def _block_factors(modes: StateSpaceModes, omega: np.ndarray, rigid_stiffness_test: bool) -> list[np.ndarray]:
+    """Frequency factors ``F_f`` (L, r, r) of the block on ``Phi0 = modes.rigid_shapes``, whose
+    accelerance is ``sum_f Phi0 F_f(w) G_f Phi0^T`` with ``G_f`` symmetric unknowns.
+
+    Rigid-body modes: ``F = I`` (the mass line, ``G = (Phi0^T M Phi0)^-1``), and for the
+    stiffness test also ``I / w^2`` and ``j I / w`` (:func:`fit_scale_factors`). Near-rigid
+    shapes with ``(K^r, C^r) = modes.near_rigid_kc``: the ``r``-DOF accelerance
+    ``-w^2 Phi0 (Mr (-w^2 I + j w C^r + K^r))^-1 Phi0^T`` is ``F = -w^2 (-w^2 I + j w C^r +
+    K^r)^-1`` times ``G = Mr^-1``, linear in ``G`` as the mass line is (and equal to it for
+    ``K^r = C^r = 0``).
+    """
+    r = modes.n_block
+    eye = np.eye(r)
+    if modes.near_rigid_kc is not None:
+        if rigid_stiffness_test:
+            raise ValueError("the rigid-body stiffness test applies to rigid-body shapes only")
+        Kr, Cr = modes.near_rigid_kc
+        w = omega[:, None, None]
+        return [-(w**2) * np.linalg.inv(-(w**2) * eye + 1j * w * Cr + Kr)]
+    # The mass line is constant; the stiffness and damping terms of the test go as 1/w^2, j/w.
+    scalars = [np.ones(omega.size), 1.0 / omega**2, 1j / omega][: 3 if rigid_stiffness_test else 1]
+    return [f[:, None, None] * eye for f in scalars]
 
 
 def fit_scale_factors(d: Step1Data, modes: StateSpaceModes, with_cost: bool = False,
@@ -180,6 +195,8 @@ def fit_scale_factors(d: Step1Data, modes: StateSpaceModes, with_cost: bool = Fa
     ``[0; phi]``) adds ``phi phi^T / (phi^T M phi)`` to the accelerance at every line: the
     mass line. For several, ``Phi0 (Phi0^T M Phi0)^-1 Phi0^T``, whose symmetric ``r x r``
     middle factor is fitted with the scale factors (it is linear in the data, as they are).
+    Near-rigid shapes (``modes.near_rigid_kc``) add their ``r``-DOF accelerance, linear in the
+    same middle factor (:func:`_block_factors`).
 
     Parameters
     ----------
@@ -199,34 +216,48 @@ def fit_scale_factors(d: Step1Data, modes: StateSpaceModes, with_cost: bool = Fa
     Returns
     -------
     ScaleFactors
+        ``rigid_inv_mass`` is the block's ``G = Mr^-1`` (rigid or near-rigid shapes).
     """
     theta_x = modes.theta_x
     n, ns = theta_x.shape
-    r = modes.n_rigid
+    r = modes.n_block
     basis = theta_x if r == 0 else np.hstack([theta_x, modes.rigid_shapes])  # (n, ns + r)
     nb = basis.shape[1]
     lam = modes.lam
     w = d.omega[:, None]
     R = -(w**2) / (1j * w - lam[None, :])  # Eq. 3.19, (L, ns)
-    n_families = 3 if rigid_stiffness_test else 1
-    if r:
-        # The mass line is constant; the stiffness and damping terms of the test go as
-        # 1/w^2 and j/w (see rigid_stiffness_test).
-        factors = [np.ones(d.omega.size), 1.0 / d.omega**2, 1j / d.omega][:n_families]
-        R = np.hstack([R] + [np.repeat(f[:, None], r, axis=1) for f in factors])
     # q_kjr = theta_r^T (D_f e_j + D_r h_r,kj) of Eq. 3.24, (L, n_in, nb)
     q = np.broadcast_to(basis[d.in_idx][None], (d.omega.size, d.n_in, nb))
     if d.n_r:
         q = q + np.einsum("mr,kmj->kjr", basis[d.r_idx], d.Hr)
+    # The model is H_kj = sum_t c_t Bt[:, t] Pt[kj, t] with c = T v, v real. One term per
+    # root (the report's Eq. 3.23, left as it was); the block's terms are (a, c, b) of
+    # Phi0[:, a] F_f[a, c] G_f[c, b] q_b, G_f[c, b] = G_f[b, c] one unknown.
+    Pt = (R[:, None, :] * q[:, :, :ns]).reshape(-1, ns)  # rows (k, j)
+    Bt = basis[:, :ns]
+    T = _root_terms(modes)
+    n_sym = r * (r + 1) // 2
     if r:
-        q = np.concatenate([q] + [q[:, :, ns:]] * (n_families - 1), axis=2)
-    P = (R[:, None, :] * q).reshape(-1, R.shape[1])  # rows (k, j)
+        cols_b, cols_p, unknown = [], [], []
+        tri = {(lo, hi): k for k, (lo, hi) in enumerate(zip(*np.triu_indices(r)))}
+        families = _block_factors(modes, d.omega, rigid_stiffness_test)
+        for f, F in enumerate(families):
+            for a in range(r):
+                for c in range(r):
+                    if not np.any(F[:, a, c]):
+                        continue
+                    for b in range(r):
+                        cols_b.append(ns + a)
+                        cols_p.append((F[:, a, c, None] * q[:, :, ns + b]).reshape(-1))
+                        unknown.append(ns + f * n_sym + tri[min(c, b), max(c, b)])
+        Bt = np.hstack([Bt, basis[:, cols_b]])
+        Pt = np.hstack([Pt, np.stack(cols_p, axis=1)])
+        Tb = np.zeros((len(unknown), ns + len(families) * n_sym), dtype=complex)
+        Tb[np.arange(len(unknown)), unknown] = 1.0
+        T = np.vstack([np.hstack([T, np.zeros((ns, Tb.shape[1] - ns))]), Tb])
     Hkj = np.swapaxes(d.H, 1, 2).reshape(-1, n)  # (L n_in, n)
     w2 = (np.swapaxes(d.weight, 1, 2) ** 2).reshape(-1, n)
-    it, jt, T = _fit_terms(modes, n_families)
-    # One column per term: the roots' alone are the report's Eq. 3.23, left as they were.
-    Bt, Pt = (basis, P) if r == 0 else (basis[:, it], P[:, jt])  # (n, nt), (L n_in, nt)
-    nt = it.size
+    nt = Bt.shape[1]
 
     # Right-hand side: sum_kj conj(Pt_kj,t) (Bt^H (w^2 o h_kj))_t
     rhs = np.sum(Pt.conj() * ((w2 * Hkj) @ Bt.conj()), axis=0)
@@ -257,7 +288,10 @@ def fit_scale_factors(d: Step1Data, modes: StateSpaceModes, with_cost: bool = Fa
     if with_cost:
         fitted = (Pt * c) @ Bt.T  # (L n_in, n)
         cost = float(np.sum(w2 * np.abs(Hkj - fitted) ** 2))
-    return ScaleFactors(u=c[:ns], rigid_inv_mass=c[ns : ns + r * r].real.reshape(r, r), cost=cost)
+    G = np.zeros((r, r))
+    G[np.triu_indices(r)] = v[ns : ns + n_sym]
+    G = G + np.triu(G, 1).T
+    return ScaleFactors(u=c[:ns], rigid_inv_mass=G, cost=cost)
 
 
 def modal_scale_factors(d: Step1Data, modes: StateSpaceModes) -> np.ndarray:
@@ -278,6 +312,7 @@ def assemble_mck(
         ``1/a~_r`` of the roots ``modes.lam``.
     rigid_inv_mass : (r, r) float, optional
         For ``modes.rigid_shapes`` ``Phi0``: ``(Phi0^T M Phi0)^-1`` (:class:`ScaleFactors`).
+        Needed for rigid-body and near-rigid shapes alike.
 
     Returns
     -------
@@ -294,13 +329,19 @@ def assemble_mck(
     ``V0^T A_s V0 = [[0, Mr], [Mr, 0]]`` and ``V0^T B_s V0 = [[0, 0], [0, -Mr]]``, and both are
     orthogonal to the other modes. ``Theta = [theta, V0]`` then stays well conditioned where
     the eigenvectors of a (nearly) defective double root at 0 are (nearly) parallel.
+
+    Near-rigid shapes (``modes.near_rigid_kc = (K^r, C^r)``) enter the same way with their
+    stiffness and damping: ``V0^T A_s V0 = [[Cr, Mr], [Mr, 0]]``,
+    ``V0^T B_s V0 = [[Kr, 0], [0, -Mr]]``, ``Kr = Mr K^r``, ``Cr = Mr C^r``. That holds where
+    ``Phi0`` spans an invariant subspace of ``K^`` and ``C^`` (exactly for real shapes) and,
+    for the roots near 0 the block is used for, to the accuracy step 1 gives them.
     """
     n = modes.n
     if np.any(u == 0) or not np.all(np.isfinite(u)):
         raise IdentificationError("a modal scale factor 1/a~_r is zero or not finite (Eq. 3.23)")
     a = 1.0 / u
     b = -modes.lam * a  # Eq. 3.25
-    r = modes.n_rigid
+    r = modes.n_block
     if r == 0:
         Ti = np.linalg.inv(modes.theta)
         As = Ti.T @ (a[:, None] * Ti)  # Eq. 3.26
@@ -310,6 +351,10 @@ def assemble_mck(
         if G.shape != (r, r) or not np.all(np.isfinite(G)) or np.linalg.cond(G) > 1e14:
             raise IdentificationError("the rigid-body modes' mass line is singular or not finite (Eq. 3.23)")
         Mr = np.linalg.inv((G + G.T) / 2)
+        Kr = Cr = np.zeros((r, r))
+        if modes.near_rigid_kc is not None:
+            Kr, Cr = (Mr @ X for X in modes.near_rigid_kc)
+            Kr, Cr = (Kr + Kr.T) / 2, (Cr + Cr.T) / 2
         Phi0, Z = modes.rigid_shapes, np.zeros((n, r))
         Ti = np.linalg.inv(np.hstack([modes.theta, np.block([[Phi0, Z], [Z, Phi0]])]))
         q = a.size
@@ -320,6 +365,8 @@ def assemble_mck(
         Ablk[q : q + r, q + r :] = Mr
         Ablk[q + r :, q : q + r] = Mr
         Bblk[q + r :, q + r :] = -Mr
+        Ablk[q : q + r, q : q + r] = Cr
+        Bblk[q : q + r, q : q + r] = Kr
         As = Ti.T @ Ablk @ Ti
         Bs = Ti.T @ Bblk @ Ti
     M = -Bs[n:, n:].real
@@ -327,7 +374,7 @@ def assemble_mck(
     K = Bs[:n, :n].real
     scale = max(np.abs(As).max(), np.abs(Bs).max())
     extra = {}
-    if r:
+    if modes.n_rigid:
         # K Phi0 = 0 holds exactly (B_s V0 has no column there); C Phi0 = 0 only as far as the
         # fit is one second-order system (as the copies of M agree). Projecting C onto the
         # motions M-orthogonal to Phi0 makes it hold and leaves the damping of those motions,

@@ -49,6 +49,7 @@ from .reaction_loads import choose_reactions, model_frf_under_loads
 from .tam import (
     TAM_METHODS,
     dof_indices,
+    n_unstable_modes,
     natural_frequencies_hz,
     normal_modes,
     reduce_to_tam,
@@ -87,8 +88,7 @@ def _modes(model: Model, who: str) -> tuple[np.ndarray, np.ndarray]:
         lam, phi = normal_modes(model.M, model.K)
     except np.linalg.LinAlgError:
         raise InputError(f"{who} model: M is not positive definite, it has no normal modes") from None
-    # Round-off on rigid-body modes (within 1e-8 of the largest below 0) counts as 0 Hz.
-    unstable = int(np.sum(lam < -1e-8 * np.max(np.abs(lam)))) if lam.size else 0
+    unstable = n_unstable_modes(lam)
     if unstable and who == "analysis":
         raise InputError(f"analysis model: K is not positive semi-definite (mode 1 has omega^2 = "
                          f"{lam[0]:.4g} (rad/s)^2): not the stiffness of a stable structure")

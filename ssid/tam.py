@@ -43,6 +43,7 @@ __all__ = [
     "irs_transform",
     "natural_frequencies_hz",
     "normal_modes",
+    "n_unstable_modes",
     "omitted_indices",
     "reduce_by_transform",
     "reduce_to_tam",
@@ -132,6 +133,19 @@ def normal_modes(M: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     big = np.argmax(np.abs(phi), axis=0)
     phi = phi * np.sign(phi[big, np.arange(phi.shape[1])])
     return lam, phi
+
+
+#: ``omega^2`` below 0 by at most this fraction of the largest ``|omega^2|`` is round-off on a
+#: rigid-body mode (0 Hz); further below, the model is unstable.
+RIGID_ROUNDOFF_RTOL = 1e-8
+
+
+def n_unstable_modes(lam: np.ndarray) -> int:
+    """How many eigenvalues ``omega^2`` of (K, M) (:func:`normal_modes`) are clearly negative:
+    modes of an unstable structure, not round-off on rigid-body modes
+    (:data:`RIGID_ROUNDOFF_RTOL`)."""
+    lam = np.asarray(lam, dtype=float)
+    return int(np.sum(lam < -RIGID_ROUNDOFF_RTOL * np.max(np.abs(lam)))) if lam.size else 0
 
 
 def natural_frequencies_hz(M: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -169,9 +169,9 @@ def fe_normal_modes(path: str) -> tuple[Any, np.ndarray, np.ndarray]:
     mass-normalised, ascending. A model whose M is not positive definite (massless DOFs of a
     lumped model) is bad input, with what to do about it; so is one whose K has a clearly
     negative eigenvalue (an unstable model: its modes would be read as 0 Hz). Round-off on
-    rigid-body modes (``omega^2`` within 1e-8 of the largest below 0) counts as 0 Hz."""
+    rigid-body modes (:func:`ssid.tam.n_unstable_modes`) counts as 0 Hz."""
     from ssid.matrix_io import read_analysis_model
-    from ssid.tam import normal_modes
+    from ssid.tam import n_unstable_modes, normal_modes
 
     model = read_analysis_model(path)
     try:
@@ -179,7 +179,7 @@ def fe_normal_modes(path: str) -> tuple[Any, np.ndarray, np.ndarray]:
     except np.linalg.LinAlgError:
         raise InputError(f"{path}: M is not positive definite (massless DOFs?); reduce them "
                          "out first, e.g. by Guyan reduction") from None
-    if lam.size and lam[0] < -1e-8 * np.max(np.abs(lam)):
+    if n_unstable_modes(lam):
         raise InputError(f"{path}: K is not positive semi-definite (mode 1 has omega^2 = "
                          f"{lam[0]:.4g} (rad/s)^2): not the stiffness of a stable structure")
     return model, np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi), phi

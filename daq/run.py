@@ -184,7 +184,7 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
     world = None
     if sim:
         from .simlab import build_world
-
+    if sim and not resume:
         # Before the run file exists: a bad [sim] table must not leave a failed file that
         # blocks the corrected setup's run ("exists already") and its resume alike.
         world = build_world(setup)
@@ -193,6 +193,8 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         try:
             stored = setup_in_effect(rf)
             changes = setup_changes_on_resume(stored, setup, path)
+            if sim and rf.state != "complete":  # a complete run measures nothing more
+                world = build_world(setup)
         except BaseException:
             rf.close()
             raise

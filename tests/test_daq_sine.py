@@ -389,7 +389,7 @@ def test_a_line_still_over_a_limit_when_measured_again_is_aborted(tmp_path):
     assert not frf.valid_mask().any() and np.all(np.isnan(frf.H))
 
 
-def test_uff58_export(tmp_path):
+def test_uff58_export(tmp_path, monkeypatch):
     from ssid.exchange import read_uff_frf
 
     text = sine_setup(n_lines=3, refine=2).replace('file = "run.h5"', 'file = "run.h5"\nuff = "run.uff"')
@@ -420,3 +420,12 @@ def test_uff58_export(tmp_path):
     np.testing.assert_array_equal(again.freq_hz, back.freq_hz)
     np.testing.assert_array_equal(again.H[ok], back.H[ok])
     assert said[0].endswith("the run is complete; nothing to resume"), said
+    # With the simulated lab asked for, a complete run builds none of it either.
+    import daq.simlab
+
+    def no_world(_setup):
+        raise AssertionError("a complete run's resume built the simulated world")
+
+    monkeypatch.setattr(daq.simlab, "build_world", no_world)
+    summary4 = run_test(setup, out=str(tmp_path / "run.h5"), resume=True, sim=True, echo=said.append)
+    assert summary4["state"] == "complete" and not summary4["resumed"]

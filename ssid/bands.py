@@ -184,7 +184,7 @@ def process_bands(
         if sub.n_freq < need:
             data.append(None)
             continue
-        est, d, _ = identify_step1(sub, solver=solver)
+        est, d, _ = identify_step1(sub, solver=solver, restart_real_roots=False)
         data.append(d)
         modes = state_space_modes(est.C_hat, est.K_hat)
         m = modes.n_pairs

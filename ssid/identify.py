@@ -253,8 +253,9 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
 
 def _restart_from_real_roots(d: Step1Data, est: Step1Estimate, info: dict) -> Step1Estimate:
     """Refine once more from :func:`ssid.step1_refine.oscillatory_start` when the refined model
-    has real roots, and keep whichever of the two has the lower output error (the data's
-    choice: a structure's real roots are as likely a basin the refinement could not leave)."""
+    has real roots, and keep whichever of the two has the lower output error: real roots in a
+    structure's model may be what the data hold or a basin the refinement could not leave,
+    and the data decide which."""
     start = oscillatory_start(est)
     if start is None:
         return est

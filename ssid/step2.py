@@ -231,8 +231,8 @@ def fit_scale_factors(d: Step1Data, modes: StateSpaceModes, with_cost: bool = Fa
     if d.n_r:
         q = q + np.einsum("mr,kmj->kjr", basis[d.r_idx], d.Hr)
     # The model is H_kj = sum_t c_t Bt[:, t] Pt[kj, t] with c = T v, v real. One term per
-    # root (the report's Eq. 3.23, left as it was); the block's terms are (a, c, b) of
-    # Phi0[:, a] F_f[a, c] G_f[c, b] q_b, G_f[c, b] = G_f[b, c] one unknown.
+    # root (the report's Eq. 3.23, left as it was); the block's terms are (a, e, b) of
+    # Phi0[:, a] F_f[a, e] G_f[e, b] q_b, G_f[e, b] = G_f[b, e] one unknown.
     Pt = (R[:, None, :] * q[:, :, :ns]).reshape(-1, ns)  # rows (k, j)
     Bt = basis[:, :ns]
     T = _root_terms(modes)
@@ -243,13 +243,13 @@ def fit_scale_factors(d: Step1Data, modes: StateSpaceModes, with_cost: bool = Fa
         families = _block_factors(modes, d.omega, rigid_stiffness_test)
         for f, F in enumerate(families):
             for a in range(r):
-                for c in range(r):
-                    if not np.any(F[:, a, c]):
+                for e in range(r):
+                    if not np.any(F[:, a, e]):  # a rigid family's F is diagonal
                         continue
                     for b in range(r):
                         cols_b.append(ns + a)
-                        cols_p.append((F[:, a, c, None] * q[:, :, ns + b]).reshape(-1))
-                        unknown.append(ns + f * n_sym + tri[min(c, b), max(c, b)])
+                        cols_p.append((F[:, a, e, None] * q[:, :, ns + b]).reshape(-1))
+                        unknown.append(ns + f * n_sym + tri[min(e, b), max(e, b)])
         Bt = np.hstack([Bt, basis[:, cols_b]])
         Pt = np.hstack([Pt, np.stack(cols_p, axis=1)])
         Tb = np.zeros((len(unknown), ns + len(families) * n_sym), dtype=complex)

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import errno
-import faulthandler
 import os
 import shlex
 import signal
@@ -74,6 +73,38 @@ def add_acquire_subcommand(sub: Any) -> argparse.ArgumentParser:
                    help="read pause/resume/abort from stdin; end of input aborts safely")
     p.set_defaults(run=run_acquire)
     return p
+
+
+def _print_thread_stacks(signum: int, frame: Any) -> None:
+    """``kill -USR1``: every thread's stack to stderr, most recent call first.
+
+    A Python-level signal handler: the main thread runs it holding the GIL, so no thread's
+    frames change while they are read. ``faulthandler.register`` dumps from a C-level handler
+    while the other threads run, and on Python 3.11 that crashed a run (a segfault in CI,
+    tests/test_daq_interrupt.py; cpython#116008). The handler interrupts the main thread
+    anywhere, so it takes no lock the main thread may hold: no ``threading.enumerate`` (whose
+    registry lock a main thread starting a thread holds) and no buffered stream, only
+    ``sys._current_frames`` and ``os.write`` on stderr's descriptor. The price: a main thread
+    stuck in C code that holds the GIL prints nothing until it returns (a wait on a lock, a
+    socket or a sleep is interrupted by the signal and prints at once).
+    """
+    import traceback
+
+    main = threading.main_thread().ident  # a module global: no lock
+    lines = []
+    for ident, top in sys._current_frames().items():
+        # The main thread's own top frame is this handler; ``frame`` is where it was.
+        stack = traceback.extract_stack(frame if ident == main else top)
+        lines.append(f"{'Current thread' if ident == main else 'Thread'} 0x{ident:016x} (most recent call first):")
+        lines.extend(f'  File "{f.filename}", line {f.lineno} in {f.name}' for f in reversed(stack))
+        lines.append("")
+    data = ("\n".join(lines) + "\n").encode("utf-8", "replace")
+    try:
+        fd = sys.__stderr__.fileno()
+        while data:
+            data = data[os.write(fd, data):]
+    except (OSError, ValueError, AttributeError):  # no stderr left to write to
+        pass
 
 
 def _print_event(event: dict) -> None:
@@ -192,7 +223,7 @@ def run_acquire(args: argparse.Namespace) -> int:
     # that does not stop is waiting (the TUI's abort test asks so before it gives up).
     stacks_on_usr1 = hasattr(signal, "SIGUSR1")
     if stacks_on_usr1:
-        faulthandler.register(signal.SIGUSR1, file=sys.__stderr__, all_threads=True, chain=False)
+        previous_usr1 = signal.signal(signal.SIGUSR1, _print_thread_stacks)
     control = RunControl() if args.control_stdin else None
     if control is not None:
         threading.Thread(target=_read_control, args=(control, sys.stdin), name="acquire-control", daemon=True).start()
@@ -219,7 +250,7 @@ def run_acquire(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGINT, previous_int)
         if stacks_on_usr1:
-            faulthandler.unregister(signal.SIGUSR1)
+            signal.signal(signal.SIGUSR1, signal.SIG_DFL if previous_usr1 is None else previous_usr1)
         # The instruments are safe and the file closed: give the reader a few seconds for
         # the rest, but do not let one that stopped reading keep the process alive.
         pump.close()

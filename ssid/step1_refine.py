@@ -36,6 +36,7 @@ from .step1 import (
     predict_accelerance,
     step1_regressors,
 )
+from .step2 import state_space_modes
 
 __all__ = [
     "refine_sanathanan_koerner",
@@ -345,11 +346,13 @@ def oscillatory_start(est: Step1Estimate) -> Step1Estimate | None:
     singular.
     """
     n = est.C_hat.shape[0]
-    comp = np.block([[np.zeros((n, n)), np.eye(n)], [-est.K_hat, -est.C_hat]])
-    lam, V = np.linalg.eig(comp)
-    scale = max(float(np.max(np.abs(lam))), 1e-300) if lam.size else 1.0
-    real = np.flatnonzero(np.abs(lam.imag) <= 1e-10 * scale)
-    real = real[np.argsort(np.abs(lam[real]))]
+    try:
+        modes = state_space_modes(est.C_hat, est.K_hat)
+    except IdentificationError:  # roots not in conjugate pairs: no start to build
+        return None
+    # Eq. 3.12's modes, real roots last and nearest 0 first, their eigenvectors real.
+    lam, V = modes.lam.copy(), modes.theta.copy()
+    real = np.arange(2 * modes.n_pairs, lam.size)
     if real.size < 2:
         return None
     for i, j in zip(real[0:-1:2], real[1::2], strict=False):

@@ -35,6 +35,7 @@ from .step1 import (
     estimate_equation_error,
     predict_accelerance,
     reaction_transfer,
+    starts_above_low_lines,
     step1_data,
 )
 from .step1_eiv import refine_with_reactions
@@ -191,12 +192,15 @@ def model_frf_errors(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray,
 
 
 def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
-              candidates: dict | None = None, restart_real_roots: bool = True) -> Step1Estimate:
+              candidates: dict | None = None, restart_real_roots: bool = True,
+              low_line_starts: bool = True) -> Step1Estimate:
     """Our default step 1 (see ``docs/algorithm.md``).
 
     1. Noise levels: from the file (variance or coherence) or, failing that, from the
        roughness of each FRF; reactions always from their roughness.
-    2. Start: the best (lowest output error) of the report's LS, TLS and scaled TLS.
+    2. Start: the best (lowest output error) of the report's LS, TLS and scaled TLS and, if
+       ``low_line_starts`` and without reactions, scaled TLS above the lowest lines
+       (:func:`ssid.step1.starts_above_low_lines`).
     3. Sanathanan-Koerner iterations with the full equation-error covariance, which accounts
        for noise on measured reactions (errors in variables).
     4. Without reactions: Gauss-Newton on the weighted output error (maximum likelihood), and
@@ -222,6 +226,8 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
             starts[name] = estimate_equation_error(d, name)
         except (np.linalg.LinAlgError, IdentificationError) as exc:
             failures[name] = str(exc)
+    if low_line_starts and starts and not d.n_r:
+        starts.update(starts_above_low_lines(d))
     if not starts:
         # Usually one cause for all three (too few lines for the unknowns): say it once.
         reasons = "; ".join(dict.fromkeys(failures.values()))
@@ -370,7 +376,8 @@ def _hard_problems(modes, M: np.ndarray, K: np.ndarray) -> int:
 
 
 def identify_step1(
-    frf: FRFData, solver: str = "ml", candidates: dict | None = None, restart_real_roots: bool = True
+    frf: FRFData, solver: str = "ml", candidates: dict | None = None, restart_real_roots: bool = True,
+    low_line_starts: bool = True,
 ) -> tuple[Step1Estimate, Step1Data, dict]:
     """Step 1 of SSID on all lines of ``frf``: ``M^-1 C, M^-1 K, M^-1 D`` (Eqs. 3.6-3.9).
 
@@ -382,7 +389,9 @@ def identify_step1(
     Band processing turns it off: its band fits have more roots than the band has modes, and
     their real roots are the computational ones its criteria reject; made oscillatory, they
     came out alike in neighbouring bands as false modes (a 1.53 Hz one beside the 1.29 Hz
-    suspension mode on the 12-sensor payload, 1-1158 Hz, seed 4).
+    suspension mode on the 12-sensor payload, 1-1158 Hz, seed 4). ``low_line_starts`` adds
+    the starts of :func:`ssid.step1.starts_above_low_lines` (``ml`` without reactions); band
+    processing turns it off too, as its criteria were tuned on where its band fits stop.
     """
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
@@ -407,7 +416,7 @@ def identify_step1(
             "are left out of the equation-error fits"
         )
     if solver == "ml":
-        est = _step1_ml(d, valid, know_noise, info, candidates, restart_real_roots)
+        est = _step1_ml(d, valid, know_noise, info, candidates, restart_real_roots, low_line_starts)
         if "ml_skipped" in info:
             warnings.append(info["ml_skipped"])
     else:

@@ -221,9 +221,10 @@ def starts_above_low_lines(d: Step1Data, cuts: tuple[float, ...] = LOW_LINE_CUTS
     over all lines were 2e9-7e10 in weighted output error and the refinement from the best of
     them ended 11-84 times above the minimum in the noise-free fit's basin
     (``bench/noisy_basins.py``), up to three targets above the band missed; these starts began
-    117-385 times lower than the best of those and refined into that basin. The low modes are left to the
-    refinement, which moves such well-separated roots easily; the caller keeps whichever start
-    predicts all lines best.
+    117-385 times lower than the best of those and refined into that basin. The low modes are
+    left to the refinement, which moves such well-separated roots easily. A start's own output
+    error does not rank it against the all-line ones (it is always far lower):
+    :func:`ssid.identify.identify_step1` refines both a little and compares then.
 
     Returns
     -------

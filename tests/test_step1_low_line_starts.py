@@ -15,8 +15,9 @@ from ssid.frf import accelerance_from_model
 from ssid.identify import identify_mck, identify_step1
 from ssid.models.payload import INTERFACE_DOFS, modal_damping, payload_simulator, target_modes
 from ssid.noise import report_noise_frf
-from ssid.step1 import step1_data, starts_above_low_lines
+from ssid.step1 import estimate_equation_error, starts_above_low_lines, step1_data
 from ssid.step1_refine import output_error_cost
+from ssid.step2 import state_space_modes
 
 
 def chain(n: int = 4):
@@ -81,3 +82,33 @@ def test_noisy_payload_holds_the_targets_above_the_band():
     assert len(pairs) == 10
     err = {pr.analysis: abs(r.natural_freq_hz[pr.test] / f_t[pr.analysis] - 1) for pr in pairs}
     assert max(err[a] for a in range(10) if f_t[a] < 300) < 1e-3
+
+
+def test_the_low_line_start_competes_after_sk_not_before():
+    """12-DOF payload (EfI sensors), 1-650 Hz, the report's noise, seed 3. The low-line start
+    is far lower in output error than the all-line ones before any refinement (as it always
+    is); refined to the end from it the fit ended 1.3 times higher with a target more missed.
+    After SK (1.7 times higher measured) the all-line start is kept, and the step-1 roots hold
+    the ten targets in the band (the two above it, 992 and 1124 Hz, are missed either way:
+    section 3 of docs/replication.md)."""
+    p = payload_simulator()
+    C = modal_damping(p.M, p.K, 0.02)
+    sensors = ["1+Z", "2+Z", "3+Z", "4+Z", "5+Z", "6+Z", "7+Z", "8+Z", "12+Z", "15+Z", "17+Z", "18+Z"]
+    frf = report_noise_frf(
+        accelerance_from_model(p.M, C, p.K, p.dofs, np.linspace(1, 650, 512), sensors, INTERFACE_DOFS), seed=3)
+    est, d, info = identify_step1(frf)
+    low = info["sk_low_lines"]
+    assert info["start"] in ("ls", "tls", "stls") and low["cost"] > info["sk"]["cost"]
+    low_start = starts_above_low_lines(d)[low["start"]]
+    assert all(output_error_cost(d, low_start) < output_error_cost(d, e)
+               for e in (estimate_equation_error(d, k) for k in ("ls", "tls", "stls")))
+
+    lam, phi = sla.eigh(p.K, p.M)
+    tm = target_modes(p, 12)
+    f_t = np.sqrt(lam[tm]) / (2 * np.pi)
+    m = state_space_modes(est.C_hat, est.K_hat)
+    roots = m.lam[: m.n_pairs]
+    pairs = pair_modes_by_mac_and_frequency(
+        modal_assurance(m.theta[: m.n, : m.n_pairs], phi[p.index(sensors)][:, tm]),
+        np.abs(roots) / (2 * np.pi), f_t, 0.5)
+    assert {pr.analysis for pr in pairs} >= {a for a in range(12) if f_t[a] < 650}

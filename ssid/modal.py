@@ -17,6 +17,7 @@ __all__ = [
     "modal_damping_matrix",
     "physical_checks",
     "complex_modes",
+    "companion_matrix",
     "unit_max_shapes",
 ]
 
@@ -83,11 +84,18 @@ def real_modes(M: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return wn, phi
 
 
+def companion_matrix(C_hat: np.ndarray, K_hat: np.ndarray) -> np.ndarray:
+    """``[[0, I], [-K^, -C^]]`` (2n, 2n): the state matrix of ``x'' + C^ x' + K^ x = 0`` with
+    ``C^ = M^-1 C``, ``K^ = M^-1 K``, i.e. ``-A^_s^-1 B^_s`` of Eqs. 3.11-3.12. Its eigenvalues
+    are the roots lambda_r, its eigenvectors ``[phi; lambda phi]``."""
+    n = C_hat.shape[0]
+    return np.block([[np.zeros((n, n)), np.eye(n)], [-K_hat, -C_hat]])
+
+
 def complex_modes(M: np.ndarray, C: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Complex roots with Im > 0 (ascending |lambda|) and their displacement shapes (n, m)."""
     n = M.shape[0]
-    A = np.block([[np.zeros((n, n)), np.eye(n)], [-np.linalg.solve(M, K), -np.linalg.solve(M, C)]])
-    lam, V = np.linalg.eig(A)
+    lam, V = np.linalg.eig(companion_matrix(np.linalg.solve(M, C), np.linalg.solve(M, K)))
     keep = np.flatnonzero(lam.imag > 1e-10 * np.abs(lam).max())
     keep = keep[np.argsort(np.abs(lam[keep]))]
     return lam[keep], V[:n, keep]

@@ -46,6 +46,7 @@ import scipy.linalg as sla
 from scipy.stats import chi2
 
 from .errors import IdentificationError
+from .modal import companion_matrix
 from .step1 import Step1Data, Step1Estimate
 from .step1_refine import output_error_cost
 from .step2 import ScaleFactors, StateSpaceModes, assemble_mck, fit_scale_factors
@@ -110,7 +111,7 @@ def with_rigid_body_modes(modes: StateSpaceModes, C_hat: np.ndarray, K_hat: np.n
     lam_abs = np.abs(modes.lam)
     hi = float(lam_abs[cluster].max())
     tau = hi + 0.5 * (float(lam_abs[rest].min()) - hi) if rest.size else np.inf
-    comp = np.block([[np.zeros((n, n)), np.eye(n)], [-K_hat, -C_hat]])
+    comp = companion_matrix(C_hat, K_hat)
     try:
         _, Z, sdim = sla.schur(comp, output="real", sort=lambda re, im: np.hypot(re, im) < tau)
     except np.linalg.LinAlgError:

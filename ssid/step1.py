@@ -27,6 +27,7 @@ import numpy as np
 
 from .errors import IdentificationError
 from .frf import FRFData
+from .modal import companion_matrix
 from .solvers import column_scale, solve_ls, solve_tls
 
 __all__ = [
@@ -281,7 +282,7 @@ def predict_accelerance(d: Step1Data, est: Step1Estimate) -> np.ndarray:
     solve. Near-defective modes (ill-conditioned V) take the direct solve.
     """
     n = d.n
-    comp = np.block([[np.zeros((n, n)), np.eye(n)], [-est.K_hat, -est.C_hat]])
+    comp = companion_matrix(est.C_hat, est.K_hat)
     try:
         lam, V = np.linalg.eig(comp)
         modal = np.isfinite(lam).all() and np.linalg.cond(V) < 1e8

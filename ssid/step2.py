@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import IdentificationError
+from .modal import companion_matrix
 from .step1 import Step1Data
 
 __all__ = ["StateSpaceModes", "ScaleFactors", "state_space_modes", "fit_scale_factors", "modal_scale_factors",
@@ -89,9 +90,7 @@ def state_space_modes(C_hat: np.ndarray, K_hat: np.ndarray) -> StateSpaceModes:
     ``A^_s`` is always invertible, and ``-A^_s^-1 B^_s = [[0, I], [-K^, -C^]]``, so the
     generalised problem is the standard eigenproblem of that companion matrix.
     """
-    n = C_hat.shape[0]
-    comp = np.block([[np.zeros((n, n)), np.eye(n)], [-K_hat, -C_hat]])
-    lam, V = np.linalg.eig(comp)
+    lam, V = np.linalg.eig(companion_matrix(C_hat, K_hat))
     scale = np.max(np.abs(lam)) if lam.size else 1.0
     is_real = np.abs(lam.imag) <= 1e-10 * max(scale, 1e-300)
     upper = np.flatnonzero(~is_real & (lam.imag > 0))

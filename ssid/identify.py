@@ -202,7 +202,7 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
     3. Sanathanan-Koerner iterations with the full equation-error covariance, which accounts
        for noise on measured reactions (errors in variables). Without reactions and if
        ``low_line_starts``, also from the best scaled-TLS start above the lowest lines
-       (:func:`ssid.step1.starts_above_low_lines`), the lower output error kept.
+       (:func:`ssid.step1.starts_above_low_lines`), the lower cost kept.
     4. Without reactions: Gauss-Newton on the weighted output error (maximum likelihood), and
        when the file gave no noise levels, once more with levels re-estimated from residuals.
     5. If the model has real roots (and ``restart_real_roots``): the same refinement from
@@ -258,8 +258,9 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
 
 
 def _sk_from_low_lines(d: Step1Data, est: Step1Estimate, info: dict) -> Step1Estimate:
-    """The Sanathanan-Koerner iterate ``est`` or, if lower in output error, the one from the best
-    start of :func:`ssid.step1.starts_above_low_lines` (``info["start"]`` then names it).
+    """The Sanathanan-Koerner iterate ``est`` or, if lower in SK's cost (the weighted output
+    error when no value is blanked), the SK iterate from the best start of
+    :func:`ssid.step1.starts_above_low_lines` (``info["start"]`` then names it).
 
     Compared after SK, not at the start: the low-line starts are always far lower there (they
     leave out the lines that bias the others), but on the 12-DOF payload at 1-650 Hz, seed 3,

@@ -27,6 +27,7 @@ module                      what
                             resume may change (the DAQ input ranges)
 ``daq.control``             pause / resume between lines; the run's events for a UI
 ``daq.check``               connection check: every instrument opened, identified, released
+``daq.thread_stacks``       every thread's stack to stderr (a run that does not stop), GIL held
 UFF 58 export               by ``daq.run`` through ``ssid.exchange.write_uff_frf``
 ``daq.simlab``              the only bridge to ``sim_devices``: the ``--sim`` lab for a setup,
                             ``WorldRig`` for benchmarks

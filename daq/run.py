@@ -15,13 +15,10 @@ before the function returns or raises, and the run file holds every completed li
 from __future__ import annotations
 
 import contextlib
-import faulthandler
 import functools
-import io
 import logging
 import platform
 import signal
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -37,6 +34,7 @@ from .rig import InstrumentRig, Rig
 from .safety import NOT_THE_SAME_INSTRUMENTS, RunStopped, describe_fault
 from .resume import instruments_not_the_same, range_changes, setup_changes_on_resume, setup_in_effect
 from .setup import TestSetup
+from .thread_stacks import thread_stacks, write_to_stderr
 from .storage import RunFile
 
 __all__ = ["run_test"]
@@ -84,22 +82,29 @@ SAFE_STATE_STALL_S = 10.0
 @contextlib.contextmanager
 def _stall_report(after_s: float = SAFE_STATE_STALL_S):
     """Print every thread's stack to stderr once if the block is still running ``after_s``
-    seconds on (:func:`faulthandler.dump_traceback_later`), and go on waiting.
+    seconds on, and go on waiting.
 
     Why: an aborted run once did not exit within 30 s in CI (the TUI's abort test, under the
     parallel suite's load) and left no trace of where it waited; this shows the operator, and
-    the test's log, which call holds the safe state up. A stderr without a file descriptor
-    (captured in tests) gets no report.
+    the test's log, which call holds the safe state up. A watchdog thread of ours prints it
+    (:mod:`daq.thread_stacks`): faulthandler's ``dump_traceback_later`` reads the frames
+    without the GIL while the threads run and can crash the process (cpython#131580), here
+    while the drive is being ramped down.
     """
-    try:
-        faulthandler.dump_traceback_later(after_s, repeat=False, file=sys.stderr)
-    except (io.UnsupportedOperation, AttributeError, ValueError, RuntimeError):
-        yield
-        return
+    done = threading.Event()
+
+    def watch() -> None:
+        if not done.wait(after_s):
+            write_to_stderr(f"the safe state is not reached after {after_s:g} s; every thread's stack:\n"
+                            + thread_stacks(skip=threading.get_ident()))
+
+    watchdog = threading.Thread(target=watch, name="safe-state stall report", daemon=True)
+    watchdog.start()
     try:
         yield
     finally:
-        faulthandler.cancel_dump_traceback_later()
+        done.set()
+        watchdog.join(1.0)
 
 
 def _create_runfile(setup: TestSetup, path: Path) -> RunFile:

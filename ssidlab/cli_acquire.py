@@ -43,6 +43,7 @@ import threading
 from pathlib import Path
 from typing import Any, NoReturn
 
+from daq.thread_stacks import thread_stacks, write_to_stderr
 from ssid.errors import InputError
 from ssidlab.output_pump import OutputPump
 
@@ -79,32 +80,13 @@ def _print_thread_stacks(signum: int, frame: Any) -> None:
     """``kill -USR1``: every thread's stack to stderr, most recent call first.
 
     A Python-level signal handler: the main thread runs it holding the GIL, so no thread's
-    frames change while they are read. ``faulthandler.register`` dumps from a C-level handler
-    while the other threads run, and on Python 3.11 that crashed a run (a segfault in CI,
-    tests/test_daq_interrupt.py; cpython#116008). The handler interrupts the main thread
-    anywhere, so it takes no lock the main thread may hold: no ``threading.enumerate`` (whose
-    registry lock a main thread starting a thread holds) and no buffered stream, only
-    ``sys._current_frames`` and ``os.write`` on stderr's descriptor. The price: a main thread
-    stuck in C code that holds the GIL prints nothing until it returns (a wait on a lock, a
-    socket or a sleep is interrupted by the signal and prints at once).
+    frames change while they are read (``faulthandler.register``, used before, crashed a run:
+    :mod:`daq.thread_stacks`). It interrupts the main thread anywhere, so it takes no lock the
+    main thread may hold (a main thread starting a thread holds the thread registry's): the
+    functions it calls take none.
     """
-    import traceback
-
-    main = threading.main_thread().ident  # a module global: no lock
-    lines = []
-    for ident, top in sys._current_frames().items():
-        # The main thread's own top frame is this handler; ``frame`` is where it was.
-        stack = traceback.extract_stack(frame if ident == main else top)
-        lines.append(f"{'Current thread' if ident == main else 'Thread'} 0x{ident:016x} (most recent call first):")
-        lines.extend(f'  File "{f.filename}", line {f.lineno} in {f.name}' for f in reversed(stack))
-        lines.append("")
-    data = ("\n".join(lines) + "\n").encode("utf-8", "replace")
-    try:
-        fd = sys.__stderr__.fileno()
-        while data:
-            data = data[os.write(fd, data):]
-    except (OSError, ValueError, AttributeError):  # no stderr left to write to
-        pass
+    # The main thread's own top frame is this handler; ``frame`` is where it was.
+    write_to_stderr(thread_stacks(current=(threading.main_thread().ident, frame)))
 
 
 def _print_event(event: dict) -> None:

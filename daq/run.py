@@ -99,7 +99,11 @@ def _stall_report(after_s: float = SAFE_STATE_STALL_S):
                             + thread_stacks(skip=threading.get_ident()))
 
     watchdog = threading.Thread(target=watch, name="safe-state stall report", daemon=True)
-    watchdog.start()
+    try:
+        watchdog.start()
+    except RuntimeError:  # no thread to be had: reaching the safe state matters, the report not
+        yield
+        return
     try:
         yield
     finally:

@@ -55,3 +55,16 @@ def test_the_current_thread_is_shown_from_the_frame_given():
     me = me[: me.index("\n\n")]
     assert "in test_the_current_thread_is_shown_from_the_frame_given" in me
     assert "in handler_like" not in me
+
+
+def test_no_thread_to_be_had_still_runs_the_block(monkeypatch):
+    """The report guards the way to the safe state: when no thread can be started (a
+    process at its thread limit), the block runs without it instead of raising."""
+    def refuse(self):
+        raise RuntimeError("can't start new thread")
+
+    monkeypatch.setattr(threading.Thread, "start", refuse)
+    ran = []
+    with _stall_report(after_s=0.1):
+        ran.append(True)
+    assert ran == [True]

@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 from report_truth import fmt, paired_errors, worker_truth  # noqa: E402
 
 from ssid.identify import identify_step1  # noqa: E402
+from ssid.modal import root_frequency_damping  # noqa: E402
 from ssid.noise import report_noise_frf  # noqa: E402
 from ssid.step1_refine import output_error_cost, refine_output_error  # noqa: E402
 from ssid.step2 import state_space_modes  # noqa: E402
@@ -45,9 +46,8 @@ CASES = [(10, (1.0, 300.0, 512), "1-300 Hz"),
 def root_errors(truth, sensors, tm, est) -> tuple[float, float, int]:
     """Paired errors of a step-1 estimate's oscillatory roots (Eq. 3.12)."""
     m = state_space_modes(est.C_hat, est.K_hat)
-    lam = m.lam[: m.n_pairs]
-    return paired_errors(truth, sensors, tm, np.abs(lam) / (2 * np.pi), -lam.real / np.abs(lam),
-                         m.theta[: m.n, : m.n_pairs])
+    wn, zeta = root_frequency_damping(m.lam[: m.n_pairs])
+    return paired_errors(truth, sensors, tm, wn / (2 * np.pi), zeta, m.theta[: m.n, : m.n_pairs])
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -13,6 +13,7 @@ import scipy.linalg as sla
 from ssid.correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from ssid.frf import accelerance_from_model
 from ssid.identify import identify_mck, identify_step1
+from ssid.modal import root_frequency_damping
 from ssid.models.payload import INTERFACE_DOFS, modal_damping, payload_simulator, target_modes
 from ssid.noise import report_noise_frf, roughness_weights
 from ssid.step1 import estimate_equation_error, starts_above_low_lines, step1_data
@@ -110,8 +111,7 @@ def test_the_low_line_start_competes_after_sk_not_before():
     tm = target_modes(p, 12)
     f_t = np.sqrt(lam[tm]) / (2 * np.pi)
     m = state_space_modes(est.C_hat, est.K_hat)
-    roots = m.lam[: m.n_pairs]
+    wn, _ = root_frequency_damping(m.lam[: m.n_pairs])
     pairs = pair_modes_by_mac_and_frequency(
-        modal_assurance(m.theta[: m.n, : m.n_pairs], phi[p.index(sensors)][:, tm]),
-        np.abs(roots) / (2 * np.pi), f_t, 0.5)
+        modal_assurance(m.theta[: m.n, : m.n_pairs], phi[p.index(sensors)][:, tm]), wn / (2 * np.pi), f_t, 0.5)
     assert {pr.analysis for pr in pairs} >= {a for a in range(12) if f_t[a] < 650}

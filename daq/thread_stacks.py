@@ -38,10 +38,12 @@ def thread_stacks(current: tuple[int, FrameType] | None = None, skip: int | None
         if ident == skip:
             continue
         is_current = current is not None and ident == current[0]
-        stack = traceback.extract_stack(current[1] if is_current else top)
+        # Most recent first, as walked; the source lines, never printed, are not read.
+        stack = traceback.StackSummary.extract(traceback.walk_stack(current[1] if is_current else top),
+                                               lookup_lines=False)
         head = "Current thread" if is_current else "Thread"
         lines.append(f"{head} 0x{ident:016x}{' (main)' if ident == main else ''} (most recent call first):")
-        lines.extend(f'  File "{f.filename}", line {f.lineno} in {f.name}' for f in reversed(stack))
+        lines.extend(f'  File "{f.filename}", line {f.lineno} in {f.name}' for f in stack)
         lines.append("")
     return "\n".join(lines) + "\n"
 

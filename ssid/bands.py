@@ -184,7 +184,8 @@ def process_bands(
         if sub.n_freq < need:
             data.append(None)
             continue
-        est, d, _ = identify_step1(sub, solver=solver, restart_real_roots=False, low_line_starts=False)
+        est, d, _ = identify_step1(sub, solver=solver, restart_real_roots=False, low_line_starts=False,
+                                   search_above_band=False)
         data.append(d)
         modes = state_space_modes(est.C_hat, est.K_hat)
         m = modes.n_pairs

@@ -44,6 +44,7 @@ from .step1_refine import (
     output_error_cost,
     refine_line_weighted,
     refine_output_error,
+    refine_roots_above_band,
     refine_sanathanan_koerner,
 )
 from .step2 import assemble_mck, state_space_modes
@@ -193,7 +194,7 @@ def model_frf_errors(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray,
 
 def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
               candidates: dict | None = None, restart_real_roots: bool = True,
-              low_line_starts: bool = True) -> Step1Estimate:
+              low_line_starts: bool = True, search_above_band: bool = True) -> Step1Estimate:
     """Our default step 1 (see ``docs/algorithm.md``).
 
     1. Noise levels: from the file (variance or coherence) or, failing that, from the
@@ -207,6 +208,8 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
        when the file gave no noise levels, once more with levels re-estimated from residuals.
     5. If the model has real roots (and ``restart_real_roots``): the same refinement from
        oscillatory roots in their place, the lower output error kept.
+    6. If ``search_above_band``: a search along the frequencies of the roots above the band
+       (:func:`ssid.step1_refine.refine_roots_above_band`), only a lower output error kept.
     """
     rough = roughness_weights(d.H, valid)
     if not know_noise:
@@ -254,7 +257,11 @@ def _step1_ml(d: Step1Data, valid: np.ndarray, know_noise: bool, info: dict,
         # 14-DOF case and its SK iterations ended in another basin (0.5 % instead of 0.006 %).
         d.weight = _residual_weights(d, est, valid)
         est, info["refine_reweighted"] = refine_output_error(d, est)
-    return _restart_from_real_roots(d, est, info) if restart_real_roots else est
+    if restart_real_roots:
+        est = _restart_from_real_roots(d, est, info)
+    if search_above_band:
+        est, info["above_band_search"] = refine_roots_above_band(d, est)
+    return est
 
 
 def _sk_from_low_lines(d: Step1Data, est: Step1Estimate, info: dict) -> Step1Estimate:
@@ -404,7 +411,7 @@ def _hard_problems(modes, M: np.ndarray, K: np.ndarray) -> int:
 
 def identify_step1(
     frf: FRFData, solver: str = "ml", candidates: dict | None = None, restart_real_roots: bool = True,
-    low_line_starts: bool = True,
+    low_line_starts: bool = True, search_above_band: bool = True,
 ) -> tuple[Step1Estimate, Step1Data, dict]:
     """Step 1 of SSID on all lines of ``frf``: ``M^-1 C, M^-1 K, M^-1 D`` (Eqs. 3.6-3.9).
 
@@ -418,7 +425,9 @@ def identify_step1(
     came out alike in neighbouring bands as false modes (a 1.53 Hz one beside the 1.29 Hz
     suspension mode on the 12-sensor payload, 1-1158 Hz, seed 4). ``low_line_starts`` adds
     the starts of :func:`ssid.step1.starts_above_low_lines` (``ml`` without reactions); band
-    processing turns it off too, as its criteria were tuned on where its band fits stop.
+    processing turns it off too, as its criteria were tuned on where its band fits stop, and
+    so it does ``search_above_band`` (:func:`ssid.step1_refine.refine_roots_above_band`,
+    ``ml`` without reactions), whose moved roots would be its band fits' computational ones.
     """
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
@@ -443,7 +452,8 @@ def identify_step1(
             "are left out of the equation-error fits"
         )
     if solver == "ml":
-        est = _step1_ml(d, valid, know_noise, info, candidates, restart_real_roots, low_line_starts)
+        est = _step1_ml(d, valid, know_noise, info, candidates, restart_real_roots, low_line_starts,
+                        search_above_band)
         if "ml_skipped" in info:
             warnings.append(info["ml_skipped"])
     else:
@@ -459,6 +469,7 @@ def identify_mck(
     f_min_hz: float | None = None,
     f_max_hz: float | None = None,
     damping: str = "auto",
+    search_above_band: bool = True,
 ) -> SSIDResult:
     """Identify M, C, K of a substructure from accelerance FRFs with SSID.
 
@@ -480,6 +491,9 @@ def identify_mck(
         (default): of the two, the one whose model predicts the band's measurements better
         (``info["damping_choice"]``; ``checks["frf_relative_rms_error"]`` is the delivered
         model's relative RMS FRF error).
+    search_above_band : bool
+        With ``ml`` and no reactions: after the refinement, search along the frequencies of
+        the roots above the band (:func:`ssid.step1_refine.refine_roots_above_band`).
 
     Returns
     -------
@@ -501,7 +515,7 @@ def identify_mck(
     if data.n_freq == 0:
         raise IdentificationError(f"no frequency lines between {lo:g} and {hi:g} Hz")
     starts: dict = {}
-    est, d, info = identify_step1(data, solver=solver, candidates=starts)
+    est, d, info = identify_step1(data, solver=solver, candidates=starts, search_above_band=search_above_band)
     warnings = list(info.pop("warnings"))
     warnings.extend(f"{p.describe()}; the symmetric M, C, K that SSID fits cannot hold both: check these "
                     "transducers before trusting the model" for p in reciprocity_check(data) if not p.reciprocal)

@@ -63,15 +63,17 @@ def test_noisy_payload_holds_the_targets_above_the_band():
     lines its output error is over ten times lower (82 times measured) and every target is
     paired with an identified mode by MAC >= 0.5 and frequency. The in-band ones are within
     0.1 % (0.02 % measured); the one at 1.9 times the band's edge is the data's weakest
-    (measured 14 % off) and is only required to be paired."""
+    (measured 14 % off, 5 % after the search above the band) and is only required to be
+    paired."""
     p = payload_simulator()
     C = modal_damping(p.M, p.K, 0.02)
     sensors = ["1+Z", "2+Z", "3+Z", "4+Z", "5+Z", "6+Z", "7+Z", "8+Z", "17+Z", "18+Z"]
     frf = report_noise_frf(
         accelerance_from_model(p.M, C, p.K, p.dofs, np.linspace(1, 300, 512), sensors, INTERFACE_DOFS), seed=1)
 
-    est, d, _ = identify_step1(frf)
-    old, _, _ = identify_step1(frf, low_line_starts=False)
+    # The search above the band (tests/test_step1_above_band_search.py) left out of both.
+    est, d, _ = identify_step1(frf, search_above_band=False)
+    old, _, _ = identify_step1(frf, low_line_starts=False, search_above_band=False)
     assert output_error_cost(d, old) > 10 * output_error_cost(d, est)
 
     r = identify_mck(frf)

@@ -9,7 +9,7 @@ coherence when it has them and from the fit's own residuals when it does not.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -91,6 +91,11 @@ class SSIDResult:
         it was assembled from: every root and its verdict (for
         :func:`ssid.bands.plot_band_roots`, or another choice of modes with
         :func:`ssid.band_select.modal_model_from_bands`). Not written to JSON.
+    step1 : tuple (Step1Estimate, Step1Data) or None
+        Step 1's estimate (the refinement's, also when a start with fewer problems replaced
+        it in step 2) and the data it was fitted to, with the noise weights it ended with:
+        for diagnostics such as :func:`ssid.step1_refine.errors_in_variables_cost`. None for
+        a band-processed model. Not written to JSON.
     """
 
     M: np.ndarray
@@ -112,6 +117,7 @@ class SSIDResult:
     info: dict = field(default_factory=dict)
     n_rigid_body_modes: int = 0
     band_result: Any = field(default=None, repr=False)
+    step1: Any = field(default=None, repr=False)
 
     def to_model(self):
         """The identified M, C, K as a :class:`ssid.io.Model` over ``dofs`` (what the model
@@ -599,5 +605,7 @@ def identify_mck(
         checks=checks,
         warnings=warnings,
         info=info,
+        # Step 2 re-weights d for Eq. 3.23: the data as step 1 weighted it.
+        step1=(est, replace(d, weight=step1_weight)),
     )
 

@@ -88,6 +88,25 @@ def test_noise_free_with_reactions_identifies_substructure_alone():
     assert rel(r.K, K) > 1e-2
 
 
+def test_result_keeps_step1_with_the_weights_step1_used():
+    """``SSIDResult.step1`` is step 1's estimate and data as :func:`identify_step1` returns
+    them: step 2 re-weights the data for Eq. 3.23, and a diagnostic on step 1's cost (the
+    errors-in-variables cost of the reaction bench) needs step 1's weights, not those.
+    Noisy substructure on a stand (the report's noise, seed 5), so the weights are the
+    ones the default estimated and re-estimated, not uniform."""
+    from ssid.identify import identify_step1
+
+    M, C, K, dofs = example_system(8, seed=2)
+    frf = report_noise_frf(frf_on_test_stand(M, C, K, dofs, [dofs[2]], [dofs[0], dofs[5]],
+                                             np.linspace(2, 400, 200)), seed=5)
+    r = identify_mck(frf)
+    est, d = r.step1
+    est1, d1, _ = identify_step1(frf)
+    assert np.array_equal(d.weight, d1.weight) and np.array_equal(d.weight_r, d1.weight_r)
+    assert np.array_equal(est.K_hat, est1.K_hat) and np.array_equal(est.C_hat, est1.C_hat)
+    assert np.ptp(d.weight) > 0
+
+
 def test_blanked_values_take_no_part(system14, frf14):
     M, C, K, _ = system14
     rng = np.random.default_rng(7)

@@ -10,7 +10,7 @@ import scipy.linalg as sla
 from report_truth import REPORT, Truth, fmt, run_parallel
 from ssid.correlate import modal_assurance, pair_modes_by_mac
 from ssid.frf import FRFData, selection_matrix
-from ssid.identify import identify_mck, identify_step1
+from ssid.identify import identify_mck
 from ssid.models.payload import INTERFACE_DOFS, Z_DOFS, attach_test_stand, rayleigh_damping
 from ssid.noise import report_noise_frf
 from ssid.step1 import Step1Estimate
@@ -79,34 +79,29 @@ def reactions(truth: Truth, seeds: list[int]) -> None:
           f"modes in the band: {inband.size} of 16 ({fs[inband[0]]:.3g}-{fs[inband[-1]]:.4g} Hz)")
     print(f"- report: {REPORT['reactions']}")
     sub_model = (Ms, Cs, Ks, fs, phi_s, inband, low, mid)
-    # A noisy record's model and its cost line are separate jobs (both run step 1, the cost
-    # line for the weights the true model's cost needs): six jobs of like size share the two
-    # workers better than three double ones.
     records = [("noise-free", frf)] + [(f"noisy seed {s}", report_noise_frf(frf, seed=s))
                                        for s in seeds]
-    jobs = [(label, data, sub_model, part) for label, data in records
-            for part in ("model",) + (("cost",) if label != "noise-free" else ())]
-    lines = dict(zip([(j[0], j[3]) for j in jobs], run_parallel(reaction_row, jobs)))
-    for label, _ in records:
-        print(lines[(label, "model")] + (f"\n{lines[(label, 'cost')]}" if label != "noise-free"
-                                         else ""))
+    jobs = [(label, data, sub_model) for label, data in records]
+    for line in run_parallel(reaction_row, jobs, [0.0] + [1.0] * len(seeds)):
+        print(line)
     print(REACTION_NOTES)
 
 
-def reaction_row(label: str, data: FRFData, sub_model: tuple, part: str) -> str:
-    """Section 6's lines for one record (worker process): ``part="model"``, the identified
-    substructure against the true one; ``"cost"`` (noisy data), the errors-in-variables cost
-    of both."""
+def reaction_row(label: str, data: FRFData, sub_model: tuple) -> str:
+    """Section 6's lines for one record (worker process): the identified substructure
+    against the true one and, for noisy data, the errors-in-variables cost of both."""
     Ms, Cs, Ks, fs, phi_s, inband, low, mid = sub_model
-    if part == "cost":
+    r = identify_mck(data)
+    cost = ""
+    if label != "noise-free":
         # The same cost at the true substructure: is the minimum the search missed there?
-        est, d, _ = identify_step1(data)
+        # Step 1's own data and weights (r.step1), which the true model's cost needs.
+        est, d = r.step1
         Mi = np.linalg.inv(Ms)
         true_est = Step1Estimate(Mi @ Cs, Mi @ Ks, Mi[:, d.in_idx], Mi[:, d.r_idx])
-        return (f"  errors-in-variables cost (step 1, {d.omega.size * d.n * d.n_in} complex "
+        cost = (f"\n  errors-in-variables cost (step 1, {d.omega.size * d.n * d.n_in} complex "
                 f"equations): true substructure {errors_in_variables_cost(d, true_est):.3g}, "
                 f"our estimate {errors_in_variables_cost(d, est):.3g}")
-    r = identify_mck(data)
     em = max(np.max(np.abs(A - B)) / np.max(np.abs(B)) for A, B in ((r.M, Ms), (r.K, Ks)))
     ec = np.max(np.abs(r.C - Cs)) / np.max(np.abs(Cs))
     fe = r.undamped_freq_hz
@@ -126,7 +121,7 @@ def reaction_row(label: str, data: FRFData, sub_model: tuple, part: str) -> str:
            f"error {fmt(e_mid, None, m_mid).strip()} %; suspension modes below 10 Hz "
            f"{fmt(e_low, None, m_low).strip()} %; M, K max entry error {100 * em:.3g} % of max "
            f"entry (C {100 * ec:.3g} %); all 16 undamped frequencies max error {ef:.3g} %"
-           + ("" if not r.warnings else f"; warnings: {len(r.warnings)}"))
+           + ("" if not r.warnings else f"; warnings: {len(r.warnings)}") + cost)
 
 
 REACTION_NOTES = """- what we achieve where the report had no solution: noise-free, the substructure exactly.

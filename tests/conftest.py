@@ -57,6 +57,15 @@ def chain_model() -> Model:
     return Model(M=m, K=k, C=c, dofs=list(DOFS))
 
 
+def uniform_chain(n: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(M, C, K) of a fixed-free spring-mass chain, 1 kg and 1e6 N/m per link, Rayleigh
+    damping ``1e-5 K + 2 M`` (for n = 4: modes at 55, 159, 244 and 299 Hz)."""
+    M = np.eye(n)
+    K = 1e6 * (2 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1))
+    K[-1, -1] = 1e6
+    return M, 1e-5 * K + 2.0 * M, K
+
+
 def chain_frf(inputs: list[str] | None = None, n_freq: int = 64) -> FRFData:
     """Noise-free accelerances of :func:`chain_model`, outputs at all three DOFs."""
     model = chain_model()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as sla
+from conftest import uniform_chain
 
 from ssid.correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from ssid.frf import accelerance_from_model
@@ -21,19 +22,11 @@ from ssid.step1_refine import output_error_cost
 from ssid.step2 import state_space_modes
 
 
-def chain(n: int = 4):
-    """A fixed-free spring-mass chain, 1 kg and 1e6 N/m per link, Rayleigh damping."""
-    M = np.eye(n)
-    K = 1e6 * (2 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1))
-    K[-1, -1] = 1e6
-    return M, 1e-5 * K + 2.0 * M, K
-
-
 def test_each_start_is_exact_on_noise_free_full_order_data():
     """Eq. 3.7 holds exactly at every line of a full-order model's noise-free data, so a fit
     to any subset of lines recovers M^-1 C and M^-1 K to rounding: the cut changes which
     lines, not what is fitted. 1-300 Hz: cuts at 5, 20 and 60 Hz."""
-    M, C, K = chain()
+    M, C, K = uniform_chain()
     dofs = ["1", "2", "3", "4"]
     frf = accelerance_from_model(M, C, K, dofs, np.linspace(1, 300, 400), dofs, ["4"])
     starts = starts_above_low_lines(step1_data(frf))
@@ -44,7 +37,7 @@ def test_each_start_is_exact_on_noise_free_full_order_data():
 
 
 def test_no_start_when_a_cut_leaves_out_no_line_or_too_many():
-    M, C, K = chain()
+    M, C, K = uniform_chain()
     dofs = ["1", "2", "3", "4"]
     # 100-300 Hz: every cut (5, 20, 60 Hz) lies below the first line.
     frf = accelerance_from_model(M, C, K, dofs, np.linspace(100, 300, 50), dofs, ["4"])
@@ -55,7 +48,7 @@ def test_no_start_when_a_cut_leaves_out_no_line_or_too_many():
     assert list(starts_above_low_lines(step1_data(frf), cuts=(1 / 5, 0.9))) == ["stls>60Hz"]
 
 
-def test_noisy_payload_holds_the_targets_above_the_band():
+def test_noisy_payload_holds_the_targets_above_the_band(payload_10dof_300hz):
     """The 10-DOF payload model (EfI sensors, docs/replication.md), 1-300 Hz, 512 lines, the
     report's noise (2 % magnitude, 2 degrees phase, 40 averages on response and force), seed 1.
     Seven target modes lie in the band, three above it (318.6, 395.2 and 558.8 Hz). From the
@@ -66,10 +59,8 @@ def test_noisy_payload_holds_the_targets_above_the_band():
     (measured 14 % off, 5 % after the search above the band) and is only required to be
     paired."""
     p = payload_simulator()
-    C = modal_damping(p.M, p.K, 0.02)
-    sensors = ["1+Z", "2+Z", "3+Z", "4+Z", "5+Z", "6+Z", "7+Z", "8+Z", "17+Z", "18+Z"]
-    frf = report_noise_frf(
-        accelerance_from_model(p.M, C, p.K, p.dofs, np.linspace(1, 300, 512), sensors, INTERFACE_DOFS), seed=1)
+    frf = report_noise_frf(payload_10dof_300hz[0], seed=1)
+    sensors = frf.outputs
 
     # The search above the band (tests/test_step1_above_band_search.py) left out of both.
     est, d, _ = identify_step1(frf, search_above_band=False)

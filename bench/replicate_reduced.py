@@ -4,6 +4,8 @@ put its own (run from bench/replicate_report.py)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from report_truth import (
@@ -189,7 +191,9 @@ def reduced_noisy_seed(n: str, spec, seed: int, modal: bool) -> tuple[dict, str]
     """Errors of each solver and of the band search on one noisy record (worker process)."""
     truth = worker_truth()
     sensors, tm = truth.sensors(int(n))
-    frf = report_noise_frf(truth.frf(sensors, spec), seed=seed)
+    noisy = report_noise_frf(truth.frf(sensors, spec), seed=seed, with_variance=True)
+    # The report's data carry no variances: all rows but the last see the values alone.
+    frf = replace(noisy, H_var=None, H_reaction_var=None)
     cands: dict = {}
     sel = identify_mck_band_select(frf, candidates=cands, modal=modal)
     chosen = (f"1-{sel.band_hz[1]:.0f} Hz {sel.info['band_select']['solver']}"
@@ -209,7 +213,7 @@ def reduced_noisy_seed(n: str, spec, seed: int, modal: bool) -> tuple[dict, str]
     if n != "16":
         # The same noisy values with the variance an analyser estimates from the spread of
         # its averages, as `ssidlab acquire` writes H_var: what the default does given it.
-        r = identify_mck(report_noise_frf(truth.frf(sensors, spec), seed=seed, with_variance=True))
+        r = identify_mck(noisy)
         errs["ml (analyser variances)"] = paired_errors(truth, sensors, tm, r.natural_freq_hz,
                                                         r.damping_ratio, r.mode_shapes)
     return errs, chosen

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.interrupts import hold_interrupt
 from ssid.jsonutil import to_jsonable
 
 from .safety import RunStopped
@@ -70,10 +71,16 @@ def latching_interrupt_handler(exc_type: type[BaseException] = KeyboardInterrupt
     dropped: the Ctrl-C is lost and the drive runs on (seen once in CI). The run therefore
     calls :func:`raise_if_interrupted` before every acquisition, which raises the interrupt
     again if it never arrived.
+
+    Inside a driver's :data:`drivers.interrupts.interrupts_held` section (a wait on a lock the
+    simulated DAQ or the amplifier's event loop also takes) the interrupt is raised when the
+    section ends, a few milliseconds on: raised inside, it could leave that lock taken for good
+    and the safe state waiting on it.
     """
     def handler(signum, frame):
         _latched.append(exc_type)
-        raise exc_type()
+        if not hold_interrupt(exc_type):
+            raise exc_type()
 
     return handler
 

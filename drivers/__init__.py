@@ -13,6 +13,7 @@ module                      what
 ``drivers.daq_protocol``    protocol: DAQ frames from ``ssidlab_daq.dbc`` (cantools), bus load,
                             stream reassembly (lost / duplicated / reordered frames)
 ``drivers.daq``             device: CAN FD DAQ front end (python-can)
+``drivers.interrupts``      Ctrl-C held back while a driver waits on a lock another thread takes
 ==========================  ====================================================================
 
 Every device class has ``safe_state()`` (outputs off, amplifier disabled, acquisition

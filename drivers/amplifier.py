@@ -35,6 +35,7 @@ from .errors import (
     ProtocolError,
     RangeError,
 )
+from .interrupts import future_result
 
 __all__ = ["FAULT_NAMES", "MODEL_ID", "REG", "AmpStatus", "ShakerAmplifier", "SyncShakerAmplifier"]
 
@@ -381,7 +382,9 @@ class SyncShakerAmplifier:
         fut = asyncio.run_coroutine_threadsafe(coro, self._loop)
         deadline = timeout_s if timeout_s is not None else 10 * (self.amp.retries + 1) * self.amp.timeout_s + 5.0
         try:
-            return fut.result(deadline)
+            # In slices with Ctrl-C held: an interrupt inside Future.result's condition could
+            # leave it locked and the event loop's thread stuck setting the result.
+            return future_result(fut, deadline)
         except TimeoutError:
             if fut.done():
                 raise  # the call's own InstrumentTimeout (a TimeoutError too), with its own words

@@ -49,6 +49,7 @@ from .errors import (
     SensorOverload,
     StreamError,
 )
+from .interrupts import interrupts_held
 
 __all__ = ["CanFdDaq", "DaqChannel", "SampleBlock", "firmware_text", "open_can_bus"]
 
@@ -207,7 +208,10 @@ class CanFdDaq:
     def _pump(self, timeout_s: float) -> bool:
         """Receive and dispatch frames for up to ``timeout_s`` (until one arrives). True if one did."""
         try:
-            return self._pump_frames(timeout_s)
+            # The virtual bus's receive queue is a lock the simulated DAQ's sending thread
+            # also takes: a Ctrl-C must not land inside it (drivers.interrupts).
+            with interrupts_held:
+                return self._pump_frames(timeout_s)
         except can.CanError as exc:
             raise ConnectionLost(f"{self.name}: CAN interface failed: {exc}") from exc
 
@@ -273,7 +277,9 @@ class CanFdDaq:
         except (cantools.database.errors.EncodeError, KeyError, ValueError) as exc:
             raise RangeError(f"{self.name}: {cmd}: {exc}") from None
         try:
-            self.bus.send(can.Message(arbitration_id=REQ_ID, data=data, is_fd=True, bitrate_switch=True, is_extended_id=False), timeout=self.timeout_s)
+            with interrupts_held:
+                self.bus.send(can.Message(arbitration_id=REQ_ID, data=data, is_fd=True, bitrate_switch=True,
+                                          is_extended_id=False), timeout=self.timeout_s)
         except can.CanError as exc:
             raise BusOff(f"{self.name}: cannot send {cmd}: {exc}") from exc
         deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)

@@ -56,6 +56,10 @@ __all__ = ["CanFdDaq", "DaqChannel", "SampleBlock", "firmware_text", "open_can_b
 log = logging.getLogger(__name__)
 CAN_ERR_BUSOFF = 0x40
 UNITS = {"acceleration": "m/s^2", "force": "N", "voltage": "V"}
+#: Frames one poll of the bus drains at most (tens of milliseconds' work): a sender faster
+#: than the driver must not keep a poll going, and with it a held Ctrl-C or a request's
+#: time-out, for as long as it sends.
+MAX_FRAMES_PER_POLL = 2048
 
 
 @dataclass(frozen=True)
@@ -229,7 +233,7 @@ class CanFdDaq:
         if msg is None:
             return False
         recv, dispatch, streams = self.bus.recv, self._dispatch, self._streams
-        n_data = 0
+        n_data = n_frames = 0
         while msg is not None:
             # Sample frames inline (the hot path); everything else through _dispatch.
             st = None if msg.is_error_frame else streams.get(msg.arbitration_id - DATA_ID0)
@@ -240,7 +244,8 @@ class CanFdDaq:
                     self._errors.append(gap)
             else:
                 dispatch(msg)
-            msg = recv(0.0)
+            n_frames += 1
+            msg = recv(0.0) if n_frames < MAX_FRAMES_PER_POLL else None
         if n_data:
             self._last_data = time.monotonic()
         return True

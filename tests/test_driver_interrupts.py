@@ -15,10 +15,11 @@ import signal
 import threading
 import time
 
+import can
 import pytest
 
 from daq.control import clear_interrupts, latching_interrupt_handler
-from drivers.daq import CanFdDaq
+from drivers.daq import MAX_FRAMES_PER_POLL, CanFdDaq
 from drivers.errors import InstrumentError
 from drivers.interrupts import future_result, interrupts_held
 from sim_devices.daq_sim import SimDaq
@@ -135,3 +136,18 @@ def test_future_result_returns_the_result_or_raises_as_future_result_does():
         assert 0.2 <= time.monotonic() - t0 < 1.0
     finally:
         pool.shutdown()
+
+
+def test_one_poll_of_the_bus_drains_a_bounded_number_of_frames(daq_on_sim):
+    """A sender faster than the driver must not keep one poll, and with it a held Ctrl-C,
+    going for as long as it sends: each poll stops after MAX_FRAMES_PER_POLL frames."""
+    sim, daq = daq_on_sim
+    n = MAX_FRAMES_PER_POLL + 500
+    with can.Bus(interface="virtual", channel=sim.channel) as other:
+        for k in range(n):  # frames of an ID the driver does not use
+            other.send(can.Message(arbitration_id=0x7F0, data=bytes([k & 0xFF]), is_extended_id=False))
+    assert daq.bus.queue.qsize() == n
+    assert daq._pump(0.05)
+    assert daq.bus.queue.qsize() == n - MAX_FRAMES_PER_POLL
+    assert daq.request("STATUS")["result"] == 0  # later polls drain the rest, and answers come through
+    assert daq.bus.queue.qsize() == 0

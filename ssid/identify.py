@@ -10,7 +10,7 @@ coherence when it has them and from the fit's own residuals when it does not.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -48,6 +48,9 @@ from .step1_refine import (
     refine_sanathanan_koerner,
 )
 from .step2 import assemble_mck, state_space_modes
+
+if TYPE_CHECKING:  # ssid.bands builds on this module
+    from .bands import BandResult
 
 __all__ = ["SSIDResult", "identify_mck", "identify_step1", "SOLVERS", "DAMPING_OPTIONS",
            "model_accelerance", "model_frf_errors", "model_output_error"]
@@ -116,8 +119,8 @@ class SSIDResult:
     warnings: list[str] = field(default_factory=list)
     info: dict = field(default_factory=dict)
     n_rigid_body_modes: int = 0
-    band_result: Any = field(default=None, repr=False)
-    step1: Any = field(default=None, repr=False)
+    band_result: BandResult | None = field(default=None, repr=False)
+    step1: tuple[Step1Estimate, Step1Data] | None = field(default=None, repr=False)
 
     def to_model(self):
         """The identified M, C, K as a :class:`ssid.io.Model` over ``dofs`` (what the model

@@ -13,6 +13,10 @@ FRFs, EfI sensors) this compares two step-1 models on the same record and the sa
 If the refinement from SEREP lets targets go and ends *higher* in output error than the
 default, the band's data prefer a model that does not hold them: a better search would not
 fix that row. If it ends lower, the row is (also) the search's.
+The first columns count modes: those below ``f_max`` (the non-targets among them with their
+mass-normalised shape norm at the sensors: how strongly the data show them) and the targets
+above it. A model of n DOFs holds n modes; one that held every mode its band shows would have
+``n - (modes in band)`` pairs left for the targets above.
 Frequency / damping: largest |% error| over the target modes paired by MAC and frequency
 (as in the replication tables), misses in brackets; from step 1's roots and shapes, which
 can differ from the replication table's cells (those are the written M, C, K's, and a start
@@ -71,15 +75,20 @@ def one_row(n: int, f_max: float) -> str:
     cost = output_error_cost(d, est)
     start = serep_start(truth, sensors, tm, est.Dr_hat)
     alt, info = refine_output_error(d, start, max_iter=100)
-    return (f"| {n}-DOF | 1-{f_max:g} Hz | {cost:.4g} | {fmt(*step1_errors(truth, sensors, tm, est))} "
+    in_band = np.flatnonzero(truth.f < f_max)
+    seen = np.linalg.norm(truth.phi[truth.p.index(sensors)], axis=0)
+    others = ", ".join(f"{truth.f[i]:.1f} ({seen[i]:.2f})" for i in in_band if i not in set(tm))
+    counts = f"{in_band.size} ({others or 'all targets'}) | {int(np.sum(truth.f[tm] >= f_max))}"
+    return (f"| {n}-DOF | 1-{f_max:g} Hz | {counts} | {cost:.4g} | {fmt(*step1_errors(truth, sensors, tm, est))} "
             f"| {output_error_cost(d, start):.4g} | {info['cost']:.4g} "
             f"| {fmt(*step1_errors(truth, sensors, tm, alt))} | {info['cost'] / cost:.3g} |")
 
 
 def main() -> int:
-    print("| model | spectrum | default: cost | default: errors | SEREP: cost | from SEREP: cost "
+    print("| model | spectrum | modes in band (non-targets, Hz (shape norm)) | targets above "
+          "| default: cost | default: errors | SEREP: cost | from SEREP: cost "
           "| from SEREP: errors | cost ratio (from SEREP / default) |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for line in run_parallel(one_row, CASES, size=[n * f for n, f in CASES]):
         print(line, flush=True)
     return 0

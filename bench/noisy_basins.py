@@ -27,27 +27,17 @@ import sys
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: steady, one case at a time
 
-import numpy as np  # noqa: E402
-from report_truth import fmt, paired_errors, worker_truth  # noqa: E402
+from report_truth import fmt, step1_root_errors, worker_truth  # noqa: E402
 
 from ssid.identify import identify_step1  # noqa: E402
-from ssid.modal import root_frequency_damping  # noqa: E402
 from ssid.noise import report_noise_frf  # noqa: E402
 from ssid.step1_refine import output_error_cost, refine_output_error  # noqa: E402
-from ssid.step2 import state_space_modes  # noqa: E402
 
 #: (sensors, spectrum, label): the report's spectrum rows that miss targets under noise, and
 #: the equivalent 10-DOF spectrum whose row holds them all, as a control.
 CASES = [(10, (1.0, 300.0, 512), "1-300 Hz"),
          (12, (1.0, 650.0, 512), "1-650 Hz"),
          (10, (1.0, 551.0, 512), "1-551 Hz (as 300 Hz)")]
-
-
-def root_errors(truth, sensors, tm, est) -> tuple[float, float, int]:
-    """Paired errors of a step-1 estimate's oscillatory roots (Eq. 3.12)."""
-    m = state_space_modes(est.C_hat, est.K_hat)
-    wn, zeta = root_frequency_damping(m.lam[: m.n_pairs])
-    return paired_errors(truth, sensors, tm, wn / (2 * np.pi), zeta, m.theta[: m.n, : m.n_pairs])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -66,8 +56,8 @@ def main(argv: list[str] | None = None) -> int:
             est, d, _ = identify_step1(report_noise_frf(clean, seed=seed))
             cost = output_error_cost(d, est)
             alt, info = refine_output_error(d, est_clean, max_iter=60)
-            print(f"| {n}-DOF | {label} | {seed} | {cost:.4g} | {fmt(*root_errors(truth, sensors, tm, est))} "
-                  f"| {info['cost']:.4g} | {fmt(*root_errors(truth, sensors, tm, alt))} "
+            print(f"| {n}-DOF | {label} | {seed} | {cost:.4g} | {fmt(*step1_root_errors(truth, sensors, tm, est))} "
+                  f"| {info['cost']:.4g} | {fmt(*step1_root_errors(truth, sensors, tm, alt))} "
                   f"| {cost / info['cost']:.3g} |", flush=True)
     return 0
 

@@ -8,8 +8,10 @@ import scipy.linalg as sla
 
 from ssid.correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from ssid.frf import FRFData, accelerance_from_model
+from ssid.modal import root_frequency_damping
 from ssid.models.payload import INTERFACE_DOFS, Z_DOFS, modal_damping, payload_simulator, target_modes
 from ssid.placement import effective_independence
+from ssid.step2 import state_space_modes
 
 # The report's figures: largest |% error| over the target modes in each table column.
 REPORT = {
@@ -76,6 +78,13 @@ def paired_errors(truth: Truth, sensors, tm, freq_hz, zeta, shapes) -> tuple[flo
     ef = [abs(freq_hz[p.test] - truth.f[tm[p.analysis]]) / truth.f[tm[p.analysis]] for p in pairs]
     ez = [abs(zeta[p.test] - 0.02) / 0.02 for p in pairs]
     return 100 * max(ef), 100 * max(ez), len(tm) - len(pairs)
+
+
+def step1_root_errors(truth: Truth, sensors, tm, est) -> tuple[float, float, int]:
+    """:func:`paired_errors` of a step-1 estimate's oscillatory roots and shapes (Eq. 3.12)."""
+    m = state_space_modes(est.C_hat, est.K_hat)
+    wn, zeta = root_frequency_damping(m.lam[: m.n_pairs])
+    return paired_errors(truth, sensors, tm, wn / (2 * np.pi), zeta, m.theta[: m.n, : m.n_pairs])
 
 
 def fmt(e: float, z: float | None = None, miss: int = 0) -> str:

@@ -32,29 +32,18 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from report_truth import INTERFACE_DOFS, fmt, run_parallel, worker_truth
+from report_truth import INTERFACE_DOFS, fmt, run_parallel, step1_root_errors, worker_truth
 
 from ssid.identify import identify_step1
-from ssid.modal import root_frequency_damping
 from ssid.models.payload import modal_damping
 from ssid.step1 import Step1Estimate
 from ssid.step1_refine import output_error_cost, refine_output_error
-from ssid.step2 import state_space_modes
 from ssid.tam import serep_reduce
 
 #: (sensors, f_max in Hz): section 2's rows at the report's spectra and the equivalent ones,
 #: 512 lines from 1 Hz; the 10-DOF 1-300 Hz row, which holds every target, as a control.
 CASES = [(10, 300.0), (12, 300.0), (12, 650.0), (12, 551.0), (12, 1158.0),
          (16, 300.0), (16, 650.0), (16, 551.0), (16, 1158.0)]
-
-
-def step1_errors(truth, sensors, tm, est: Step1Estimate) -> tuple[float, float, int]:
-    """Paired errors of a step-1 estimate's oscillatory roots (Eq. 3.12)."""
-    from report_truth import paired_errors
-
-    m = state_space_modes(est.C_hat, est.K_hat)
-    wn, zeta = root_frequency_damping(m.lam[: m.n_pairs])
-    return paired_errors(truth, sensors, tm, wn / (2 * np.pi), zeta, m.theta[: m.n, : m.n_pairs])
 
 
 def serep_start(truth, sensors, tm, Dr_hat: np.ndarray) -> Step1Estimate:
@@ -79,9 +68,9 @@ def one_row(n: int, f_max: float) -> str:
     seen = np.linalg.norm(truth.phi[truth.p.index(sensors)], axis=0)
     others = ", ".join(f"{truth.f[i]:.1f} ({seen[i]:.2f})" for i in in_band if i not in set(tm))
     counts = f"{in_band.size} ({others or 'all targets'}) | {int(np.sum(truth.f[tm] >= f_max))}"
-    return (f"| {n}-DOF | 1-{f_max:g} Hz | {counts} | {cost:.4g} | {fmt(*step1_errors(truth, sensors, tm, est))} "
+    return (f"| {n}-DOF | 1-{f_max:g} Hz | {counts} | {cost:.4g} | {fmt(*step1_root_errors(truth, sensors, tm, est))} "
             f"| {output_error_cost(d, start):.4g} | {info['cost']:.4g} "
-            f"| {fmt(*step1_errors(truth, sensors, tm, alt))} | {info['cost'] / cost:.3g} |")
+            f"| {fmt(*step1_root_errors(truth, sensors, tm, alt))} | {info['cost'] / cost:.3g} |")
 
 
 def main() -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 import platform
 
@@ -174,3 +175,38 @@ def log_sweep_record():
                                  list(Z_DOFS), ["11+Z", "16+Z"])
     fn = np.sqrt(sla.eigvalsh(red.K, red.M)) / (2 * np.pi)
     return frf, fn[(fn >= f[0]) & (fn <= f[-1])]
+
+
+def driven_world(**kw):
+    """The simulated lab's example world, noise-free, generator 1 channel 1 driving a 37 Hz
+    sine at 1 Vpp through an enabled amplifier (the DAQ driver tests' structure)."""
+    from sim_devices.lab import example_world
+
+    w = example_world(noise=False, **kw)
+    ch = w.generators[0].channels[0]
+    ch.function, ch.freq_hz, ch.vpp, ch.output_on = "SIN", 37.0, 1.0, True
+    w.amplifiers[0].request_enable()
+    return w
+
+
+_daq_channels = itertools.count()
+
+
+@pytest.fixture
+def rig():
+    """(world, simulated DAQ, DAQ driver) on a fresh python-can virtual channel, the world
+    :func:`driven_world`; the driver closed and the simulator stopped afterwards."""
+    from drivers.daq import CanFdDaq
+    from drivers.errors import InstrumentError
+    from sim_devices.daq_sim import SimDaq
+
+    name = f"test-daq-{next(_daq_channels)}"
+    world = driven_world()
+    sim = SimDaq(world, name).start()
+    daq = CanFdDaq(channel=name, timeout_s=0.3, stream_timeout_s=0.5)
+    yield world, sim, daq
+    try:
+        daq.close()
+    except InstrumentError:
+        pass
+    sim.stop()

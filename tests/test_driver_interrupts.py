@@ -10,7 +10,6 @@ there leaves the lock taken for good: the aborted run that stalled in CI.
 from __future__ import annotations
 
 import concurrent.futures
-import itertools
 import signal
 import threading
 import time
@@ -19,13 +18,8 @@ import can
 import pytest
 
 from daq.control import clear_interrupts, latching_interrupt_handler
-from drivers.daq import MAX_FRAMES_PER_POLL, CanFdDaq
-from drivers.errors import InstrumentError
+from drivers.daq import MAX_FRAMES_PER_POLL
 from drivers.interrupts import future_result, interrupts_held
-from sim_devices.daq_sim import SimDaq
-from sim_devices.lab import example_world
-
-_names = itertools.count()
 
 
 @pytest.fixture
@@ -72,21 +66,8 @@ def test_an_interrupt_inside_a_held_section_is_raised_when_the_outermost_one_end
     assert reached == ["inner", "outer"]
 
 
-@pytest.fixture
-def daq_on_sim():
-    name = f"test-interrupt-{next(_names)}"
-    sim = SimDaq(example_world(noise=False), name).start()
-    daq = CanFdDaq(channel=name, timeout_s=0.5)
-    yield sim, daq
-    try:
-        daq.close()
-    except InstrumentError:
-        pass
-    sim.stop()
-
-
-def test_ctrl_c_while_the_daq_driver_waits_for_its_bus_queue_leaves_the_queue_free(ctrl_c_handler, daq_on_sim):
-    sim, daq = daq_on_sim
+def test_ctrl_c_while_the_daq_driver_waits_for_its_bus_queue_leaves_the_queue_free(ctrl_c_handler, rig):
+    _, sim, daq = rig
     mutex = daq.bus.queue.mutex  # the virtual bus's receive queue: the simulated DAQ sends into it
     holder = _interrupt_while_held(mutex)
     try:
@@ -138,10 +119,10 @@ def test_future_result_returns_the_result_or_raises_as_future_result_does():
         pool.shutdown()
 
 
-def test_one_poll_of_the_bus_drains_a_bounded_number_of_frames(daq_on_sim):
+def test_one_poll_of_the_bus_drains_a_bounded_number_of_frames(rig):
     """A sender faster than the driver must not keep one poll, and with it a held Ctrl-C,
     going for as long as it sends: each poll stops after MAX_FRAMES_PER_POLL frames."""
-    sim, daq = daq_on_sim
+    _, sim, daq = rig
     n = MAX_FRAMES_PER_POLL + 500
     with can.Bus(interface="virtual", channel=sim.channel) as other:
         for k in range(n):  # frames of an ID the driver does not use

@@ -8,6 +8,7 @@ import time
 import can
 import numpy as np
 import pytest
+from conftest import driven_world
 
 from drivers.daq import CanFdDaq, DaqChannel
 from drivers.daq_protocol import bus_load, decode_codes, fd_frame_bits, load_dbc
@@ -30,29 +31,6 @@ _names = itertools.count()
 CHANNELS = [DaqChannel("force 1+Z", 0, "force", 22.5, 10.0, "DC"),
             DaqChannel("acc 1+Z", 2, "acceleration", 10.0, 10.0, "DC"),
             DaqChannel("acc 5+Z", 6, "acceleration", 10.0, 10.0, "DC")]
-
-
-def driven_world(**kw):
-    w = example_world(noise=False, **kw)
-    ch = w.generators[0].channels[0]
-    ch.function, ch.freq_hz, ch.vpp, ch.output_on = "SIN", 37.0, 1.0, True
-    w.amplifiers[0].request_enable()
-    return w
-
-
-@pytest.fixture
-def rig():
-    """(world, simulated DAQ, driver) on a fresh virtual channel; everything closed afterwards."""
-    name = f"test-daq-{next(_names)}"
-    world = driven_world()
-    sim = SimDaq(world, name).start()
-    daq = CanFdDaq(channel=name, timeout_s=0.3, stream_timeout_s=0.5)
-    yield world, sim, daq
-    try:
-        daq.close()
-    except InstrumentError:
-        pass
-    sim.stop()
 
 
 def reference(n: int) -> np.ndarray:

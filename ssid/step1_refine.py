@@ -38,7 +38,7 @@ from .step1 import (
     predict_accelerance,
     step1_regressors,
 )
-from .step2 import state_space_modes
+from .step2 import StateSpaceModes, state_space_modes
 
 __all__ = [
     "refine_sanathanan_koerner",
@@ -391,16 +391,19 @@ def _estimate_from_modes(est: Step1Estimate, lam: np.ndarray, V: np.ndarray) -> 
     return Step1Estimate(-comp[n:, n:], -comp[n:, :n], est.Df_hat.copy(), est.Dr_hat.copy())
 
 
-def root_moved(est: Step1Estimate, r: int, factor: float) -> Step1Estimate | None:
+def root_moved(est: Step1Estimate, r: int, factor: float,
+               modes: StateSpaceModes | None = None) -> Step1Estimate | None:
     """``est`` with its ``r``-th oscillatory root pair (as ordered by
     :func:`ssid.step2.state_space_modes`) moved to ``factor`` times its natural frequency at
     the same damping ratio and shape; every other root and eigenvector kept. None when the
-    eigenvectors are singular or ``r`` is not an oscillatory pair."""
+    eigenvectors are singular or ``r`` is not an oscillatory pair. ``modes``: ``est``'s
+    :func:`~ssid.step2.state_space_modes`, if the caller has them already."""
     n = est.C_hat.shape[0]
-    try:
-        modes = state_space_modes(est.C_hat, est.K_hat)
-    except IdentificationError:
-        return None
+    if modes is None:
+        try:
+            modes = state_space_modes(est.C_hat, est.K_hat)
+        except IdentificationError:
+            return None
     if not 0 <= r < modes.n_pairs:
         return None
     lam, V = modes.lam.copy(), modes.theta.copy()
@@ -473,7 +476,7 @@ def refine_roots_above_band(
         best = None
         for r in np.flatnonzero((wn > omega_max) & (wn <= span * omega_max)):
             for factor in factors:
-                start = root_moved(est, int(r), factor)
+                start = root_moved(est, int(r), factor, modes)
                 if start is None:
                     continue
                 tries += 1

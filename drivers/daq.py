@@ -431,8 +431,11 @@ class CanFdDaq:
     def _raise_errors(self) -> None:
         for err in list(self._errors):
             if isinstance(err, FramesLost) and self.on_gap == "mark":
-                log.warning("%s", err)
+                # A logging handler's lock is taken by every thread that logs (the safe
+                # state's too): a Ctrl-C inside its acquire would leave it taken for good.
                 self._errors.remove(err)
+                with interrupts_held:
+                    log.warning("%s", err)
                 continue
             self._errors.remove(err)
             raise err

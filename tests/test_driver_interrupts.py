@@ -10,6 +10,7 @@ there leaves the lock taken for good: the aborted run that stalled in CI.
 from __future__ import annotations
 
 import concurrent.futures
+import logging
 import signal
 import threading
 import time
@@ -19,6 +20,7 @@ import pytest
 
 from daq.control import clear_interrupts, latching_interrupt_handler
 from drivers.daq import MAX_FRAMES_PER_POLL
+from drivers.errors import FramesLost
 from drivers.interrupts import future_result, interrupts_held
 
 
@@ -132,3 +134,33 @@ def test_one_poll_of_the_bus_drains_a_bounded_number_of_frames(rig):
     assert daq.bus.queue.qsize() == n - MAX_FRAMES_PER_POLL
     assert daq.request("STATUS")["result"] == 0  # later polls drain the rest, and answers come through
     assert daq.bus.queue.qsize() == 0
+
+
+def test_ctrl_c_while_the_daq_driver_logs_a_gap_leaves_the_log_handler_free(ctrl_c_handler, rig):
+    """The one warning the main thread logs mid-run (frames lost, ``on_gap="mark"``) takes
+    each handler's lock, which the safe state's threads take too when they log."""
+    _, sim, daq = rig
+    handler = logging.Handler()  # its emit is never reached: the lock is what matters
+    handler.emit = lambda record: None
+    logger = logging.getLogger("drivers.daq")
+    logger.addHandler(handler)
+    daq.on_gap = "mark"
+    daq._errors.append(FramesLost("daq: 3 frames lost"))  # as the poll records a gap
+    try:
+        holder = _interrupt_while_held(handler.lock)
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                daq._raise_errors()
+        finally:
+            holder.join(5.0)
+        other = threading.Thread(target=logger.warning, args=("from another thread",), daemon=True)
+        other.start()
+        other.join(5.0)
+        leaked = other.is_alive()
+        if leaked:
+            handler.release()  # the main thread owns it: let the other thread finish
+            other.join(5.0)
+    finally:
+        logger.removeHandler(handler)
+    assert not leaked, "the KeyboardInterrupt left the log handler's lock taken"
+    assert not daq._errors  # the gap was logged, not raised later as an error

@@ -34,6 +34,7 @@ __all__ = [
     "fit_scale_factors",
     "frf_share",
     "normal_mode_mck",
+    "normal_mode_shapes",
     "residual_runs",
     "root_shapes",
     "scale_selected_roots",
@@ -363,16 +364,9 @@ def normal_mode_mck(lam: np.ndarray, theta_x: np.ndarray,
     shapes if H is in (m/s^2)/N); M, C, K in the units of Eq. 3.15.
     """
     lam = np.asarray(lam, dtype=complex)
-    th = np.asarray(theta_x, dtype=complex)
-    # Phase that makes each shape most nearly real: maximises |Re(e^{j a} theta)|^2 =
-    # (|theta|^2 + Re(e^{2ja} theta^T theta)) / 2.
-    alpha = -0.5 * np.angle(np.sum(th * th, axis=0))
-    phi = (th * np.exp(1j * alpha)).real
-    u_real = u * np.exp(-2j * alpha)  # u theta theta^T = u_real phi phi^T (to the imag part)
+    phi, inv_m = normal_mode_shapes(lam, theta_x, u)
     wn = np.abs(lam)
     zeta = -lam.real / wn
-    wd = lam.imag
-    inv_m = -2 * wd * u_real.imag  # u_real = -j / (2 omega_d m)
     Minv = (phi * inv_m) @ phi.T
     Kinv = (phi * (inv_m / wn**2)) @ phi.T
     M = np.linalg.inv(Minv)
@@ -382,6 +376,21 @@ def normal_mode_mck(lam: np.ndarray, theta_x: np.ndarray,
     with np.errstate(divide="ignore"):
         # Symmetric by construction; remove rounding asymmetry only.
         return (M + M.T) / 2, (C + C.T) / 2, (K + K.T) / 2, 1.0 / inv_m
+
+
+def normal_mode_shapes(lam: np.ndarray, theta_x: np.ndarray,
+                       u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Real shapes ``phi`` (n, m) and inverse modal masses ``1/m`` (m,) of complex pairs taken
+    as real normal modes (see :func:`normal_mode_mck`): each shape turned by the phase that
+    makes it most nearly real, ``u_r = -j / (2 omega_dr m_r)`` read for that phase."""
+    lam = np.asarray(lam, dtype=complex)
+    th = np.asarray(theta_x, dtype=complex)
+    # Phase that makes each shape most nearly real: maximises |Re(e^{j a} theta)|^2 =
+    # (|theta|^2 + Re(e^{2ja} theta^T theta)) / 2.
+    alpha = -0.5 * np.angle(np.sum(th * th, axis=0))
+    phi = (th * np.exp(1j * alpha)).real
+    u_real = np.asarray(u) * np.exp(-2j * alpha)  # u theta theta^T = u_real phi phi^T (to the imag part)
+    return phi, -2 * lam.imag * u_real.imag
 
 
 def scale_selected_roots(

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .band_scaling import root_shapes, scale_selected_roots, strongest_roots
+from .band_residual import fit_residual_pair, normal_mode_accelerance
+from .band_scaling import normal_mode_mck, normal_mode_shapes, root_shapes, scale_selected_roots, strongest_roots
 from .bands import BandResult, band_layout, default_band_width_hz, process_bands
 from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from .errors import IdentificationError
@@ -31,6 +32,43 @@ def result_problems(r: SSIDResult) -> int:
     ev_k = np.linalg.eigvalsh(r.K)
     return (int(r.real_roots.size > 0) + int(np.any(r.damping_ratio < 0))
             + int(ev_m.min() <= 0) + int(ev_k.min() < -1e-9 * np.abs(ev_k).max()))
+
+
+def _complete_with_residual_pair(frf: FRFData, kept: BandResult, scale: str):
+    """The n - 1 kept roots as real normal modes and one residual pair above the band:
+    ``(lam (n,), unit-max shapes (n, n), (M, C, K))``."""
+    n = frf.n_out
+    u = scale_selected_roots(frf, kept, scale, assemble=False)[0]
+    lam = np.array([r.lam for r in kept.selected])
+    theta = root_shapes(kept.selected, n)
+    phi, inv_m = normal_mode_shapes(lam, theta, u)
+    # The kept roots passed strongest_roots' 1e-2 test one by one; together (a symmetry class
+    # with more modes than it has dimensions at the sensors) they can still be dependent.
+    if not _independent(phi):
+        raise IdentificationError("the found modes' shapes are linearly dependent at the "
+                                  "sensors: no modal model of this order")
+    w = data_noise_weights(frf)
+    omega = 2 * np.pi * frf.freq_hz
+    resid = np.where(w > 0, frf.H, 0.0) - normal_mode_accelerance(omega, lam, phi, inv_m,
+                                                                   frf.input_index())
+    zeta = float(np.median(-lam.real / np.abs(lam)))
+    lam_r, phi_r = fit_residual_pair(omega, resid, w, frf.input_index(), zeta)
+    if not _independent(np.column_stack([phi, phi_r])):
+        raise IdentificationError("the residual pair's shape lies in the span of the found "
+                                  "modes' at the sensors: no modal model of this order")
+    theta = np.column_stack([theta, phi_r])
+    lam = np.append(lam, lam_r)
+    # The pair's real shape is for unit modal mass: u = -j / (2 omega_d) (Eq. 3.23's scale
+    # factor of a real normal mode, normal_mode_mck's convention).
+    M, C, K, _ = normal_mode_mck(lam, theta, np.append(u, -0.5j / lam_r.imag))
+    return lam, unit_max_shapes(theta), (M, C, K)
+
+
+def _independent(shapes: np.ndarray, rtol: float = 1e-8) -> bool:
+    """Whether the columns of ``shapes`` (n, m), each normalised, are linearly independent to
+    ``rtol`` (smallest over largest singular value), as Eq. 3.26's inverse needs."""
+    sv = np.linalg.svd(shapes / np.linalg.norm(shapes, axis=0), compute_uv=False)
+    return bool(sv[-1] >= rtol * sv[0])
 
 
 def band_ladder(
@@ -71,6 +109,7 @@ def identify_mck_modal(
     solver: str = "ml",
     prefer_shapes: np.ndarray | None = None,
     prefer_freq_hz: np.ndarray | None = None,
+    residual_pair: bool = True,
 ) -> SSIDResult:
     """Reduced-order M, C, K assembled from band-processed modes (beyond the report).
 
@@ -86,7 +125,7 @@ def identify_mck_modal(
     band_width_hz : float, optional
         Width of the overlapping bands. Default: :func:`ssid.bands.band_layout` (bands
         of :func:`default_band_width_hz` on evenly spaced lines, of equal line count otherwise).
-    scale, prefer_shapes, prefer_freq_hz
+    scale, prefer_shapes, prefer_freq_hz, residual_pair
         As for :func:`modal_model_from_bands`.
     solver : step-1 solver in each band (as for :func:`identify_mck`).
 
@@ -105,7 +144,8 @@ def identify_mck_modal(
     bands, band_width_hz = band_layout(frf, band_width_hz)
     res = process_bands(frf, bands, solver=solver)
     return modal_model_from_bands(frf, res, scale=scale, band_width_hz=band_width_hz,
-                                  prefer_shapes=prefer_shapes, prefer_freq_hz=prefer_freq_hz)
+                                  prefer_shapes=prefer_shapes, prefer_freq_hz=prefer_freq_hz,
+                                  residual_pair=residual_pair)
 
 
 def modal_model_from_bands(
@@ -116,6 +156,7 @@ def modal_model_from_bands(
     band_width_hz: float | None = None,
     prefer_shapes: np.ndarray | None = None,
     prefer_freq_hz: np.ndarray | None = None,
+    residual_pair: bool = True,
 ) -> SSIDResult:
     """n-DOF M, C, K from the modes band processing found (``res`` of :func:`process_bands`
     on ``frf``).
@@ -128,7 +169,10 @@ def modal_model_from_bands(
     the measured FRFs), unless an analyst lists target modes (``prefer_shapes``, e.g. an FE
     model's at the sensors): roots paired with them (MAC x frequency ratio, MAC >= 0.8) are
     kept first, as the report picked its band-processing roots by hand. The modes it leaves
-    out are simply absent from the model.
+    out are simply absent from the model. With one mode too few (``residual_pair``), the
+    last pair is fitted to what the found modes leave of the FRFs above the band
+    (:func:`ssid.band_residual.fit_residual_pair`): a residual pair, which stands for the
+    modes above the band; its damping ratio is the found modes' median (not in the data).
 
     Parameters
     ----------
@@ -143,18 +187,24 @@ def modal_model_from_bands(
     prefer_shapes : (n, k) array, optional
         Target mode shapes at ``frf.outputs`` (real or complex), with ``prefer_freq_hz``
         (k,) their frequencies, Hz.
+    residual_pair : bool
+        Complete a model one mode short with a residual pair (default); False to refuse it.
 
     Returns
     -------
     SSIDResult with ``solver`` set to ``"bands"``; ``info["bands"]`` holds the band width,
-    how many modes the bands selected and the kept frequencies, ``band_result`` is ``res``.
+    how many modes the bands selected, the kept frequencies and the residual pair's frequency
+    (``residual_pair_hz``, None without one; the pair is then the last mode, and a warning
+    says so), ``band_result`` is ``res``.
 
     Raises
     ------
     IdentificationError
         With reactions in the data (step 1 is not determined in a narrow band with reactions,
         docs/algorithm.md known limits), when the bands found fewer independent modes than
-        DOFs (no n-DOF modal model exists), or when a kept modal mass is not positive.
+        DOFs (no n-DOF modal model exists; one fewer with ``residual_pair``, when no pair
+        fits the residual or its shape is not independent of the found ones), or when a kept
+        modal mass is not positive.
     """
     if frf.H_reaction is not None:
         raise IdentificationError("the modal (band-processed) model is not available with "
@@ -170,14 +220,20 @@ def modal_model_from_bands(
                                                 res.freq_hz, prefer_freq_hz, 0.8)
         prefer = [p.test for p in pairs]
     kept = strongest_roots(frf, res, n, prefer=prefer)
-    if len(kept.selected) < n:
+    m = len(kept.selected)
+    if m < n - int(residual_pair) or m == 0:
         raise IdentificationError(
-            f"band processing found {len(kept.selected)} modes with independent shapes, "
-            f"{n} are needed for a modal model of {n} DOFs")
-    _, mck = scale_selected_roots(frf, kept, scale, assembly="normal")
-    M, C, K = mck
+            f"band processing found {m} modes with independent shapes, {n} are needed for a "
+            f"modal model of {n} DOFs" + (f" ({n - 1} with a residual pair above the band)"
+                                          if residual_pair else ""))
     lam = np.array([r.lam for r in kept.selected])
     shapes = unit_max_shapes(root_shapes(kept.selected, n))
+    pair_hz = None
+    if m == n:
+        M, C, K = scale_selected_roots(frf, kept, scale, assembly="normal")[1]
+    else:
+        lam, shapes, (M, C, K) = _complete_with_residual_pair(frf, kept, scale)
+        pair_hz = float(np.abs(lam[-1]) / (2 * np.pi))
     try:
         wu, phi = real_modes(M, K)
     except np.linalg.LinAlgError as exc:
@@ -185,6 +241,10 @@ def modal_model_from_bands(
                                   "physical") from exc
     zeta = -lam.real / np.abs(lam)
     checks, warnings = physical_checks(M, C, K, zeta)
+    if pair_hz is not None:
+        warnings.append(f"{m} modes found in the band; the model's last pair ({pair_hz:.4g} Hz, "
+                        f"damping ratio assumed) is fitted to the residual of the modes above "
+                        f"the band and stands for them, not for one of them")
     checks["frf_relative_rms_error"] = model_frf_errors(frf, M, C, K, data_noise_weights(frf))[1]
     return SSIDResult(
         M=M, C=C, K=K, dofs=list(frf.outputs),
@@ -194,7 +254,8 @@ def modal_model_from_bands(
         real_roots=np.zeros(0), solver="bands", damping="modal",
         band_hz=(float(f[0]), float(f[-1])), checks=checks, warnings=warnings,
         info={"bands": {"band_width_hz": band_width_hz, "n_selected": len(res.selected),
-                        "kept_freq_hz": [float(v) for v in kept.freq_hz]}},
+                        "kept_freq_hz": [float(v) for v in kept.freq_hz],
+                        "residual_pair_hz": pair_hz}},
         band_result=res,
     )
 
@@ -227,10 +288,11 @@ def identify_mck_band_select(
        would cost most there.
        With ``modal`` (and no reactions), the whole band's band-processed modal model
        (:func:`identify_mck_modal`, solver ``"bands"``) is a candidate too.
-    3. Choice: the modal model when it is physical (:func:`result_problems` is 0): each
-       of its modes was found in two overlapping bands, evidence no output error gives (a
-       model that bends its modes to absorb those it cannot hold can predict the lines better
-       than the structure itself). Otherwise, among the physical candidates,
+    3. Choice: the modal model when it is physical (:func:`result_problems` is 0) and holds
+       no residual pair: each of its modes was found in two overlapping bands, evidence no
+       output error gives (a model that bends its modes to absorb those it cannot hold can
+       predict the lines better than the structure itself). Otherwise, among the physical
+       candidates (a modal model with a residual pair among them),
        the one with the lowest weighted output error of its M, C, K
        over **all** measured lines, ``sum_kij w_kij^2 |H_kij - H^model_kij|^2`` (Eq. 3.6 solved
        for the accelerance, :func:`model_accelerance`), with ``w = 1/sigma`` the noise
@@ -309,7 +371,9 @@ def identify_mck_band_select(
         candidates.update({(float(h), s): res for _, h, s, res in cands})
     score, hi, solver, r = min(cands, key=lambda c: c[0])
     how = "lowest output error over all lines"
-    modal_physical = [c for c in cands if c[2] == "bands" and not c[0][0]]
+    # A residual pair was not found in two bands: a model holding one competes on output error.
+    modal_physical = [c for c in cands if c[2] == "bands" and not c[0][0]
+                      and c[3].info["bands"]["residual_pair_hz"] is None]
     if modal_physical:
         # Output error cannot tell a model that bends its modes to absorb the ones it cannot
         # hold from one that holds its modes right: the bent one can predict the lines better

@@ -3,7 +3,8 @@
     ssidlab bands FRF.h5 --json RESULT.json [--plot ROOTS.png] [--out MODEL.h5]
                   [--fmin HZ] [--fmax HZ] [--width HZ] [--overlap FRACTION]
                   [--mpc-min MPC] [--repeat-tol FRACTION] [--solver ml|ls|tls|stls]
-                  [--scale BP1|BP2|BP3] [--targets FE_MODEL] [--target-modes 1,2,...] [--quiet]
+                  [--scale BP1|BP2|BP3] [--targets FE_MODEL] [--target-modes 1,2,...]
+                  [--no-residual-pair] [--quiet]
 
 Overlapping bands, each through step 1 and the eigenproblem (Eq. 3.12); each root judged by
 the report's four criteria (outside its band, negative damping, MPC below ``--mpc-min``, not
@@ -13,7 +14,9 @@ stabilisation-style chart of roots per band to ``--plot`` and, with ``--out``, t
 assembled from the n strongest modes with independent shapes as real normal modes, scaled by
 ``--scale`` (``ssid.band_select.modal_model_from_bands``). Which n modes that model holds is
 the data's choice unless an FE model names the target modes (``--targets``; the report picked
-its roots by hand): roots paired with them (MAC >= 0.8 and frequency) are kept first.
+its roots by hand): roots paired with them (MAC >= 0.8 and frequency) are kept first. With
+one mode too few, the last pair is fitted above the band to what the found modes leave of the
+FRFs (a residual pair, said in a warning; ``--no-residual-pair`` refuses instead).
 
 Bad input raises :class:`ssid.errors.InputError`; ``ssidlab.cli.main`` prints it as one line
 and exits with status 2.
@@ -82,6 +85,9 @@ def add_bands_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--target-modes", type=parse_mode_list, metavar="1,2,...",
                    help="the target modes of --targets, 1-based (default: its modes inside "
                    "the band)")
+    p.add_argument("--no-residual-pair", action="store_true",
+                   help="refuse a model one mode short instead of completing it with a residual "
+                   "pair fitted above the band (its damping assumed)")
     p.add_argument("--quiet", action="store_true", help="do not print the mode table")
     p.set_defaults(run=run_bands)
     return p
@@ -157,7 +163,8 @@ def run_bands(args: argparse.Namespace) -> int:
             model = modal_model_from_bands(
                 data, res, scale=args.scale, band_width_hz=width,
                 prefer_shapes=None if targets is None else targets["shapes"],
-                prefer_freq_hz=None if targets is None else targets["freq_hz"])
+                prefer_freq_hz=None if targets is None else targets["freq_hz"],
+                residual_pair=not args.no_residual_pair)
         except IdentificationError as exc:
             # The bands' findings are kept (JSON, chart) even when no model can be made.
             out["model_error"] = str(exc)

@@ -159,13 +159,14 @@ def test_bands_settings_change_the_bands(reduced):
 
 def test_bands_without_enough_modes_for_a_model_keeps_what_it_found(reduced):
     """Below 70 Hz the 8-DOF system has 3 modes, fewer than the 4 sensors: no 4-DOF modal
-    model exists. The run says so (status 2, one line), prints the modes it found and keeps
-    them in the JSON."""
+    model of found modes exists, and ``--no-residual-pair`` refuses to complete one. The run
+    says so (status 2, one line), prints the modes it found and keeps them in the JSON."""
     M, C, K, dofs, d = reduced
     f_true = _root_freq_hz(M, C, K)
     assert np.sum(f_true < 70) == 3
     js = d / "few.json"
-    p = run(str(d / "frf.h5"), "--json", str(js), "--out", str(d / "few.h5"), "--fmax", "70")
+    p = run(str(d / "frf.h5"), "--json", str(js), "--out", str(d / "few.h5"), "--fmax", "70",
+            "--no-residual-pair")
     assert p.returncode == 2 and "no modal model" in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1
     res = json.loads(js.read_text())
@@ -174,6 +175,25 @@ def test_bands_without_enough_modes_for_a_model_keeps_what_it_found(reduced):
     assert len(found) <= 3 and _all_true(found, f_true)
     table = p.stdout.strip().splitlines()
     assert table[-1].split()[0] == str(len(found)), p.stdout
+
+
+def test_bands_completes_a_model_one_mode_short_with_a_residual_pair_and_says_so(reduced):
+    """Below 70 Hz: 3 modes for 4 sensors. Without ``--no-residual-pair`` the model keeps
+    the 3 found and fits its 4th pair above 70 Hz to what they leave of the FRFs: the model
+    is written, a warning names the pair, and the JSON records its frequency."""
+    M, C, K, dofs, d = reduced
+    f_true = _root_freq_hz(M, C, K)
+    js = d / "pair.json"
+    p = run(str(d / "frf.h5"), "--json", str(js), "--out", str(d / "pair.h5"), "--fmax", "70",
+            "--quiet")
+    assert p.returncode == 0, p.stderr
+    assert "residual" in p.stderr and "stands for them" in p.stderr
+    res = json.loads(js.read_text())
+    pair_hz = res["model"]["info"]["bands"]["residual_pair_hz"]
+    assert 70.0 < pair_hz < 700.0
+    found = res["model"]["natural_freq_hz"][:3]
+    assert _all_true(found, f_true)
+    assert (d / "pair.h5").exists()
 
 
 @pytest.mark.parametrize("extra, message", [

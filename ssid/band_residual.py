@@ -93,7 +93,7 @@ def fit_residual_pair(
         at its driving points).
     """
     w2 = weight**2
-    R = residual
+    R = np.where(w2 > 0, residual, 0.0)  # a blanked value (NaN) has weight 0: it must not poison the sums
     wmax = float(omega[-1])
 
     def solve(log_wr: float) -> tuple[float, np.ndarray]:

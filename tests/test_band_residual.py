@@ -40,3 +40,15 @@ def test_a_residual_with_no_resonance_skirt_or_of_the_wrong_sign_is_refused():
     R = -_one_mode(420.0, 0.02, np.array([0.3, -0.7, 1.1, 0.4]))
     with pytest.raises(IdentificationError, match="not a mode's"):
         fit_residual_pair(OMEGA, R, np.ones(R.shape), INPUTS, zeta=0.02)
+
+
+def test_blanked_values_do_not_enter_the_fit():
+    """Values blanked by the analyser (NaN, weight 0) are left out: the same mode comes back."""
+    phi = np.array([0.3, -0.7, 1.1, 0.4])
+    R = _one_mode(420.0, 0.02, phi)
+    w = np.ones(R.shape)
+    R[100:140, 1, 0] = np.nan
+    w[100:140, 1, 0] = 0.0
+    lam, phi_fit = fit_residual_pair(OMEGA, R, w, INPUTS, zeta=0.02)
+    assert abs(lam) / (2 * np.pi) == pytest.approx(420.0, rel=1e-6)
+    assert np.linalg.norm(phi_fit - phi) / np.linalg.norm(phi) < 1e-6

@@ -319,7 +319,7 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   1.6 %. At 16 DOFs, 1-1158 Hz, no modal model is possible: of the 15 modes found, nine
   (1.3-992 Hz) belong to the symmetry class that spans 8 dimensions at the 16 Z sensors
   (their FE shapes there: smallest singular value 7e-10 of the largest), so their shapes
-  are dependent, although each passed the kept-root test (1e-2) one at a time. With the
+  are dependent (with fewer modes than DOFs none is left out for it). With the
   report's noise (tried, not in section 3's table,
   whose rows try the modal model only where the noise-free bands found n modes: it added
   about 30 s this bench cannot carry), the band-selected cells moved from 3.1 / 196 %, 3

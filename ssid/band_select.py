@@ -42,8 +42,9 @@ def _complete_with_residual_pair(frf: FRFData, kept: BandResult, scale: str):
     lam = np.array([r.lam for r in kept.selected])
     theta = root_shapes(kept.selected, n)
     phi, inv_m = normal_mode_shapes(lam, theta, u)
-    # The kept roots passed strongest_roots' 1e-2 test one by one; together (a symmetry class
-    # with more modes than it has dimensions at the sensors) they can still be dependent.
+    # strongest_roots tests independence only when it has more roots than DOFs to choose from:
+    # n - 1 found ones can be dependent (a symmetry class with more modes than it has
+    # dimensions at the sensors).
     if not _independent(phi):
         raise IdentificationError("the found modes' shapes are linearly dependent at the "
                                   "sensors: no modal model of this order")

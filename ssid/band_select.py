@@ -34,13 +34,12 @@ def result_problems(r: SSIDResult) -> int:
             + int(ev_m.min() <= 0) + int(ev_k.min() < -1e-9 * np.abs(ev_k).max()))
 
 
-def _complete_with_residual_pair(frf: FRFData, kept: BandResult, scale: str):
-    """The n - 1 kept roots as real normal modes and one residual pair above the band:
-    ``(lam (n,), unit-max shapes (n, n), (M, C, K))``."""
-    n = frf.n_out
+def _residual_pair_mck(frf: FRFData, kept: BandResult, scale: str, lam: np.ndarray,
+                       theta: np.ndarray, w: np.ndarray):
+    """The n - 1 kept roots (``lam`` (n-1,), displacement shapes ``theta`` (n, n-1)) as real
+    normal modes and one residual pair above the band, fitted with the noise weights ``w``:
+    ``(lam_r, phi_r (n,), (M, C, K))``."""
     u = scale_selected_roots(frf, kept, scale, assemble=False)[0]
-    lam = np.array([r.lam for r in kept.selected])
-    theta = root_shapes(kept.selected, n)
     phi, inv_m = normal_mode_shapes(lam, theta, u)
     # strongest_roots tests independence only when it has more roots than DOFs to choose from:
     # n - 1 found ones can be dependent (a symmetry class with more modes than it has
@@ -48,7 +47,6 @@ def _complete_with_residual_pair(frf: FRFData, kept: BandResult, scale: str):
     if not _independent(phi):
         raise IdentificationError("the found modes' shapes are linearly dependent at the "
                                   "sensors: no modal model of this order")
-    w = data_noise_weights(frf)
     omega = 2 * np.pi * frf.freq_hz
     resid = np.where(w > 0, frf.H, 0.0) - normal_mode_accelerance(omega, lam, phi, inv_m,
                                                                    frf.input_index())
@@ -57,12 +55,11 @@ def _complete_with_residual_pair(frf: FRFData, kept: BandResult, scale: str):
     if not _independent(np.column_stack([phi, phi_r])):
         raise IdentificationError("the residual pair's shape lies in the span of the found "
                                   "modes' at the sensors: no modal model of this order")
-    theta = np.column_stack([theta, phi_r])
-    lam = np.append(lam, lam_r)
     # The pair's real shape is for unit modal mass: u = -j / (2 omega_d) (Eq. 3.23's scale
     # factor of a real normal mode, normal_mode_mck's convention).
-    M, C, K, _ = normal_mode_mck(lam, theta, np.append(u, -0.5j / lam_r.imag))
-    return lam, unit_max_shapes(theta), (M, C, K)
+    M, C, K, _ = normal_mode_mck(np.append(lam, lam_r), np.column_stack([theta, phi_r]),
+                                 np.append(u, -0.5j / lam_r.imag))
+    return lam_r, phi_r, (M, C, K)
 
 
 def _independent(shapes: np.ndarray, rtol: float = 1e-8) -> bool:
@@ -228,13 +225,16 @@ def modal_model_from_bands(
             f"modal model of {n} DOFs" + (f" ({n - 1} with a residual pair above the band)"
                                           if residual_pair else ""))
     lam = np.array([r.lam for r in kept.selected])
-    shapes = unit_max_shapes(root_shapes(kept.selected, n))
+    theta = root_shapes(kept.selected, n)
+    w = data_noise_weights(frf)
     pair_hz = None
     if m == n:
         M, C, K = scale_selected_roots(frf, kept, scale, assembly="normal")[1]
     else:
-        lam, shapes, (M, C, K) = _complete_with_residual_pair(frf, kept, scale)
-        pair_hz = float(np.abs(lam[-1]) / (2 * np.pi))
+        lam_r, phi_r, (M, C, K) = _residual_pair_mck(frf, kept, scale, lam, theta, w)
+        lam, theta = np.append(lam, lam_r), np.column_stack([theta, phi_r])
+        pair_hz = float(np.abs(lam_r) / (2 * np.pi))
+    shapes = unit_max_shapes(theta)
     try:
         wu, phi = real_modes(M, K)
     except np.linalg.LinAlgError as exc:
@@ -246,7 +246,7 @@ def modal_model_from_bands(
         warnings.append(f"{m} modes found in the band; the model's last pair ({pair_hz:.4g} Hz, "
                         f"damping ratio assumed) is fitted to the residual of the modes above "
                         f"the band and stands for them, not for one of them")
-    checks["frf_relative_rms_error"] = model_frf_errors(frf, M, C, K, data_noise_weights(frf))[1]
+    checks["frf_relative_rms_error"] = model_frf_errors(frf, M, C, K, w)[1]
     return SSIDResult(
         M=M, C=C, K=K, dofs=list(frf.outputs),
         natural_freq_hz=np.abs(lam) / (2 * np.pi), damping_ratio=zeta,

@@ -180,7 +180,10 @@ def test_bands_without_enough_modes_for_a_model_keeps_what_it_found(reduced):
 def test_bands_completes_a_model_one_mode_short_with_a_residual_pair_and_says_so(reduced):
     """Below 70 Hz: 3 modes for 4 sensors. Without ``--no-residual-pair`` the model keeps
     the 3 found and fits its 4th pair above 70 Hz to what they leave of the FRFs: the model
-    is written, a warning names the pair, and the JSON records its frequency."""
+    is written, a warning names the pair, and the JSON records its frequency. The pair lands
+    near the system's next mode (78.8 Hz, 1.13 times the edge): measured 81.5 Hz, 3.4 % above
+    (noisy record, 4 of 8 DOFs measured, the modes further up in the same residual); the
+    bound 5 % tells that mode from the next one (102.6 Hz)."""
     M, C, K, dofs, d = reduced
     f_true = _root_freq_hz(M, C, K)
     js = d / "pair.json"
@@ -190,7 +193,7 @@ def test_bands_completes_a_model_one_mode_short_with_a_residual_pair_and_says_so
     assert "residual" in p.stderr and "stands for them" in p.stderr
     res = json.loads(js.read_text())
     pair_hz = res["model"]["info"]["bands"]["residual_pair_hz"]
-    assert 70.0 < pair_hz < 700.0
+    assert pair_hz == pytest.approx(f_true[3], rel=0.05)
     found = res["model"]["natural_freq_hz"][:3]
     assert _all_true(found, f_true)
     assert (d / "pair.h5").exists()

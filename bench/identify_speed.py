@@ -16,7 +16,7 @@ all its modes. For each case and solver ("ls", "ml") the table gives:
   the identification, so that the ratio sees the same machine state;
 * ``id_s`` and ``id/svd``: best time of ``identify_mck(frf, solver=...)`` and its ratio;
 * ``path``: for "ml", ``ML`` (maximum-likelihood refinement) or ``LW`` (the line-weighted
-  path taken when n (2n + n_in) > ssid.identify.ML_MAX_UNKNOWNS, ``info["ml_skipped"]``);
+  path taken when n (2n + n_in) > ssid.step1_ml.ML_MAX_UNKNOWNS, ``info["ml_skipped"]``);
 * ``peak_MB``: tracemalloc peak of the identification (the FRF data exist before it starts);
 * ``LnIS_MB``: 16 L n n_in 2n bytes, what a complex array over lines x outputs x inputs x
   states would take, to show the memory does not follow that product;
@@ -142,8 +142,9 @@ def worker(n: int, n_in: int, lines: int, solvers: list[str]) -> None:
 
     import numpy as np
 
-    from ssid.identify import ML_MAX_UNKNOWNS, identify_mck
+    from ssid.identify import identify_mck
     from ssid.step1 import step1_data, step1_regressors
+    from ssid.step1_ml import ML_MAX_UNKNOWNS
 
     frf, f_true = bench_case(n, n_in, lines)
 
@@ -413,7 +414,7 @@ def main() -> None:
 
     import numpy as np  # noqa: F401 - version for the header
 
-    from ssid.identify import ML_MAX_UNKNOWNS
+    from ssid.step1_ml import ML_MAX_UNKNOWNS
 
     sweeps = QUICK if args.quick else FULL
     print(machine_header())

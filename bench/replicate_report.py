@@ -129,7 +129,7 @@ BAND_NOTES = """Why M was not positive definite at first, and what changed (`ssi
   estimated shape's phase is the noise's (MPC 0.07-0.80 in the bands that hold it; with two
   BLAS threads seeds 2 and 3 failed the 0.8 threshold in both bands and lost the mode).
   Criterion 3 now applies only to roots whose nearest line lies within 4 half-widths zeta f
-  (`_phase_seen_by_lines`); a root spared so is still rejected when a resolved root of its
+  (`phase_seen_by_lines`); a root spared so is still rejected when a resolved root of its
   band (2 zeta f >= df) that passed criteria 1-3 lies within a line spacing, since a lightly
   damped root inside a resolved resonance is noise (in a trial that spared every unresolved
   root, seed 3 with two threads gave one at 318.65 Hz, zeta 0.05 %, beside the 318.57 Hz

@@ -266,7 +266,7 @@ def _table(out: dict) -> str:
             row += f"  {m['target_mode']} ({m['target_mac']:.3f})"
         lines.append(row)
     if not all(m["mpc_applied"] for m in out["modes"]):
-        from ssid.bands import PHASE_SEEN_HALF_WIDTHS
+        from ssid.band_criteria import PHASE_SEEN_HALF_WIDTHS
 
         lines.append(f"* MPC not applied: no line lies within {PHASE_SEEN_HALF_WIDTHS:g} half-power "
                      "half-widths of the mode, so the noise sets its shape's phase; kept as repeated "

@@ -8,19 +8,22 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
+from ssid.band_criteria import (
+    cluster_repeated,
+    phase_seen_by_lines,
+    pick_representatives,
+    reject_edge_cut_only,
+    reject_inside_resolved,
+    resonance_cut_by_band_edge,
+)
+from ssid.band_select import default_band_width_hz
 from ssid.bands import (
     BandRoot,
-    _cluster_repeated,
-    _phase_seen_by_lines,
-    _pick_representatives,
-    _reject_edge_cut_only,
-    _reject_inside_resolved,
-    _resonance_cut_by_band_edge,
     band_min_lines,
     default_bands,
     distance_to_nearest_line,
-    frf_share,
     fit_scale_factors,
+    frf_share,
     line_spacing_at,
     normal_mode_mck,
     overlapping_bands,
@@ -31,7 +34,6 @@ from ssid.bands import (
     scale_selected_roots,
     strongest_roots,
 )
-from ssid.band_select import default_band_width_hz
 from ssid.errors import IdentificationError
 from ssid.frf import accelerance_from_model
 from ssid.modal import complex_modes, root_frequency_damping
@@ -263,7 +265,7 @@ def test_repeat_criterion_keeps_unresolved_mode_and_rejects_noise_roots():
              _root(22, 2196.324, 0.0118), _root(22, 2200.294, 0.0200),
              _root(21, 2200.853, 0.0196), _root(23, 2201.743, 0.0199),
              _root(9, 1000.0, 3e-4), _root(10, 1000.5, 3e-4)]
-    _cluster_repeated(roots, 0.125, np.linspace(1.0, 2300.0, 1024))  # df = 2.25 Hz
+    cluster_repeated(roots, 0.125, np.linspace(1.0, 2300.0, 1024))  # df = 2.25 Hz
     kept = [r.freq_hz for r in roots if not r.rejected]
     assert kept == [1.272, 1.290, 2200.294, 2200.853, 2201.743]
     assert roots[1].cluster == roots[2].cluster
@@ -273,7 +275,7 @@ def test_repeat_criterion_keeps_unresolved_mode_and_rejects_noise_roots():
     # Hz is 0.15 Hz below the edge of band 21, 2001-2201 Hz).
     bands = overlapping_bands(1.0, 2300.0, 200.0, 0.5)
     assert bands[1] == (1.0, 201.0) and bands[22] == (2101.0, 2300.0)
-    reps = _pick_representatives(roots, bands)
+    reps = pick_representatives(roots, bands)
     assert [r.freq_hz for r in reps] == [1.290, 2200.294]
 
 
@@ -290,14 +292,14 @@ def test_damping_check_skipped_where_no_line_sees_the_damping():
     lines = np.linspace(1.0, 1158.0, 512)
     roots = [_root(0, 1.27932, -0.0032), _root(1, 1.27971, 0.0195)]
     for r in roots:
-        r.phase_seen = _phase_seen_by_lines(r.freq_hz, r.zeta, lines)
+        r.phase_seen = phase_seen_by_lines(r.freq_hz, r.zeta, lines)
     assert not any(r.phase_seen for r in roots)
-    _cluster_repeated(roots, 0.125, lines)
+    cluster_repeated(roots, 0.125, lines)
     assert not any(r.rejected for r in roots) and roots[0].cluster == roots[1].cluster >= 0
     bands = overlapping_bands(1.0, 1158.0, default_band_width_hz(lines), 0.5)
-    assert [r.freq_hz for r in _pick_representatives(roots, bands)] == [1.27971]
+    assert [r.freq_hz for r in pick_representatives(roots, bands)] == [1.27971]
     seen = [replace(r, phase_seen=True, cluster=-1) for r in roots]
-    _cluster_repeated(seen, 0.125, lines)
+    cluster_repeated(seen, 0.125, lines)
     assert [r.rejected for r in seen] == ["not repeated"] * 2
 
 
@@ -322,10 +324,10 @@ def test_unresolved_mode_inside_a_resolved_modes_half_power_band_is_rejected(see
               _root(1, 2.831, 0.0198), _root(6, 325.60, 0.0005), _root(7, 325.61, 0.0005),
               _root(6, 314.5, 0.0200), _root(7, 314.5, 0.0201)]
     for r in roots:
-        r.phase_seen = _phase_seen_by_lines(r.freq_hz, r.zeta, lines)
-    _cluster_repeated(roots, 0.125, lines)
+        r.phase_seen = phase_seen_by_lines(r.freq_hz, r.zeta, lines)
+    cluster_repeated(roots, 0.125, lines)
     assert all(r.cluster >= 0 for r in roots)  # every one repeated: criterion 4 keeps them all
-    _reject_inside_resolved(roots, bands, lines)
+    reject_inside_resolved(roots, bands, lines)
     verdict = {r.freq_hz: r.rejected for r in roots}
     assert all(verdict[f] == "inside a resolved mode's half-power band" for _, f, _ in noise)
     assert [f for f, v in verdict.items() if v] == [f for _, f, _ in noise]
@@ -478,13 +480,13 @@ def test_resonance_cut_by_an_edge_inside_the_layout_only():
     in band 12 (531.3-627.7 Hz), centred, not cut. An edge at the layout's own end cuts
     every band alike and does not count."""
     layout = (1.0, 1158.0)
-    assert _resonance_cut_by_band_edge(585.47, 0.02, (579.5, 675.9), layout)
-    assert _resonance_cut_by_band_edge(585.47, -0.02, (579.5, 675.9), layout)  # |zeta|
-    assert not _resonance_cut_by_band_edge(585.47, 0.02, (531.3, 627.7), layout)
-    assert not _resonance_cut_by_band_edge(585.47, 0.002, (579.5, 675.9), layout)  # narrower
-    assert _resonance_cut_by_band_edge(1150.0, 0.02, (1061.6, 1155.0), layout)
-    assert not _resonance_cut_by_band_edge(1150.0, 0.02, (1061.6, 1158.0), layout)
-    assert not _resonance_cut_by_band_edge(1.29, 0.02, (1.0, 97.4), layout)
+    assert resonance_cut_by_band_edge(585.47, 0.02, (579.5, 675.9), layout)
+    assert resonance_cut_by_band_edge(585.47, -0.02, (579.5, 675.9), layout)  # |zeta|
+    assert not resonance_cut_by_band_edge(585.47, 0.02, (531.3, 627.7), layout)
+    assert not resonance_cut_by_band_edge(585.47, 0.002, (579.5, 675.9), layout)  # narrower
+    assert resonance_cut_by_band_edge(1150.0, 0.02, (1061.6, 1155.0), layout)
+    assert not resonance_cut_by_band_edge(1150.0, 0.02, (1061.6, 1158.0), layout)
+    assert not resonance_cut_by_band_edge(1.29, 0.02, (1.0, 97.4), layout)
 
 
 def test_a_mode_whose_every_estimate_an_edge_cuts_must_pass_criterion_3_elsewhere():
@@ -506,26 +508,26 @@ def test_a_mode_whose_every_estimate_an_edge_cuts_must_pass_criterion_3_elsewher
              _root(20, 978.58041, 0.0416), _root(21, 986.00946, 0.0425)]
     for r, mpc in zip(roots, [0.98, 0.61, 0.7, 0.7, 0.48, 0.83]):
         r.mpc = mpc
-        r.edge_cut = _resonance_cut_by_band_edge(r.freq_hz, r.zeta, bands[r.band], (1.0, 1158.0))
+        r.edge_cut = resonance_cut_by_band_edge(r.freq_hz, r.zeta, bands[r.band], (1.0, 1158.0))
         r.mpc_applied = not (r.edge_cut and mpc < 0.8)
     assert [r.edge_cut for r in roots] == [False, True, True, True, True, True]
-    _cluster_repeated(roots, 0.125, lines)
+    cluster_repeated(roots, 0.125, lines)
     assert [r.cluster == roots[k - k % 2].cluster >= 0 for k, r in enumerate(roots)] == [True] * 6
-    _reject_edge_cut_only(roots)
+    reject_edge_cut_only(roots)
     assert [r.rejected for r in roots] == ["", "", "low MPC", "low MPC", "low MPC", "not repeated"]
-    assert [r.freq_hz for r in _pick_representatives(roots, bands)] == [585.40640]
+    assert [r.freq_hz for r in pick_representatives(roots, bands)] == [585.40640]
     # A spared estimate confirms, never represents, even where a wider damping estimate puts
     # it farther from its band's edge than the whole band's estimate is from its own.
     bands = [(0.0, 101.2), (98.4, 200.0)]
     pair = [_root(0, 100.0, 0.01), _root(1, 100.01, 0.02)]
     for r in pair:
-        r.edge_cut = _resonance_cut_by_band_edge(r.freq_hz, r.zeta, bands[r.band], (0.0, 200.0))
+        r.edge_cut = resonance_cut_by_band_edge(r.freq_hz, r.zeta, bands[r.band], (0.0, 200.0))
     assert [r.edge_cut for r in pair] == [False, True]
     pair[1].mpc, pair[1].mpc_applied = 0.5, False
-    _cluster_repeated(pair, 0.125, np.linspace(0.0, 200.0, 401))
-    _reject_edge_cut_only(pair)
+    cluster_repeated(pair, 0.125, np.linspace(0.0, 200.0, 401))
+    reject_edge_cut_only(pair)
     assert not any(r.rejected for r in pair)
-    assert _pick_representatives(pair, bands) == [pair[0]]
+    assert pick_representatives(pair, bands) == [pair[0]]
 
 
 def test_a_mode_cut_by_a_band_edge_is_found_by_the_band_centred_on_it(payload_12dof_1158hz):

@@ -323,17 +323,17 @@ def test_the_residual_line_says_whose_noise_it_is_within():
     adaptive stepped sine, where it came out 80 times too high) is said to be an estimate."""
     from types import SimpleNamespace
 
-    from ssid.discrepancy.workflow import _residual_statement
+    from ssid.discrepancy.verdict import residual_statement
 
     nxt = SimpleNamespace(name="grounded_spring", rss=4.0,
                           effect=Effect("grounded_spring", ("3",), {"stiffness_n_per_m": 1.0}))
     second = SimpleNamespace(best=nxt, n_valid=100, none=lambda: SimpleNamespace(delta_criterion=-5.0),
                              gap=lambda rss: float(np.sqrt(rss / 100)))
     first = [Effect("added_mass", ("2",), {"mass_kg": 0.1})]
-    assert "within the stated noise" in _residual_statement(second, first, 0.5)["text"]
-    text = _residual_statement(second, first, 0.5, stated=False)["text"]
+    assert "within the stated noise" in residual_statement(second, first, 0.5)["text"]
+    text = residual_statement(second, first, 0.5, stated=False)["text"]
     assert "within the estimated noise: the file states none" in text and "stated noise" not in text
-    assert "within" not in _residual_statement(second, first, 3.0, stated=False)["text"]
+    assert "within" not in residual_statement(second, first, 3.0, stated=False)["text"]
 
 
 @pytest.mark.parametrize("mass_kg, named", [(1e-5, False), (3e-4, True)])
@@ -370,18 +370,18 @@ def test_an_effect_the_data_show_but_too_small_to_matter_is_not_named(mass_kg, n
 def test_no_effect_with_a_large_gap_is_not_called_agreement():
     """``none`` winning says nothing pays for its parameters; with a gap well above the noise
     the line must not read "the data agree with the nominal model"."""
-    from ssid.discrepancy.workflow import _residual_statement
+    from ssid.discrepancy.verdict import residual_statement
 
-    small = _residual_statement(None, [], 0.9)
+    small = residual_statement(None, [], 0.9)
     assert small["closed"] is True and "agree with the nominal model" in small["text"]
-    large = _residual_statement(None, [], 35.0)
+    large = residual_statement(None, [], 35.0)
     assert large["closed"] is False
     assert "agree" not in large["text"] and "35" in large["text"]
     # A negligible leader that would not close the gap either: the library still does not
     # describe the difference, and the text does not claim nothing paid.
     tiny = {"effect": "added_mass", "dofs": ["2"], "described": "added_mass at 2: mass_kg=1e-06",
             "frf_change": 2e-5, "gap_with_it": 30.0}
-    large = _residual_statement(None, [], 35.0, negligible=tiny)
+    large = residual_statement(None, [], 35.0, negligible=tiny)
     assert large["closed"] is False and "no effect of the library that matters pays" in large["text"]
     assert "negligible, not named" in large["text"] and large["negligible_effect"] == tiny
 

@@ -1,0 +1,94 @@
+"""The discrepancy result's verdict: does one effect close the gap, and what is left?
+
+The sentences ``find_discrepancy`` writes once its rounds are done, from the second round's
+search (or none), the effects added and the gap after them, with the noise level's source.
+"""
+
+from __future__ import annotations
+
+from .effects import Effect
+from .search import SearchResult
+
+__all__ = ["GAP_WITHIN_NOISE", "negligible_leader", "negligible_text", "residual_statement"]
+
+#: Largest gap said to be "within the stated noise". A model as good as the truth has a gap
+#: equal to the RMS of the measurement's errors in units of their stated standard
+#: deviations, 1 only if those were exact. They are estimates (each line's fit noise and the
+#: settling transient left): on the simulated lab's stepped-sine records that RMS against
+#: the simulated truth is 0.83-0.94 (the demo; the payload at 60-130 Hz, around its close
+#: modes).
+GAP_WITHIN_NOISE = 1.2
+
+
+def negligible_leader(checks: list[dict]) -> dict | None:
+    """The round's leader if it was turned down as negligible (``ssid.discrepancy.workflow``'s validation, its first check)."""
+    if checks and checks[0]["negligible"]:
+        c = checks[0]
+        return {key: c[key] for key in ("effect", "dofs", "described", "frf_change", "gap_with_it")}
+    return None
+
+
+def negligible_text(negligible: dict | None) -> str:
+    if negligible is None:
+        return ""
+    return (f"; the search's best, {negligible['described']}, would change no model FRF value "
+            f"by more than {100 * negligible['frf_change']:.2g} %: negligible, not named")
+
+
+def residual_statement(second: SearchResult | None, effects: list[Effect], gap_after: float,
+                        stated: bool = True, negligible: dict | None = None) -> dict:
+    """Does one effect close the gap? The residual and the next-best candidate.
+
+    ``stated``: the noise level is the file's (``H_var``); else it was estimated from the
+    data's roughness, which a coarse or adaptive sweep overstates, and the text says so.
+    ``negligible``: the deciding round's leader, turned down as negligible
+    (:func:`negligible_leader`); the text names it, so that an effect the data show, too
+    small to matter, is not mistaken for none.
+    """
+    nxt = None
+    if second is not None:
+        b = second.best
+        if b.name != "none":  # a candidate named after a negligible one is the news
+            negligible = None
+        nxt = None if b.name == "none" else {"effect": b.name, "dofs": list(b.effect.dofs),
+                                              "parameters": b.effect.parameters,
+                                              "criterion_gain_over_none": -second.none().delta_criterion,
+                                              "gap_with_it": second.gap(b.rss)}
+    closed = nxt is None if (second is not None or not effects) else None
+    # A negligible leader did pay for its parameters; it is not named for its size.
+    nothing_pays = "that matters pays for its parameters" if negligible else "pays for its parameters"
+    if closed is None:
+        text = f"{effects[0].describe()} found; whether it closes the gap was not checked"
+    elif (not effects and gap_after > GAP_WITHIN_NOISE and negligible is not None
+          and negligible["gap_with_it"] <= GAP_WITHIN_NOISE):
+        # The data show the difference beyond their noise, and it is an effect too small to
+        # change the model's predictions: nothing is left to look for.
+        return {"closed": True, "negligible_effect": negligible, "next_effect": None,
+                "text": (f"the data differ from the nominal model by a negligible effect: the "
+                         f"search's best, {negligible['described']}, would lower the gap from "
+                         f"{gap_after:.3g} to {negligible['gap_with_it']:.3g} (1 = noise level) "
+                         f"but change no model FRF value by more than "
+                         f"{100 * negligible['frf_change']:.2g} %: not named")}
+    elif not effects and gap_after > GAP_WITHIN_NOISE:
+        closed = False
+        text = (f"no effect of the library {nothing_pays}, yet the gap is {gap_after:.3g} "
+                "(1 = noise level): the model differs from the test in a way the library does "
+                "not describe")
+    elif not effects:
+        text = f"the data agree with the nominal model within noise: no effect {nothing_pays}"
+    elif closed:
+        text = (f"{effects[0].describe()} closes the gap: a second search finds no further effect "
+                f"(gap after {gap_after:.3g}, 1 = noise level)")
+    else:
+        # The search ranks with each model's own residual level, so it can still find a
+        # pattern in a residual below the stated noise: say so, or the line reads as a
+        # contradiction.
+        within = ((", within the stated noise" if stated else
+                   ", within the estimated noise: the file states none")
+                  if gap_after <= GAP_WITHIN_NOISE else "")
+        # What the next effect would buy tells a pattern of the errors from a missing effect.
+        text = (f"one effect does not close the gap (gap after {gap_after:.3g}{within}): the second "
+                f"search names {nxt['effect']} at {'-'.join(nxt['dofs'])}, which would lower it to "
+                f"{nxt['gap_with_it']:.3g}")
+    return {"closed": closed, "text": text + negligible_text(negligible), "next_effect": nxt,
+            "negligible_effect": negligible}

@@ -124,8 +124,8 @@ def reduced_noise_free_row(n: str, label: str, key: int, spec) -> tuple[str, boo
             f"| {cells[0]} | {fit} | {cells[1]} | {cells[2]} | 1-{r.band_hz[1]:.0f} Hz, {sel['solver']}"
             f"{'' if result_problems(r) == 0 else ' (not physical)'} |")
     # Section 3 tries the modal model on noisy data only where the bands found n modes: with
-    # a residual pair it would cost band processing on 9 more records (about 30 s of this
-    # bench, which has no such time to spare).
+    # a residual pair too it costs band processing on 6 more records, 50 s of this bench
+    # (measured: 601 s in all), which has no such time to spare.
     m = cands.get((full, "bands"))
     return line, m is not None and m.info["bands"]["residual_pair_hz"] is None
 
@@ -322,7 +322,7 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   are dependent (with fewer modes than DOFs none is left out for it). With the
   report's noise (tried, not in section 3's table,
   whose rows try the modal model only where the noise-free bands found n modes: it added
-  about 30 s this bench cannot carry), the band-selected cells moved from 3.1 / 196 %, 3
+  50 s, which this bench cannot carry), the band-selected cells moved from 3.1 / 196 %, 3
   missed, to 9.0 / 20 %, 2 missed, at 12 DOFs, 1-650 Hz, and from 0.28 / 4.1 % to 0.24 /
   4.1 % at 10 DOFs, 1-551 Hz (worst over seeds 1-3).
 - **The modal candidate** exists only when the band holds at least as many modes as the

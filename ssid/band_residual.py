@@ -15,6 +15,11 @@ Its damping ratio is not in the band's data at all (its resonance is outside); i
 the median of the found modes'. A structural-dynamics analogue is a residual-flexibility
 ("residual mode") term made into a mode so that the model stays second order.
 
+Below the band, a free-free structure's rigid-body modes are in the data the same way: a
+rigid-body mode adds ``phi phi_in^T`` to the accelerance at every line (its pole at 0:
+``-w^2 / (0 - w^2) = 1``), the mass line the low-frequency accelerance of a free structure
+tends to. :func:`fit_rigid_body_modes` fits rigid-body shapes to that mass line.
+
 Why by hand: the fit is a one-parameter search (the pole) around a closed-form linear
 least-squares solve (the residues), variable projection reduced to its simplest case; no
 library fits one real normal mode to a matrix residual with a real residue constraint.
@@ -27,7 +32,13 @@ from scipy.optimize import minimize_scalar
 
 from .errors import IdentificationError
 
-__all__ = ["fit_residual_pair", "normal_mode_accelerance"]
+__all__ = ["MASS_LINE_SHARE_MIN", "fit_residual_pair", "fit_rigid_body_modes", "normal_mode_accelerance"]
+
+#: Least share of the weighted power the found modes leave of the FRFs, on the lines well
+#: below the lowest found mode, that a mass line must explain to be taken for rigid-body
+#: modes: there a free structure's accelerance is its mass line, while a grounded one's falls
+#: as w^2 (what remains of it after the found modes is residual flexibility and noise).
+MASS_LINE_SHARE_MIN = 0.75
 
 
 def normal_mode_accelerance(omega: np.ndarray, lam: np.ndarray, phi: np.ndarray,
@@ -125,3 +136,83 @@ def fit_residual_pair(
     phi_in = V[:, -1] * np.sqrt(ev[-1])
     phi = A @ phi_in / (phi_in @ phi_in)
     return complex(wr * (-zeta + 1j * np.sqrt(1.0 - zeta**2))), phi
+
+
+def fit_rigid_body_modes(
+    omega: np.ndarray,
+    residual: np.ndarray,
+    weight: np.ndarray,
+    input_index: np.ndarray,
+    n_rigid: int,
+    omega_low: float,
+) -> tuple[np.ndarray, float]:
+    """Rigid-body mode shapes fitted to the mass line of a residual accelerance.
+
+    Fits ``R_kij = A_ij - (w_k / w_L)^2 F_ij`` by weighted linear least squares, each value
+    pair ``(i, j)`` in closed form: ``A`` the mass line, the sum of the rigid-body modes'
+    ``phi phi_in^T`` (unit modal mass), and ``F`` the residual flexibility of modes above the
+    band, fitted so that it does not bias ``A`` and then dropped (``w_L`` the highest line,
+    for scaling only). ``A``'s input rows are ``Phi_in Phi_in^T``: ``Phi_in`` (n_in, r) from
+    the ``n_rigid`` leading eigenpairs of their symmetric part, and ``Phi = A Phi_in
+    (Phi_in^T Phi_in)^-1`` (n, r), the shapes up to a rotation among themselves (any basis
+    of the rigid-body motions is one).
+
+    Parameters
+    ----------
+    omega : (L,) measured lines, rad/s, ascending.
+    residual : (L, n, n_in) what the found modes leave of the accelerances.
+    weight : (L, n, n_in) noise weights ``1/sigma`` (0 for blanked values).
+    input_index : (n_in,) index of each input's DOF among the outputs.
+    n_rigid : number of rigid-body modes, at most the number of inputs.
+    omega_low : rad/s; the lines below it (well below the lowest found mode) judge whether
+        the mass line is what the residual holds there.
+
+    Returns
+    -------
+    (Phi, share): the shapes (n, n_rigid) for unit modal mass, and the share of the residual's
+    weighted power below ``omega_low`` that the mass line ``A`` alone explains.
+
+    Raises
+    ------
+    IdentificationError
+        With more rigid-body modes than inputs (their shapes are not determined), no line
+        below ``omega_low``, a share below :data:`MASS_LINE_SHARE_MIN` (the residual is not a
+        free structure's mass line), or fewer than ``n_rigid`` positive driving-point masses
+        in it.
+    """
+    n_in = len(input_index)
+    if n_rigid > n_in:
+        raise IdentificationError(f"{n_rigid} rigid-body modes need at least as many inputs; the "
+                                  f"data have {n_in}")
+    low = omega < omega_low
+    if not np.any(low):
+        raise IdentificationError("no line lies well below the lowest mode found: a mass line "
+                                  "cannot be told from that mode's skirt")
+    w2 = weight**2
+    R = np.where(w2 > 0, residual, 0.0).real  # basis and coefficients are real: Re R is what fits
+    g = -(omega / omega[-1]) ** 2  # (L,)
+    G = np.stack([np.stack([np.einsum("kij->ij", w2), np.einsum("k,kij->ij", g, w2)], -1),
+                  np.stack([np.einsum("k,kij->ij", g, w2), np.einsum("k,kij->ij", g**2, w2)], -1)], -2)
+    b = np.stack([np.einsum("kij->ij", w2 * R), np.einsum("k,kij->ij", g, w2 * R)], -1)
+    ok = np.linalg.det(G) > 0
+    coef = np.zeros(b.shape)
+    coef[ok] = np.linalg.solve(G[ok], b[ok][..., None])[..., 0]
+    A = coef[..., 0]
+    # The mass line alone, not with F: a grounded structure's residual there is F's w^2 term.
+    full = np.where(w2 > 0, residual, 0.0)
+    power = float(np.sum(w2[low] * np.abs(full[low]) ** 2))
+    left = float(np.sum(w2[low] * np.abs(full[low] - A[None]) ** 2))
+    share = 1.0 - left / power if power > 0 else 0.0
+    if share < MASS_LINE_SHARE_MIN:
+        raise IdentificationError(
+            f"a mass line explains {100 * max(share, 0.0):.0f} % of what the found modes leave of the "
+            f"FRFs well below the lowest of them (at least {100 * MASS_LINE_SHARE_MIN:.0f} % wanted): "
+            "the data do not show rigid-body modes")
+    S = A[input_index]
+    ev, V = np.linalg.eigh((S + S.T) / 2)
+    ev, V = ev[::-1][:n_rigid], V[:, ::-1][:, :n_rigid]
+    if ev[-1] <= 0:
+        raise IdentificationError(f"the mass line has {int(np.sum(ev > 0))} positive driving-point "
+                                  f"mass(es), {n_rigid} rigid-body modes need as many")
+    phi_in = V * np.sqrt(ev)
+    return A @ phi_in @ np.linalg.inv(phi_in.T @ phi_in), share

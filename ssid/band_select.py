@@ -9,9 +9,11 @@ the data alone, never from a true model.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from .band_residual import fit_residual_pair, normal_mode_accelerance
+from .band_residual import fit_residual_pair, fit_rigid_body_modes, normal_mode_accelerance
 from .band_scaling import normal_mode_mck, normal_mode_shapes, root_shapes, scale_selected_roots, strongest_roots
 from .bands import BandResult, band_layout, default_band_width_hz, process_bands
 from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
@@ -34,15 +36,32 @@ def result_problems(r: SSIDResult) -> int:
             + int(ev_m.min() <= 0) + int(ev_k.min() < -1e-9 * np.abs(ev_k).max()))
 
 
-def _residual_pair_mck(frf: FRFData, kept: BandResult, scale: str, lam: np.ndarray,
-                       theta: np.ndarray, w: np.ndarray):
-    """The n - 1 kept roots (``lam`` (n-1,), displacement shapes ``theta`` (n, n-1)) as real
-    normal modes and one residual pair above the band, fitted with the noise weights ``w``:
-    ``(lam_r, phi_r (n,), (M, C, K))``."""
+@dataclass
+class _Completion:
+    """The found modes completed to n: by a residual pair above the band or by rigid-body
+    modes below it, and the weighted output error of the M, C, K that gives."""
+
+    cost: float
+    mck: tuple[np.ndarray, np.ndarray, np.ndarray]
+    lam_r: complex | None = None  # the residual pair's root
+    phi_r: np.ndarray | None = None  # its shape (n,), unit modal mass
+    n_rigid: int = 0
+    mass_line_share: float | None = None
+
+
+def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.ndarray,
+                          theta: np.ndarray, w: np.ndarray, residual_pair: bool,
+                          rigid_body: bool) -> _Completion:
+    """The m < n kept roots (``lam`` (m,), displacement shapes ``theta`` (n, m)) as real
+    normal modes, completed to n modes from what they leave of the FRFs (noise weights
+    ``w``): with one residual pair above the band (m = n - 1, ``residual_pair``) or with
+    n - m rigid-body modes fitted to its mass line (``rigid_body``), whichever predicts the
+    data better; IdentificationError with each way's reason when neither fits."""
+    n, m = frf.n_out, lam.size
     u = scale_selected_roots(frf, kept, scale, assemble=False)[0]
     phi, inv_m = normal_mode_shapes(lam, theta, u)
     # strongest_roots tests independence only when it has more roots than DOFs to choose from:
-    # n - 1 found ones can be dependent (a symmetry class with more modes than it has
+    # fewer found ones can be dependent (a symmetry class with more modes than it has
     # dimensions at the sensors).
     if not _independent(phi):
         raise IdentificationError("the found modes' shapes are linearly dependent at the "
@@ -50,16 +69,59 @@ def _residual_pair_mck(frf: FRFData, kept: BandResult, scale: str, lam: np.ndarr
     omega = 2 * np.pi * frf.freq_hz
     resid = np.where(w > 0, frf.H, 0.0) - normal_mode_accelerance(omega, lam, phi, inv_m,
                                                                    frf.input_index())
-    zeta = float(np.median(-lam.real / np.abs(lam)))
-    lam_r, phi_r = fit_residual_pair(omega, resid, w, frf.input_index(), zeta)
-    if not _independent(np.column_stack([phi, phi_r])):
-        raise IdentificationError("the residual pair's shape lies in the span of the found "
-                                  "modes' at the sensors: no modal model of this order")
-    # The pair's real shape is for unit modal mass: u = -j / (2 omega_d) (Eq. 3.23's scale
-    # factor of a real normal mode, normal_mode_mck's convention).
-    M, C, K, _ = normal_mode_mck(np.append(lam, lam_r), np.column_stack([theta, phi_r]),
-                                 np.append(u, -0.5j / lam_r.imag))
-    return lam_r, phi_r, (M, C, K)
+    tried, reasons = [], []
+    if residual_pair and m == n - 1:
+        try:
+            zeta = float(np.median(-lam.real / np.abs(lam)))
+            lam_r, phi_r = fit_residual_pair(omega, resid, w, frf.input_index(), zeta)
+            if not _independent(np.column_stack([phi, phi_r])):
+                raise IdentificationError("its shape lies in the span of the found modes' at the "
+                                          "sensors")
+            # The pair's real shape is for unit modal mass: u = -j / (2 omega_d) (Eq. 3.23's
+            # scale factor of a real normal mode, normal_mode_mck's convention).
+            mck = normal_mode_mck(np.append(lam, lam_r), np.column_stack([theta, phi_r]),
+                                  np.append(u, -0.5j / lam_r.imag))[:3]
+            tried.append(_Completion(model_output_error(frf, *mck, w), mck, lam_r=lam_r, phi_r=phi_r))
+        except IdentificationError as exc:
+            reasons.append(f"no residual pair above the band ({exc})")
+    elif residual_pair:
+        reasons.append(f"a residual pair completes a model one mode short, not {n - m}")
+    if rigid_body:
+        try:
+            phi_rb, share = fit_rigid_body_modes(omega, resid, w, frf.input_index(), n - m,
+                                                 0.5 * float(np.min(np.abs(lam))))
+            mck = _rigid_body_mck(lam, phi, inv_m, phi_rb)
+            tried.append(_Completion(model_output_error(frf, *mck, w), mck, n_rigid=n - m,
+                                     mass_line_share=share))
+        except IdentificationError as exc:
+            reasons.append(f"no {n - m} rigid-body mode(s) below the band ({exc})")
+    if not tried:
+        raise IdentificationError(f"band processing found {m} modes with independent shapes, {n} "
+                                  f"are needed for a modal model of {n} DOFs; "
+                                  + "; ".join(reasons or ["completing them was not asked for"]))
+    return min(tried, key=lambda c: c.cost)
+
+
+def _rigid_body_mck(lam: np.ndarray, phi: np.ndarray, inv_m: np.ndarray,
+                    phi_rb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """M, C, K of rigid-body shapes ``phi_rb`` (n, r) and found real modes (roots ``lam``,
+    shapes ``phi`` (n, m), inverse modal masses ``inv_m``), all for unit modal mass:
+    ``M = Psi^-T Psi^-1``, ``K = Psi^-T diag(w^2) Psi^-1``, ``C = Psi^-T diag(2 zeta w) Psi^-1``
+    with ``Psi = [phi_rb, phi / sqrt(m)]`` and w = 0 on the rigid-body modes.
+    :func:`ssid.band_scaling.normal_mode_mck` builds K from the flexibility, which a free
+    structure does not have."""
+    if np.any(inv_m <= 0):
+        raise IdentificationError("a kept mode has a modal mass <= 0: the modal model is not physical")
+    psi = np.column_stack([phi_rb, phi * np.sqrt(inv_m)])
+    if not _independent(psi):
+        raise IdentificationError("the rigid-body shapes lie in the span of the found modes' at "
+                                  "the sensors")
+    r = phi_rb.shape[1]
+    wn = np.concatenate([np.zeros(r), np.abs(lam)])
+    zeta = np.concatenate([np.zeros(r), -lam.real / np.abs(lam)])
+    P = np.linalg.inv(psi)
+    M, C, K = (P.T @ (d[:, None] * P) for d in (np.ones(wn.size), 2 * zeta * wn, wn**2))
+    return (M + M.T) / 2, (C + C.T) / 2, (K + K.T) / 2
 
 
 def _independent(shapes: np.ndarray, rtol: float = 1e-8) -> bool:
@@ -108,6 +170,7 @@ def identify_mck_modal(
     prefer_shapes: np.ndarray | None = None,
     prefer_freq_hz: np.ndarray | None = None,
     residual_pair: bool = True,
+    rigid_body: bool = True,
 ) -> SSIDResult:
     """Reduced-order M, C, K assembled from band-processed modes (beyond the report).
 
@@ -123,7 +186,7 @@ def identify_mck_modal(
     band_width_hz : float, optional
         Width of the overlapping bands. Default: :func:`ssid.bands.band_layout` (bands
         of :func:`default_band_width_hz` on evenly spaced lines, of equal line count otherwise).
-    scale, prefer_shapes, prefer_freq_hz, residual_pair
+    scale, prefer_shapes, prefer_freq_hz, residual_pair, rigid_body
         As for :func:`modal_model_from_bands`.
     solver : step-1 solver in each band (as for :func:`identify_mck`).
 
@@ -143,7 +206,7 @@ def identify_mck_modal(
     res = process_bands(frf, bands, solver=solver)
     return modal_model_from_bands(frf, res, scale=scale, band_width_hz=band_width_hz,
                                   prefer_shapes=prefer_shapes, prefer_freq_hz=prefer_freq_hz,
-                                  residual_pair=residual_pair)
+                                  residual_pair=residual_pair, rigid_body=rigid_body)
 
 
 def modal_model_from_bands(
@@ -155,6 +218,7 @@ def modal_model_from_bands(
     prefer_shapes: np.ndarray | None = None,
     prefer_freq_hz: np.ndarray | None = None,
     residual_pair: bool = True,
+    rigid_body: bool = True,
 ) -> SSIDResult:
     """n-DOF M, C, K from the modes band processing found (``res`` of :func:`process_bands`
     on ``frf``).
@@ -171,6 +235,12 @@ def modal_model_from_bands(
     last pair is fitted to what the found modes leave of the FRFs above the band
     (:func:`ssid.band_residual.fit_residual_pair`): a residual pair, which stands for the
     modes above the band; its damping ratio is the found modes' median (not in the data).
+    With n - r modes found and a free-free structure (``rigid_body``), r rigid-body modes are
+    fitted to the mass line of that residual (:func:`ssid.band_residual.fit_rigid_body_modes`,
+    at most one per input): a free structure's accelerance tends to it below its first
+    elastic mode, whose rigid-body modes (or suspension modes below the first line) the bands
+    cannot find. Where both fit (one mode short), the one whose M, C, K predict the data
+    better (weighted output error) is kept.
 
     Parameters
     ----------
@@ -187,22 +257,26 @@ def modal_model_from_bands(
         (k,) their frequencies, Hz.
     residual_pair : bool
         Complete a model one mode short with a residual pair (default); False to refuse it.
+    rigid_body : bool
+        Complete a model r modes short with r rigid-body modes where the residual shows a
+        mass line (default); False to refuse it.
 
     Returns
     -------
     SSIDResult with ``solver`` set to ``"bands"``; ``info["bands"]`` holds the band width,
-    how many modes the bands selected, the kept frequencies and the residual pair's frequency
+    how many modes the bands selected, the kept frequencies, the residual pair's frequency
     (``residual_pair_hz``, None without one; the pair is then the last mode, and a warning
-    says so), ``band_result`` is ``res``.
+    says so) and the number of rigid-body modes (``n_rigid_body_modes``, also the result's;
+    a warning says so; they are not among the listed modes, as in :func:`identify_mck`),
+    ``band_result`` is ``res``.
 
     Raises
     ------
     IdentificationError
         With reactions in the data (step 1 is not determined in a narrow band with reactions,
         docs/algorithm.md known limits), when the bands found fewer independent modes than
-        DOFs (no n-DOF modal model exists; one fewer with ``residual_pair``, when no pair
-        fits the residual or its shape is not independent of the found ones), or when a kept
-        modal mass is not positive.
+        DOFs and neither a residual pair nor rigid-body modes complete them (the message
+        gives each one's reason), or when a kept modal mass is not positive.
     """
     if frf.H_reaction is not None:
         raise IdentificationError("the modal (band-processed) model is not available with "
@@ -219,33 +293,40 @@ def modal_model_from_bands(
         prefer = [p.test for p in pairs]
     kept = strongest_roots(frf, res, n, prefer=prefer)
     m = len(kept.selected)
-    if m < n - int(residual_pair) or m == 0:
-        raise IdentificationError(
-            f"band processing found {m} modes with independent shapes, {n} are needed for a "
-            f"modal model of {n} DOFs" + (f" ({n - 1} with a residual pair above the band)"
-                                          if residual_pair else ""))
+    if m == 0:
+        raise IdentificationError(f"band processing found no mode: no modal model of {n} DOFs")
     lam = np.array([r.lam for r in kept.selected])
     theta = root_shapes(kept.selected, n)
     w = data_noise_weights(frf)
-    pair_hz = None
+    pair_hz, n_rigid, share = None, 0, None
     if m == n:
         M, C, K = scale_selected_roots(frf, kept, scale, assembly="normal")[1]
     else:
-        lam_r, phi_r, (M, C, K) = _residual_pair_mck(frf, kept, scale, lam, theta, w)
-        lam, theta = np.append(lam, lam_r), np.column_stack([theta, phi_r])
-        pair_hz = float(np.abs(lam_r) / (2 * np.pi))
+        done = _complete_found_modes(frf, kept, scale, lam, theta, w, residual_pair, rigid_body)
+        M, C, K = done.mck
+        n_rigid, share = done.n_rigid, done.mass_line_share
+        if done.lam_r is not None:
+            lam, theta = np.append(lam, done.lam_r), np.column_stack([theta, done.phi_r])
+            pair_hz = float(np.abs(done.lam_r) / (2 * np.pi))
     shapes = unit_max_shapes(theta)
     try:
         wu, phi = real_modes(M, K)
     except np.linalg.LinAlgError as exc:
         raise IdentificationError("a kept mode has a modal mass <= 0: the modal model is not "
                                   "physical") from exc
+    wu[np.argsort(np.abs(wu))[:n_rigid]] = 0.0  # zero by construction; rounding leaves +-1e-6 rad/s
     zeta = -lam.real / np.abs(lam)
     checks, warnings = physical_checks(M, C, K, zeta)
     if pair_hz is not None:
         warnings.append(f"{m} modes found in the band; the model's last pair ({pair_hz:.4g} Hz, "
                         f"damping ratio assumed) is fitted to the residual of the modes above "
                         f"the band and stands for them, not for one of them")
+    if n_rigid:
+        warnings.append(f"{m} modes found in the band and {n_rigid} rigid-body mode(s) (free-free "
+                        f"structure) fitted to the mass line of what they leave of the FRFs ("
+                        f"{100 * share:.0f} % of it well below the lowest found mode): K is "
+                        "singular by design, its null space the rigid-body shapes, and C is zero "
+                        "on them")
     checks["frf_relative_rms_error"] = model_frf_errors(frf, M, C, K, w)[1]
     return SSIDResult(
         M=M, C=C, K=K, dofs=list(frf.outputs),
@@ -254,9 +335,10 @@ def modal_model_from_bands(
         undamped_freq_hz=wu / (2 * np.pi), real_mode_shapes=phi,
         real_roots=np.zeros(0), solver="bands", damping="modal",
         band_hz=(float(f[0]), float(f[-1])), checks=checks, warnings=warnings,
+        n_rigid_body_modes=n_rigid,
         info={"bands": {"band_width_hz": band_width_hz, "n_selected": len(res.selected),
                         "kept_freq_hz": [float(v) for v in kept.freq_hz],
-                        "residual_pair_hz": pair_hz}},
+                        "residual_pair_hz": pair_hz, "n_rigid_body_modes": n_rigid}},
         band_result=res,
     )
 
@@ -290,10 +372,10 @@ def identify_mck_band_select(
        With ``modal`` (and no reactions), the whole band's band-processed modal model
        (:func:`identify_mck_modal`, solver ``"bands"``) is a candidate too.
     3. Choice: the modal model when it is physical (:func:`result_problems` is 0) and holds
-       no residual pair: each of its modes was found in two overlapping bands, evidence no
-       output error gives (a model that bends its modes to absorb those it cannot hold can
-       predict the lines better than the structure itself). Otherwise, among the physical
-       candidates (a modal model with a residual pair among them),
+       no residual pair or fitted rigid-body modes: each of its modes was found in two
+       overlapping bands, evidence no output error gives (a model that bends its modes to
+       absorb those it cannot hold can predict the lines better than the structure itself).
+       Otherwise, among the physical candidates (a modal model so completed among them),
        the one with the lowest weighted output error of its M, C, K
        over **all** measured lines, ``sum_kij w_kij^2 |H_kij - H^model_kij|^2`` (Eq. 3.6 solved
        for the accelerance, :func:`model_accelerance`), with ``w = 1/sigma`` the noise
@@ -372,9 +454,11 @@ def identify_mck_band_select(
         candidates.update({(float(h), s): res for _, h, s, res in cands})
     score, hi, solver, r = min(cands, key=lambda c: c[0])
     how = "lowest output error over all lines"
-    # A residual pair was not found in two bands: a model holding one competes on output error.
+    # A residual pair or rigid-body modes fitted to a mass line were not found in two bands:
+    # a model holding them competes on output error.
     modal_physical = [c for c in cands if c[2] == "bands" and not c[0][0]
-                      and c[3].info["bands"]["residual_pair_hz"] is None]
+                      and c[3].info["bands"]["residual_pair_hz"] is None
+                      and not c[3].n_rigid_body_modes]
     if modal_physical:
         # Output error cannot tell a model that bends its modes to absorb the ones it cannot
         # hold from one that holds its modes right: the bent one can predict the lines better

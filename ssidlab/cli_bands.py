@@ -4,7 +4,7 @@
                   [--fmin HZ] [--fmax HZ] [--width HZ] [--overlap FRACTION]
                   [--mpc-min MPC] [--repeat-tol FRACTION] [--solver ml|ls|tls|stls]
                   [--scale BP1|BP2|BP3] [--targets FE_MODEL] [--target-modes 1,2,...]
-                  [--no-residual-pair] [--quiet]
+                  [--no-residual-pair] [--no-rigid-body] [--quiet]
 
 Overlapping bands, each through step 1 and the eigenproblem (Eq. 3.12); each root judged by
 the report's four criteria (outside its band, negative damping, MPC below ``--mpc-min``, not
@@ -16,7 +16,9 @@ assembled from the n strongest modes with independent shapes as real normal mode
 the data's choice unless an FE model names the target modes (``--targets``; the report picked
 its roots by hand): roots paired with them (MAC >= 0.8 and frequency) are kept first. With
 one mode too few, the last pair is fitted above the band to what the found modes leave of the
-FRFs (a residual pair, said in a warning; ``--no-residual-pair`` refuses instead).
+FRFs (a residual pair, said in a warning; ``--no-residual-pair`` refuses instead). On a
+free-free structure whose rigid-body modes lie below the first line, they are fitted to the
+mass line of that residual (said in a warning; ``--no-rigid-body`` refuses instead).
 
 Bad input raises :class:`ssid.errors.InputError`; ``ssidlab.cli.main`` prints it as one line
 and exits with status 2.
@@ -88,6 +90,9 @@ def add_bands_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--no-residual-pair", action="store_true",
                    help="refuse a model one mode short instead of completing it with a residual "
                    "pair fitted above the band (its damping assumed)")
+    p.add_argument("--no-rigid-body", action="store_true",
+                   help="refuse a model modes short instead of completing it with rigid-body "
+                   "modes fitted to the mass line below the band (free-free structures)")
     p.add_argument("--quiet", action="store_true", help="do not print the mode table")
     p.set_defaults(run=run_bands)
     return p
@@ -164,7 +169,7 @@ def run_bands(args: argparse.Namespace) -> int:
                 data, res, scale=args.scale, band_width_hz=width,
                 prefer_shapes=None if targets is None else targets["shapes"],
                 prefer_freq_hz=None if targets is None else targets["freq_hz"],
-                residual_pair=not args.no_residual_pair)
+                residual_pair=not args.no_residual_pair, rigid_body=not args.no_rigid_body)
         except IdentificationError as exc:
             # The bands' findings are kept (JSON, chart) even when no model can be made.
             out["model_error"] = str(exc)

@@ -199,6 +199,31 @@ def test_bands_completes_a_model_one_mode_short_with_a_residual_pair_and_says_so
     assert (d / "pair.h5").exists()
 
 
+def test_bands_models_a_free_free_beam_with_its_rigid_body_modes(tmp_path):
+    """A free-free beam measured from 20 Hz (all 8 DOFs, inputs at both ends): the bands find
+    its 6 elastic modes, and the written 8-DOF model takes its two rigid-body modes from the
+    mass line below them (a warning says so; the JSON records them); its M and K are the
+    beam's (noise-free: measured 1.9e-10 and 8.5e-11, see tests/test_modal_model.py).
+    ``--no-rigid-body`` refuses instead."""
+    from test_rigid_body import free_beam
+
+    M, C, K, dofs = free_beam()
+    frf = accelerance_from_model(M, C, K, dofs, np.linspace(20, 6000, 1200), dofs, ["0+Z", "3+Z"])
+    src, js, out = tmp_path / "beam.h5", tmp_path / "beam.json", tmp_path / "model.h5"
+    write_frf(str(src), frf)
+    p = run(str(src), "--json", str(js), "--out", str(out), "--quiet")
+    assert p.returncode == 0, p.stderr
+    assert "2 rigid-body mode(s) (free-free structure)" in p.stderr
+    res = json.loads(js.read_text())
+    assert res["model"]["info"]["bands"]["n_rigid_body_modes"] == 2
+    model = read_model(str(out))
+    for A, B in ((model.M, M), (model.K, K)):
+        assert np.linalg.norm(A - B) / np.linalg.norm(B) < 1e-8
+    p = run(str(src), "--json", str(js), "--out", str(tmp_path / "none.h5"), "--no-rigid-body")
+    assert p.returncode == 2 and "no modal model" in p.stderr and "6 modes" in p.stderr
+    assert not (tmp_path / "none.h5").exists()
+
+
 @pytest.mark.parametrize("extra, message", [
     (["--target-modes", "1,2"], "--target-modes needs --targets"),
     (["--width", "5000"], "wider than the band used"),

@@ -89,6 +89,8 @@ class PseudoDofResult:
     repeated : (m,) bool or None, whether the model with one partition more finds the root
         again (:func:`identify_pseudo_dof_auto`; None from :func:`identify_pseudo_dof`).
     scan : how the number of partitions was chosen, or None.
+    second_copy : (m,) bool, a root that passed the indicator but repeats a more consistent
+        one, root and shape (:func:`_second_copies`): not structural.
     """
 
     freq_hz: np.ndarray
@@ -103,6 +105,7 @@ class PseudoDofResult:
     own: np.ndarray
     repeated: np.ndarray | None = None
     scan: PartitionScan | None = None
+    second_copy: np.ndarray | None = None
 
     @property
     def n_partitions(self) -> int:
@@ -213,9 +216,45 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
     structural = in_band & (zeta > 0) & (consistency >= consistency_min)
     mpc = modal_phase_collinearity(th[own, :, cols].T)
     u = _pseudo_scale_factors(frf, modes, ne, n_partitions)
-    return PseudoDofResult(freq_hz=f, zeta=zeta, mpc=mpc, consistency=consistency,
-                           structural=structural, lam=modes.lam[:m], theta=modes.theta[:, :m],
-                           u=u, split_hz=split, own=own)
+    res = PseudoDofResult(freq_hz=f, zeta=zeta, mpc=mpc, consistency=consistency,
+                          structural=structural, lam=modes.lam[:m], theta=modes.theta[:, :m],
+                          u=u, split_hz=split, own=own)
+    res.second_copy = _second_copies(res.lam, _own_shapes(res, n), consistency, structural)
+    res.structural = structural & ~res.second_copy
+    return res
+
+
+#: Two roots are one mode found twice when their roots agree to this fraction of |lambda| and
+#: their shapes in their own partitions to ``SECOND_COPY_MAC_MIN``.
+SECOND_COPY_RTOL = 1e-3
+SECOND_COPY_MAC_MIN = 0.99
+
+
+def _second_copies(lam: np.ndarray, shapes: np.ndarray, consistency: np.ndarray,
+                   structural: np.ndarray) -> np.ndarray:
+    """(m,) bool: the roots flagged ``structural`` that repeat a more consistent one's root
+    (within :data:`SECOND_COPY_RTOL`) and shape (MAC >= :data:`SECOND_COPY_MAC_MIN`).
+
+    A pseudo model holds up to p n modes; where the record holds fewer (every DOF measured, or
+    more partitions than its modes need), the spare order can reproduce a mode exactly: on a
+    free beam with all 8 DOFs measured, the 3-partition model gave the 524.9 and 4001.8 Hz
+    modes twice each, both copies consistent and repeated. Two modes with the same root and
+    the same shape at the sensors are one for any model of these sensors; a repeated root
+    with another shape (a symmetric structure's pair) is kept.
+    """
+    copy = np.zeros(lam.size, dtype=bool)
+    kept: list[int] = []
+    for i in sorted(np.flatnonzero(structural), key=lambda k: -consistency[k]):
+        for j in kept:
+            same_root = abs(lam[i] - lam[j]) <= SECOND_COPY_RTOL * abs(lam[j])
+            mac = abs(np.vdot(shapes[:, j], shapes[:, i])) ** 2 / (
+                np.vdot(shapes[:, i], shapes[:, i]).real * np.vdot(shapes[:, j], shapes[:, j]).real)
+            if same_root and mac >= SECOND_COPY_MAC_MIN:
+                copy[i] = True
+                break
+        else:
+            kept.append(i)
+    return copy
 
 
 def matched_one_to_one(freq_hz: np.ndarray, other_hz: np.ndarray, rtol: float) -> np.ndarray:
@@ -269,23 +308,27 @@ def identify_pseudo_dof_auto(frf: FRFData, consistency_min: float = 0.8, max_par
     largest repeated fraction is used and ``scan.settled`` is False.
     """
     results = {2: identify_pseudo_dof(frf, consistency_min, 2)}
+    # The consistent roots, second copies included: a copy is told apart only among the
+    # roots that pass every test, or its original, if not repeated, would take it along.
+    consistent = {2: results[2].structural | results[2].second_copy}
     repeated_by_p: dict[int, np.ndarray] = {}
     for p in range(2, max_partitions + 1):
         try:
             results[p + 1] = identify_pseudo_dof(frf, consistency_min, p + 1)
         except IdentificationError:  # too few lines per partition: p is the last one testable
             break
+        consistent[p + 1] = results[p + 1].structural | results[p + 1].second_copy
         a, b = results[p], results[p + 1]
-        rep = matched_one_to_one(a.freq_hz[a.structural], b.freq_hz[b.structural], repeat_rtol)
+        rep = matched_one_to_one(a.freq_hz[consistent[p]], b.freq_hz[consistent[p + 1]], repeat_rtol)
         repeated_by_p[p] = np.zeros(a.freq_hz.size, dtype=bool)
-        repeated_by_p[p][a.structural] = rep
+        repeated_by_p[p][consistent[p]] = rep
         if rep.size and rep.mean() >= repeat_min:
             break
     if not repeated_by_p:
         raise IdentificationError("too few lines to compare pseudo models of 2 and 3 partitions")
     scan = PartitionScan(0, False, repeat_min, repeat_rtol,
                          roots_hz={p: r.freq_hz for p, r in results.items()},
-                         consistent={p: r.structural.copy() for p, r in results.items()},
+                         consistent={p: c.copy() for p, c in consistent.items()},
                          repeated=repeated_by_p)
     ps = scan.n_partitions
     frac = scan.n_repeated / np.maximum(scan.n_consistent, 1)
@@ -293,9 +336,18 @@ def identify_pseudo_dof_auto(frf: FRFData, consistency_min: float = 0.8, max_par
     scan.chosen = int(ps[-1] if scan.settled else ps[int(np.argmax(frac))])
     res = results[scan.chosen]
     res.repeated = repeated_by_p[scan.chosen]
-    res.structural = res.structural & res.repeated
+    passed = consistent[scan.chosen] & res.repeated
+    res.second_copy = _second_copies(res.lam, _own_shapes(res, frf.n_out), res.consistency, passed)
+    res.structural = passed & ~res.second_copy
     res.scan = scan
     return res
+
+
+def _own_shapes(res: PseudoDofResult, n: int) -> np.ndarray:
+    """(n, m): each root's displacement shape in its own partition."""
+    m = res.lam.size
+    th = res.theta[: res.n_partitions * n].reshape(res.n_partitions, n, m)
+    return th[res.own, :, np.arange(m)].T
 
 
 def plot_partition_scan(path: str, res: PseudoDofResult, true_freq_hz: np.ndarray | None = None) -> None:

@@ -132,6 +132,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
                    "consistency": res.consistency[k],
                    "repeated": None if res.repeated is None else bool(res.repeated[k]),
                    "structural": bool(res.structural[k]),
+                   "second_copy": res.second_copy is not None and bool(res.second_copy[k]),
                    "modal_mass": mass[k]} for k in range(res.freq_hz.size)],
     }
     warnings: list[str] = []
@@ -186,7 +187,8 @@ def _table(out: dict) -> str:
              f"{'f_n [Hz]':>12}  {'damping [%]':>11}  {'MPC':>6}  {'consist.':>8}  "
              f"{'repeated':>8}  verdict"]
     for r in out["roots"]:
-        verdict = "structural" if r["structural"] else "computational"
+        verdict = ("structural" if r["structural"] else
+                   "second copy of a structural root" if r.get("second_copy") else "computational")
         if r["structural"] and not (r["modal_mass"] > 0):
             verdict += ", modal mass <= 0"
         rep = "-" if r["repeated"] is None else ("yes" if r["repeated"] else "no")

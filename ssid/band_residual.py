@@ -32,7 +32,8 @@ from scipy.optimize import minimize_scalar
 
 from .errors import IdentificationError
 
-__all__ = ["MASS_LINE_SHARE_MIN", "fit_residual_pair", "fit_rigid_body_modes", "normal_mode_accelerance"]
+__all__ = ["MASS_LINE_SHARE_MIN", "fit_residual_pair", "fit_rigid_body_modes", "normal_mode_accelerance",
+           "rigid_body_fit_refusal"]
 
 #: Least share of the weighted power the found modes leave of the FRFs, on the lines well
 #: below the lowest found mode, that a mass line must explain to be taken for rigid-body
@@ -138,6 +139,16 @@ def fit_residual_pair(
     return complex(wr * (-zeta + 1j * np.sqrt(1.0 - zeta**2))), phi
 
 
+def rigid_body_fit_refusal(omega: np.ndarray, n_in: int, n_rigid: int, omega_low: float) -> str | None:
+    """Why :func:`fit_rigid_body_modes` cannot run on these lines and inputs, before any fit
+    (None if it can): more rigid-body modes than inputs, or no line below ``omega_low``."""
+    if n_rigid > n_in:
+        return f"{n_rigid} rigid-body modes need at least as many inputs; the data have {n_in}"
+    if not np.any(omega < omega_low):
+        return "no line lies well below the lowest mode found: a mass line cannot be told from that mode's skirt"
+    return None
+
+
 def fit_rigid_body_modes(
     omega: np.ndarray,
     residual: np.ndarray,
@@ -180,14 +191,10 @@ def fit_rigid_body_modes(
         free structure's mass line), or fewer than ``n_rigid`` positive driving-point masses
         in it.
     """
-    n_in = len(input_index)
-    if n_rigid > n_in:
-        raise IdentificationError(f"{n_rigid} rigid-body modes need at least as many inputs; the "
-                                  f"data have {n_in}")
+    why = rigid_body_fit_refusal(omega, len(input_index), n_rigid, omega_low)
+    if why is not None:
+        raise IdentificationError(why)
     low = omega < omega_low
-    if not np.any(low):
-        raise IdentificationError("no line lies well below the lowest mode found: a mass line "
-                                  "cannot be told from that mode's skirt")
     w2 = weight**2
     R = np.where(w2 > 0, residual, 0.0).real  # basis and coefficients are real: Re R is what fits
     g = -(omega / omega[-1]) ** 2  # (L,)

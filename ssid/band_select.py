@@ -13,7 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .band_residual import fit_residual_pair, fit_rigid_body_modes, normal_mode_accelerance
+from .band_residual import (
+    fit_residual_pair,
+    fit_rigid_body_modes,
+    normal_mode_accelerance,
+    rigid_body_fit_refusal,
+)
 from .band_scaling import normal_mode_mck, normal_mode_shapes, root_shapes, scale_selected_roots, strongest_roots
 from .bands import BandResult, band_layout, default_band_width_hz, process_bands
 from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
@@ -58,6 +63,18 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
     n - m rigid-body modes fitted to its mass line (``rigid_body``), whichever predicts the
     data better; IdentificationError with each way's reason when neither fits."""
     n, m = frf.n_out, lam.size
+    omega = 2 * np.pi * frf.freq_hz
+    omega_low = 0.5 * float(np.min(np.abs(lam)))
+    # Said before the scale factors are fitted (BP3 over the whole record): most records
+    # that are modes short can be completed neither way.
+    rigid_why = rigid_body_fit_refusal(omega, frf.n_in, n - m, omega_low) if rigid_body else None
+    if not (residual_pair and m == n - 1) and (not rigid_body or rigid_why is not None):
+        reasons = ([f"a residual pair completes a model one mode short, not {n - m}"]
+                   if residual_pair and m != n - 1 else [])
+        reasons += [f"no {n - m} rigid-body mode(s) below the band ({rigid_why})"] if rigid_body else []
+        raise IdentificationError(f"band processing found {m} modes with independent shapes, {n} "
+                                  f"are needed for a modal model of {n} DOFs; "
+                                  + "; ".join(reasons or ["completing them was not asked for"]))
     u = scale_selected_roots(frf, kept, scale, assemble=False)[0]
     phi, inv_m = normal_mode_shapes(lam, theta, u)
     # strongest_roots tests independence only when it has more roots than DOFs to choose from:
@@ -66,7 +83,6 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
     if not _independent(phi):
         raise IdentificationError("the found modes' shapes are linearly dependent at the "
                                   "sensors: no modal model of this order")
-    omega = 2 * np.pi * frf.freq_hz
     resid = np.where(w > 0, frf.H, 0.0) - normal_mode_accelerance(omega, lam, phi, inv_m,
                                                                    frf.input_index())
     tried, reasons = [], []
@@ -88,8 +104,7 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
         reasons.append(f"a residual pair completes a model one mode short, not {n - m}")
     if rigid_body:
         try:
-            phi_rb, share = fit_rigid_body_modes(omega, resid, w, frf.input_index(), n - m,
-                                                 0.5 * float(np.min(np.abs(lam))))
+            phi_rb, share = fit_rigid_body_modes(omega, resid, w, frf.input_index(), n - m, omega_low)
             mck = _rigid_body_mck(lam, phi, inv_m, phi_rb)
             tried.append(_Completion(model_output_error(frf, *mck, w), mck, n_rigid=n - m,
                                      mass_line_share=share))

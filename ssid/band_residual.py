@@ -20,9 +20,11 @@ rigid-body mode adds ``phi phi_in^T`` to the accelerance at every line (its pole
 ``-w^2 / (0 - w^2) = 1``), the mass line the low-frequency accelerance of a free structure
 tends to. :func:`fit_rigid_body_modes` fits rigid-body shapes to that mass line.
 
-Why by hand: the fit is a one-parameter search (the pole) around a closed-form linear
+Why by hand: the pair's fit is a one-parameter search (the pole) around a closed-form linear
 least-squares solve (the residues), variable projection reduced to its simplest case; no
-library fits one real normal mode to a matrix residual with a real residue constraint.
+library fits one real normal mode to a matrix residual with a real residue constraint. The
+mass line's is a two-term weighted linear fit per value pair, solved for all pairs at once
+through their 2 x 2 normal equations (one ``lstsq`` per pair would loop in Python).
 """
 
 from __future__ import annotations

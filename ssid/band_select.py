@@ -65,16 +65,24 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
     n, m = frf.n_out, lam.size
     omega = 2 * np.pi * frf.freq_hz
     omega_low = 0.5 * float(np.min(np.abs(lam)))
+    reasons: list[str] = []
+    try_pair = residual_pair and m == n - 1
+    if residual_pair and not try_pair:
+        reasons.append(f"a residual pair completes a model one mode short, not {n - m}")
     # Said before the scale factors are fitted (BP3 over the whole record): most records
     # that are modes short can be completed neither way.
     rigid_why = rigid_body_fit_refusal(omega, frf.n_in, n - m, omega_low) if rigid_body else None
-    if not (residual_pair and m == n - 1) and (not rigid_body or rigid_why is not None):
-        reasons = ([f"a residual pair completes a model one mode short, not {n - m}"]
-                   if residual_pair and m != n - 1 else [])
-        reasons += [f"no {n - m} rigid-body mode(s) below the band ({rigid_why})"] if rigid_body else []
-        raise IdentificationError(f"band processing found {m} modes with independent shapes, {n} "
-                                  f"are needed for a modal model of {n} DOFs; "
-                                  + "; ".join(reasons or ["completing them was not asked for"]))
+    if rigid_why is not None:
+        reasons.append(f"no {n - m} rigid-body mode(s) below the band ({rigid_why})")
+    try_rigid = rigid_body and rigid_why is None
+
+    def refusal() -> IdentificationError:
+        return IdentificationError(f"band processing found {m} modes with independent shapes, {n} "
+                                   f"are needed for a modal model of {n} DOFs; "
+                                   + "; ".join(reasons or ["completing them was not asked for"]))
+
+    if not (try_pair or try_rigid):
+        raise refusal()
     u = scale_selected_roots(frf, kept, scale, assemble=False)[0]
     phi, inv_m = normal_mode_shapes(lam, theta, u)
     # strongest_roots tests independence only when it has more roots than DOFs to choose from:
@@ -85,8 +93,8 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
                                   "sensors: no modal model of this order")
     resid = np.where(w > 0, frf.H, 0.0) - normal_mode_accelerance(omega, lam, phi, inv_m,
                                                                    frf.input_index())
-    tried, reasons = [], []
-    if residual_pair and m == n - 1:
+    tried = []
+    if try_pair:
         try:
             zeta = float(np.median(-lam.real / np.abs(lam)))
             lam_r, phi_r = fit_residual_pair(omega, resid, w, frf.input_index(), zeta)
@@ -99,10 +107,8 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
                                   np.append(u, -0.5j / lam_r.imag))[:3]
             tried.append(_Completion(model_output_error(frf, *mck, w), mck, lam_r=lam_r, phi_r=phi_r))
         except IdentificationError as exc:
-            reasons.append(f"no residual pair above the band ({exc})")
-    elif residual_pair:
-        reasons.append(f"a residual pair completes a model one mode short, not {n - m}")
-    if rigid_body:
+            reasons.insert(0, f"no residual pair above the band ({exc})")
+    if try_rigid:
         try:
             phi_rb, share = fit_rigid_body_modes(omega, resid, w, frf.input_index(), n - m, omega_low)
             mck = _rigid_body_mck(lam, phi, inv_m, phi_rb)
@@ -111,9 +117,7 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
         except IdentificationError as exc:
             reasons.append(f"no {n - m} rigid-body mode(s) below the band ({exc})")
     if not tried:
-        raise IdentificationError(f"band processing found {m} modes with independent shapes, {n} "
-                                  f"are needed for a modal model of {n} DOFs; "
-                                  + "; ".join(reasons or ["completing them was not asked for"]))
+        raise refusal()
     return min(tried, key=lambda c: c.cost)
 
 

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .correlate import modal_assurance
 from .errors import IdentificationError
 from .frf import FRFData, require_response
 from .modal import modal_phase_collinearity, root_frequency_damping
@@ -242,16 +243,14 @@ def _second_copies(lam: np.ndarray, shapes: np.ndarray, consistency: np.ndarray,
     the same shape at the sensors are one for any model of these sensors; a repeated root
     with another shape (a symmetric structure's pair) is kept.
     """
+    # same[i, j]: root i repeats root j, within j's tolerance, and its shape.
+    same = ((np.abs(lam[:, None] - lam[None, :]) <= SECOND_COPY_RTOL * np.abs(lam)[None, :])
+            & (modal_assurance(shapes, shapes) >= SECOND_COPY_MAC_MIN))
     copy = np.zeros(lam.size, dtype=bool)
     kept: list[int] = []
     for i in sorted(np.flatnonzero(structural), key=lambda k: -consistency[k]):
-        for j in kept:
-            same_root = abs(lam[i] - lam[j]) <= SECOND_COPY_RTOL * abs(lam[j])
-            mac = abs(np.vdot(shapes[:, j], shapes[:, i])) ** 2 / (
-                np.vdot(shapes[:, i], shapes[:, i]).real * np.vdot(shapes[:, j], shapes[:, j]).real)
-            if same_root and mac >= SECOND_COPY_MAC_MIN:
-                copy[i] = True
-                break
+        if same[i, kept].any():
+            copy[i] = True
         else:
             kept.append(i)
     return copy

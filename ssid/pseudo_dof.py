@@ -215,12 +215,13 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
     consistency = energy[own, cols] / energy.sum(axis=0)
     in_band = (f >= frf.freq_hz[0]) & (f <= frf.freq_hz[n_partitions * ne - 1])
     structural = in_band & (zeta > 0) & (consistency >= consistency_min)
-    mpc = modal_phase_collinearity(th[own, :, cols].T)
+    shapes = th[own, :, cols].T  # (n, m): each root's shape in its own partition
+    mpc = modal_phase_collinearity(shapes)
     u = _pseudo_scale_factors(frf, modes, ne, n_partitions)
     res = PseudoDofResult(freq_hz=f, zeta=zeta, mpc=mpc, consistency=consistency,
                           structural=structural, lam=modes.lam[:m], theta=modes.theta[:, :m],
                           u=u, split_hz=split, own=own)
-    res.second_copy = _second_copies(res.lam, _own_shapes(res, n), consistency, structural)
+    res.second_copy = _second_copies(res.lam, shapes, consistency, structural)
     res.structural = structural & ~res.second_copy
     return res
 

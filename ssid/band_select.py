@@ -16,6 +16,7 @@ import numpy as np
 from .band_residual import (
     fit_residual_pair,
     fit_rigid_body_modes,
+    fit_rigid_body_modes_and_pair,
     normal_mode_accelerance,
     rigid_body_fit_refusal,
 )
@@ -43,8 +44,8 @@ def result_problems(r: SSIDResult) -> int:
 
 @dataclass
 class _Completion:
-    """The found modes completed to n: by a residual pair above the band or by rigid-body
-    modes below it, and the weighted output error of the M, C, K that gives."""
+    """The found modes completed to n: by a residual pair above the band, by rigid-body
+    modes below it or by both, and the weighted output error of the M, C, K that gives."""
 
     cost: float
     mck: tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -59,29 +60,36 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
                           rigid_body: bool) -> _Completion:
     """The m < n kept roots (``lam`` (m,), displacement shapes ``theta`` (n, m)) as real
     normal modes, completed to n modes from what they leave of the FRFs (noise weights
-    ``w``): with one residual pair above the band (m = n - 1, ``residual_pair``) or with
-    n - m rigid-body modes fitted to its mass line (``rigid_body``), whichever predicts the
-    data better; IdentificationError with each way's reason when neither fits."""
+    ``w``): with one residual pair above the band (m = n - 1, ``residual_pair``), with
+    n - m rigid-body modes fitted to its mass line (``rigid_body``), or with n - m - 1
+    rigid-body modes and a pair fitted together (both), whichever predicts the data best;
+    IdentificationError with each way's reason when none fits."""
     n, m = frf.n_out, lam.size
+    short = n - m
     omega = 2 * np.pi * frf.freq_hz
     omega_low = 0.5 * float(np.min(np.abs(lam)))
     reasons: list[str] = []
-    try_pair = residual_pair and m == n - 1
-    if residual_pair and not try_pair:
-        reasons.append(f"a residual pair completes a model one mode short, not {n - m}")
+    try_pair = residual_pair and short == 1
+    if residual_pair and short > 1 and not rigid_body:
+        reasons.append(f"a residual pair alone completes a model one mode short, not {short}")
     # Said before the scale factors are fitted (BP3 over the whole record): most records
-    # that are modes short can be completed neither way.
-    rigid_why = rigid_body_fit_refusal(omega, frf.n_in, n - m, omega_low) if rigid_body else None
+    # that are modes short can be completed in no way.
+    rigid_why = rigid_body_fit_refusal(omega, frf.n_in, short, omega_low) if rigid_body else None
     if rigid_why is not None:
-        reasons.append(f"no {n - m} rigid-body mode(s) below the band ({rigid_why})")
+        reasons.append(f"no {short} rigid-body mode(s) below the band ({rigid_why})")
     try_rigid = rigid_body and rigid_why is None
+    both_why = (rigid_body_fit_refusal(omega, frf.n_in, short - 1, omega_low)
+                if rigid_body and residual_pair and short > 1 else None)
+    if both_why is not None and both_why != rigid_why:
+        reasons.append(f"no {short - 1} rigid-body mode(s) below the band with a pair above it ({both_why})")
+    try_both = rigid_body and residual_pair and short > 1 and both_why is None
 
     def refusal() -> IdentificationError:
         return IdentificationError(f"band processing found {m} modes with independent shapes, {n} "
                                    f"are needed for a modal model of {n} DOFs; "
                                    + "; ".join(reasons or ["completing them was not asked for"]))
 
-    if not (try_pair or try_rigid):
+    if not (try_pair or try_rigid or try_both):
         raise refusal()
     u = scale_selected_roots(frf, kept, scale, assemble=False)[0]
     phi, inv_m = normal_mode_shapes(lam, theta, u)
@@ -93,11 +101,12 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
                                   "sensors: no modal model of this order")
     resid = np.where(w > 0, frf.H, 0.0) - normal_mode_accelerance(omega, lam, phi, inv_m,
                                                                    frf.input_index())
+    # The pair's damping ratio is not in the band's data: the found modes' median.
+    zeta = float(np.median(-lam.real / np.abs(lam)))
     tried = []
     if try_pair:
         try:
-            zeta = float(np.median(-lam.real / np.abs(lam)))
-            lam_r, phi_r = fit_residual_pair(omega, resid, w, frf.input_index(), zeta)
+            lam_r, phi_r = fit_residual_pair(omega, resid, w, frf.input_index(), zeta, found=lam)
             if not _independent(np.column_stack([phi, phi_r])):
                 raise IdentificationError("its shape lies in the span of the found modes' at the "
                                           "sensors")
@@ -110,12 +119,24 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
             reasons.insert(0, f"no residual pair above the band ({exc})")
     if try_rigid:
         try:
-            phi_rb, share = fit_rigid_body_modes(omega, resid, w, frf.input_index(), n - m, omega_low)
+            phi_rb, share = fit_rigid_body_modes(omega, resid, w, frf.input_index(), short, omega_low,
+                                                found=lam)
             mck = _rigid_body_mck(lam, phi, inv_m, phi_rb)
-            tried.append(_Completion(model_output_error(frf, *mck, w), mck, n_rigid=n - m,
+            tried.append(_Completion(model_output_error(frf, *mck, w), mck, n_rigid=short,
                                      mass_line_share=share))
         except IdentificationError as exc:
-            reasons.append(f"no {n - m} rigid-body mode(s) below the band ({exc})")
+            reasons.append(f"no {short} rigid-body mode(s) below the band ({exc})")
+    if try_both:
+        try:
+            phi_rb, share, lam_r, phi_r = fit_rigid_body_modes_and_pair(
+                omega, resid, w, frf.input_index(), short - 1, omega_low, zeta, found=lam)
+            # phi_r is for unit modal mass: its inverse modal mass is 1.
+            mck = _rigid_body_mck(np.append(lam, lam_r), np.column_stack([phi, phi_r]),
+                                  np.append(inv_m, 1.0), phi_rb)
+            tried.append(_Completion(model_output_error(frf, *mck, w), mck, lam_r=lam_r, phi_r=phi_r,
+                                     n_rigid=short - 1, mass_line_share=share))
+        except IdentificationError as exc:
+            reasons.append(f"no {short - 1} rigid-body mode(s) below the band with a pair above it ({exc})")
     if not tried:
         raise refusal()
     return min(tried, key=lambda c: c.cost)
@@ -258,8 +279,12 @@ def modal_model_from_bands(
     fitted to the mass line of that residual (:func:`ssid.band_residual.fit_rigid_body_modes`,
     at most one per input): a free structure's accelerance tends to it below its first
     elastic mode, whose rigid-body modes (or suspension modes below the first line) the bands
-    cannot find. Where both fit (one mode short), the one whose M, C, K predict the data
-    better (weighted output error) is kept.
+    cannot find. With r + 1 modes short, r rigid-body modes and a pair are fitted together
+    (:func:`ssid.band_residual.fit_rigid_body_modes_and_pair`): a free structure whose band
+    also stops short of the modes above it. Each completion is fitted with the found modes'
+    residues free alongside it, so that their scale factors' errors stay out of it. Where
+    more than one fits, the one whose M, C, K predict the data best (weighted output error)
+    is kept.
 
     Parameters
     ----------
@@ -278,7 +303,8 @@ def modal_model_from_bands(
         Complete a model one mode short with a residual pair (default); False to refuse it.
     rigid_body : bool
         Complete a model r modes short with r rigid-body modes where the residual shows a
-        mass line (default); False to refuse it.
+        mass line, or with r - 1 and a pair when ``residual_pair`` too (default); False to
+        refuse it.
 
     Returns
     -------

@@ -88,11 +88,11 @@ def add_bands_subcommand(sub: Any) -> argparse.ArgumentParser:
                    help="the target modes of --targets, 1-based (default: its modes inside "
                    "the band)")
     p.add_argument("--no-residual-pair", action="store_true",
-                   help="refuse a model one mode short instead of completing it with a residual "
-                   "pair fitted above the band (its damping assumed)")
+                   help="complete a model modes short without a residual pair fitted above "
+                   "the band (its damping assumed), alone or with rigid-body modes")
     p.add_argument("--no-rigid-body", action="store_true",
-                   help="refuse a model modes short instead of completing it with rigid-body "
-                   "modes fitted to the mass line below the band (free-free structures)")
+                   help="complete a model modes short without rigid-body modes fitted to the "
+                   "mass line below the band (free-free structures), alone or with a residual pair")
     p.add_argument("--quiet", action="store_true", help="do not print the mode table")
     p.set_defaults(run=run_bands)
     return p

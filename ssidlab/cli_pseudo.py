@@ -7,7 +7,7 @@
 The record is split into P partitions of equal length and these are stacked (Eq. 5.24, where
 the report used P = 2): step 1 and the eigenproblem then give up to P times as many modes as
 sensors. By default P is chosen from the data (``identify_pseudo_dof_auto``): raised from 2
-until the roots repeat in the model with one partition more. Each root is flagged structural
+until the roots of the model and of the one with one partition more repeat each other. Each root is flagged structural
 (in the band, positive damping, partition consistency >= ``--consistency-min``, and, with P
 chosen, repeated) or computational. Step 2, which the report left open, is ours
 (``ssid.pseudo_dof``): the
@@ -60,7 +60,7 @@ def add_pseudo_subcommand(sub: Any) -> argparse.ArgumentParser:
                    "generalised coordinates q1, q2, ... (default: the n strongest, n x n)")
     p.add_argument("--partitions", type=_partitions, default="auto", metavar="auto|P",
                    help="number of stacked partitions P >= 2 (the report's: 2), or auto: the "
-                   "smallest P whose roots repeat with P + 1 (default auto)")
+                   "smallest P whose roots and P + 1's repeat each other (default auto)")
     p.add_argument("--consistency-min", type=open_fraction, default=0.8, metavar="Q",
                    help="partition consistency of a structural root (default 0.8)")
     p.add_argument("--plot", type=chart_file, metavar="STAB.png",
@@ -145,7 +145,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
         if not sc.settled:
             warnings.append(
                 f"the roots did not settle: at no P up to {sc.n_partitions[-1]} did "
-                f"{100 * sc.repeat_min:.0f} % of them repeat with P + 1 (noisy data?); P = "
+                f"{100 * sc.repeat_min:.0f} % of its roots and of P + 1's repeat each other (noisy data?); P = "
                 f"{sc.chosen} repeats most, and only its repeated roots are called structural. "
                 "For noisy records band processing (ssidlab bands) is the better tool")
     if args.out is not None:
@@ -179,7 +179,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
 
 def _table(out: dict) -> str:
     scan = out.get("partition_scan")
-    chosen = "" if scan is None else (" (chosen: its roots repeat with one more)" if scan["settled"]
+    chosen = "" if scan is None else (" (chosen: its roots and one more's repeat each other)" if scan["settled"]
                                       else " (chosen, though the roots did not settle)")
     lines = [f"{out['n_partitions']} partitions{chosen}, split at "
              + ", ".join(f"{f:.4g}" for f in out["split_hz"]) + " Hz; "

@@ -22,11 +22,12 @@ tends to. :func:`fit_rigid_body_modes` fits rigid-body shapes to that mass line,
 :func:`fit_rigid_body_modes_and_pair` fits both together, rigid-body modes below the band and
 a pair above it, for a free structure whose band also stops short of the modes above it.
 
-Why by hand: each fit is a one- or two-term weighted linear least-squares solve per value
-pair with real coefficients (the residues), solved for all pairs at once through their small
-normal equations (one ``lstsq`` per pair would loop in Python); where a pole is fitted, it is
-a one-parameter search around that solve, variable projection reduced to its simplest case.
-No library fits real normal modes to a matrix residual with a real residue constraint.
+Why by hand: each fit is a weighted linear least-squares solve of a few terms per value pair
+(the mass line, the pair, the found modes) with real coefficients (the residues), solved for
+all pairs at once through their small normal equations (one ``lstsq`` per pair would loop
+in Python); where a pole is fitted, it is a one-parameter search around that solve,
+variable projection reduced to its simplest case. No library fits real normal modes to a
+matrix residual with a real residue constraint.
 """
 
 from __future__ import annotations
@@ -211,7 +212,13 @@ def fit_residual_pair(
         return _real_residues(R, w2, np.vstack([_pole_response(omega, wr, zeta)[None], free]))
 
     wr = _search_pole(lambda x: fit(np.exp(x))[1], float(omega[-1]), max_ratio)
-    phi = _unit_mass_shapes(fit(wr)[0][..., 0], input_index, 1)
+    return _pair(wr, zeta, fit(wr)[0][..., 0], input_index)
+
+
+def _pair(wr: float, zeta: float, P: np.ndarray, input_index: np.ndarray) -> tuple[complex, np.ndarray]:
+    """The pair's root ``w_r (-zeta + j sqrt(1 - zeta^2))`` and its shape (n,) from its
+    residue ``P`` (n, n_in); refused when ``P`` has no positive driving-point part."""
+    phi = _unit_mass_shapes(P, input_index, 1)
     if phi is None:
         raise IdentificationError("the residual above the band has no positive driving-point "
                                   "flexibility: it is not a mode's, no pair can be fitted to it")
@@ -277,7 +284,7 @@ def fit_rigid_body_modes(
     if why is not None:
         raise IdentificationError(why)
     w2 = weight**2
-    R = np.where(w2 > 0, residual, 0.0)  # basis and coefficients are real: Re R is what fits
+    R = np.where(w2 > 0, residual, 0.0)  # a blanked value (NaN) has weight 0: it must not poison the sums
     basis = np.vstack([np.ones_like(omega), -(omega / omega[-1]) ** 2, _found_mode_responses(omega, found)])
     A = _real_residues(R, w2, basis)[0][..., 0]
     # The mass line alone, not with F: a grounded structure's residual there is F's w^2 term.
@@ -286,6 +293,8 @@ def fit_rigid_body_modes(
 
 
 def _rigid_body_shapes(A: np.ndarray, input_index: np.ndarray, n_rigid: int) -> np.ndarray:
+    """Rigid-body shapes (n, n_rigid) for unit modal mass from the mass line ``A`` (n, n_in);
+    refused when it has fewer than ``n_rigid`` positive driving-point masses."""
     phi = _unit_mass_shapes(A, input_index, n_rigid)
     if phi is None:
         S = A[input_index]
@@ -351,9 +360,4 @@ def fit_rigid_body_modes_and_pair(
     coef = fit(wr)[0]
     A, P = coef[..., 0], coef[..., 1]
     share = _mass_line_share(residual, w2, A, omega < omega_low)
-    phi_rb = _rigid_body_shapes(A, input_index, n_rigid)
-    phi = _unit_mass_shapes(P, input_index, 1)
-    if phi is None:
-        raise IdentificationError("the residual above the band has no positive driving-point "
-                                  "flexibility: it is not a mode's, no pair can be fitted to it")
-    return phi_rb, share, complex(wr * (-zeta + 1j * np.sqrt(1.0 - zeta**2))), phi[:, 0]
+    return (_rigid_body_shapes(A, input_index, n_rigid), share) + _pair(wr, zeta, P, input_index)

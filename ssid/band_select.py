@@ -300,7 +300,8 @@ def modal_model_from_bands(
         Target mode shapes at ``frf.outputs`` (real or complex), with ``prefer_freq_hz``
         (k,) their frequencies, Hz.
     residual_pair : bool
-        Complete a model one mode short with a residual pair (default); False to refuse it.
+        Complete a model one mode short with a residual pair, or one r + 1 modes short with
+        a pair and r rigid-body modes when ``rigid_body`` too (default); False to fit no pair.
     rigid_body : bool
         Complete a model r modes short with r rigid-body modes where the residual shows a
         mass line, or with r - 1 and a pair when ``residual_pair`` too (default); False to

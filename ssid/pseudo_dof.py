@@ -233,13 +233,18 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
 #: Roots within this fraction of |lambda| of each other are one cluster: one mode found more
 #: than once by the spare order of the pseudo model, or modes with one root (a symmetric
 #: structure's pair), which :func:`_cluster_consistency` tells apart.
-SECOND_COPY_RTOL = 1e-3
+CLUSTER_RTOL = 1e-3
+
+
+def _near(lam: np.ndarray) -> np.ndarray:
+    """(m, m) bool: root i lies within :data:`CLUSTER_RTOL` of root j's |lambda|."""
+    return np.abs(lam[:, None] - lam[None, :]) <= CLUSTER_RTOL * np.abs(lam)[None, :]
 
 
 def _clusters(lam: np.ndarray) -> list[np.ndarray]:
-    """Index arrays of the roots that lie within :data:`SECOND_COPY_RTOL` of each other
+    """Index arrays of the roots that lie within :data:`CLUSTER_RTOL` of each other
     (chained), each with more than one root."""
-    near = np.abs(lam[:, None] - lam[None, :]) <= SECOND_COPY_RTOL * np.abs(lam)[None, :]
+    near = _near(lam)
     n_groups, label = connected_components(csr_matrix(near | near.T), directed=False)
     groups = [np.flatnonzero(label == g) for g in range(n_groups)]
     return [g for g in groups if g.size > 1]
@@ -277,10 +282,9 @@ def _cluster_consistency(lam: np.ndarray, th: np.ndarray, own: np.ndarray) -> np
 
 
 def _copies_of(lam: np.ndarray, structural: np.ndarray) -> np.ndarray:
-    """(m,) bool: the roots not ``structural`` within :data:`SECOND_COPY_RTOL` of a
+    """(m,) bool: the roots not ``structural`` within :data:`CLUSTER_RTOL` of a
     structural one: copies of that mode, which hold its response in other partitions."""
-    near = np.abs(lam[:, None] - lam[None, :]) <= SECOND_COPY_RTOL * np.abs(lam)[None, :]
-    return ~structural & np.any(near[:, structural], axis=1)
+    return ~structural & np.any(_near(lam)[:, structural], axis=1)
 
 
 def matched_one_to_one(freq_hz: np.ndarray, other_hz: np.ndarray, rtol: float) -> np.ndarray:

@@ -198,19 +198,26 @@ def test_bands_completes_a_model_one_mode_short_with_a_residual_pair_and_says_so
     assert (d / "pair.h5").exists()
 
 
+def _free_beam_run(tmp_path, f_hi_hz: float, *extra: str):
+    """``ssidlab bands --out`` on the free-free beam (all 8 DOFs, inputs at both ends) measured
+    from 20 Hz to ``f_hi_hz``: (M, K, the process, the JSON, the model file, the source)."""
+    from test_rigid_body import free_beam
+
+    M, C, K, dofs = free_beam()
+    frf = accelerance_from_model(M, C, K, dofs, np.linspace(20, f_hi_hz, 1200), dofs, ["0+Z", "3+Z"])
+    src, js, out = tmp_path / "beam.h5", tmp_path / "beam.json", tmp_path / "model.h5"
+    write_frf(str(src), frf)
+    p = run(str(src), "--json", str(js), "--out", str(out), "--quiet", *extra)
+    return M, K, p, js, out, src
+
+
 def test_bands_models_a_free_free_beam_with_its_rigid_body_modes(tmp_path):
     """A free-free beam measured from 20 Hz (all 8 DOFs, inputs at both ends): the bands find
     its 6 elastic modes, and the written 8-DOF model takes its two rigid-body modes from the
     mass line below them (a warning says so; the JSON records them); its M and K are the
     beam's (noise-free: measured 3.2e-10 and 1.2e-11, see tests/test_modal_model.py).
     ``--no-rigid-body`` refuses instead."""
-    from test_rigid_body import free_beam
-
-    M, C, K, dofs = free_beam()
-    frf = accelerance_from_model(M, C, K, dofs, np.linspace(20, 6000, 1200), dofs, ["0+Z", "3+Z"])
-    src, js, out = tmp_path / "beam.h5", tmp_path / "beam.json", tmp_path / "model.h5"
-    write_frf(str(src), frf)
-    p = run(str(src), "--json", str(js), "--out", str(out), "--quiet")
+    M, K, p, js, out, src = _free_beam_run(tmp_path, 6000.0)
     assert p.returncode == 0, p.stderr
     assert "2 rigid-body mode(s) (free-free structure)" in p.stderr
     res = json.loads(js.read_text())
@@ -229,13 +236,7 @@ def test_bands_models_a_free_beam_short_of_modes_below_and_above_its_band(tmp_pa
     both, fitted together (both warnings; the JSON records the pair and the rigid-body
     modes), and is the beam's: measured M 6.9e-6, K 3.2e-4 (BP3's error in the found modes,
     see tests/test_modal_model.py); bound 1e-3."""
-    from test_rigid_body import free_beam
-
-    M, C, K, dofs = free_beam()
-    frf = accelerance_from_model(M, C, K, dofs, np.linspace(20, 4500, 1200), dofs, ["0+Z", "3+Z"])
-    src, js, out = tmp_path / "beam.h5", tmp_path / "beam.json", tmp_path / "model.h5"
-    write_frf(str(src), frf)
-    p = run(str(src), "--json", str(js), "--out", str(out), "--quiet")
+    M, K, p, js, out, _ = _free_beam_run(tmp_path, 4500.0)
     assert p.returncode == 0, p.stderr
     assert "2 rigid-body mode(s) (free-free structure)" in p.stderr and "last pair" in p.stderr
     bands = json.loads(js.read_text())["model"]["info"]["bands"]

@@ -343,8 +343,8 @@ def pseudo_dof_lines(truth: Truth) -> None:
     print("- ours, partitions chosen from the data (`identify_pseudo_dof_auto`, the default of "
           "`ssidlab pseudo-dof`): consistent roots of the models with p and p + 1 partitions "
           "that repeat each other (one to one), of p's and of p + 1's: "
-          + ", ".join(f"p={p}: {r} of {c} and {int(sc.consistent[p + 1].sum())}"
-                      for p, c, r in zip(sc.n_partitions, sc.n_consistent, sc.n_repeated, strict=True))
+          + ", ".join(f"p={p}: {r} of {c} and {c1}" for p, c, c1, r in zip(
+              sc.n_partitions, sc.n_consistent, sc.n_consistent_next, sc.n_repeated, strict=True))
           + f"; {'settled' if sc.settled else 'not settled'} at p={sc.chosen}, a "
           f"{sc.chosen * frf.n_out}-DOF pseudo model; structural (consistent and repeated): "
           f"{', '.join(f'{f:.1f}' for f in fs)}")

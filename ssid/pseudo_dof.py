@@ -133,9 +133,10 @@ class PartitionScan:
         positive damping, consistency); ``repeated`` {p: (m_p,) bool} for each p tried,
         whether the p + 1 model repeats it. The stabilisation diagram
         (:func:`plot_partition_scan`) draws these.
-    n_partitions, n_consistent, n_repeated : (k,) per p tried (each compared with p + 1):
-        p, its consistent roots, and how many of those the p + 1 model repeats (one to one:
-        as many of the p + 1 model's are repeated by p).
+    n_partitions, n_consistent, n_consistent_next, n_repeated, agreement : (k,) per p tried
+        (each compared with p + 1): p, its consistent roots, the p + 1 model's, how many of
+        p's the p + 1 model repeats (one to one: as many of the p + 1 model's are repeated by
+        p), and the fraction of the larger count that is repeated (the rule's measure).
     """
 
     chosen: int
@@ -157,6 +158,20 @@ class PartitionScan:
     @property
     def n_repeated(self) -> np.ndarray:
         return np.array([int(self.repeated[p].sum()) for p in self.n_partitions], dtype=int)
+
+    @property
+    def n_consistent_next(self) -> np.ndarray:
+        return np.array([int(self.consistent[p + 1].sum()) for p in self.n_partitions], dtype=int)
+
+    @property
+    def agreement(self) -> np.ndarray:
+        return _agreement(self.n_repeated, self.n_consistent, self.n_consistent_next)
+
+
+def _agreement(n_repeated, n_consistent, n_consistent_next) -> np.ndarray | float:
+    """Fraction of the p and p + 1 models' consistent roots that repeat each other (matched one
+    to one, so the larger count is the denominator); 0 where neither has any."""
+    return n_repeated / np.maximum(np.maximum(n_consistent, n_consistent_next), 1)
 
 
 def _stack(frf: FRFData, n_partitions: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -342,34 +357,30 @@ def identify_pseudo_dof_auto(frf: FRFData, consistency_min: float = 0.8, max_par
     largest agreeing fraction is used and ``scan.settled`` is False.
     """
     results = {2: identify_pseudo_dof(frf, consistency_min, 2)}
-    consistent = {2: results[2].structural}
     repeated_by_p: dict[int, np.ndarray] = {}
     for p in range(2, max_partitions + 1):
         try:
             results[p + 1] = identify_pseudo_dof(frf, consistency_min, p + 1)
         except IdentificationError:  # too few lines per partition: p is the last one testable
             break
-        consistent[p + 1] = results[p + 1].structural
         a, b = results[p], results[p + 1]
-        rep = matched_one_to_one(a.freq_hz[consistent[p]], b.freq_hz[consistent[p + 1]], repeat_rtol)
+        rep = matched_one_to_one(a.freq_hz[a.structural], b.freq_hz[b.structural], repeat_rtol)
         repeated_by_p[p] = np.zeros(a.freq_hz.size, dtype=bool)
-        repeated_by_p[p][consistent[p]] = rep
-        if rep.size and rep.sum() >= repeat_min * max(rep.size, int(consistent[p + 1].sum())):  # both ways
+        repeated_by_p[p][a.structural] = rep
+        if rep.size and _agreement(rep.sum(), rep.size, b.structural.sum()) >= repeat_min:
             break
     if not repeated_by_p:
         raise IdentificationError("too few lines to compare pseudo models of 2 and 3 partitions")
     scan = PartitionScan(0, False, repeat_min, repeat_rtol,
                          roots_hz={p: r.freq_hz for p, r in results.items()},
-                         consistent={p: c.copy() for p, c in consistent.items()},
+                         consistent={p: r.structural.copy() for p, r in results.items()},
                          repeated=repeated_by_p)
-    ps = scan.n_partitions
-    n_next = np.array([int(scan.consistent[p + 1].sum()) for p in ps])
-    frac = scan.n_repeated / np.maximum(np.maximum(scan.n_consistent, n_next), 1)
+    ps, frac = scan.n_partitions, scan.agreement
     scan.settled = bool(frac[-1] >= repeat_min and scan.n_consistent[-1] > 0)
     scan.chosen = int(ps[-1] if scan.settled else ps[int(np.argmax(frac))])
     res = results[scan.chosen]
     res.repeated = repeated_by_p[scan.chosen]
-    res.structural = consistent[scan.chosen] & res.repeated
+    res.structural = res.structural & res.repeated
     res.second_copy = _copies_of(res.lam, res.structural)
     res.scan = scan
     return res

@@ -8,8 +8,8 @@ the data but not in the fit (:func:`fit_scale_factors`), dropped in a run of lin
 to tell them from the modes' own skirts. With as many kept modes as measured DOFs, and their
 shapes linearly independent at the sensors (:func:`strongest_roots`), M, C, K follow from
 Eq. 3.26: through the state-space inverse as in step 2, or with the modes taken as real
-normal modes (:func:`normal_mode_mck`), which stays positive definite on noisy broad-band data
-where the state-space inverse does not.
+normal modes (:func:`ssid.real_modes.normal_mode_mck`), which stays positive definite on noisy
+broad-band data where the state-space inverse does not.
 
 Root selection (criteria 1-4) is in :mod:`ssid.bands`, which re-exports this module's public
 names.
@@ -24,6 +24,7 @@ import numpy as np
 
 from .errors import IdentificationError
 from .frf import FRFData
+from .real_modes import normal_mode_mck
 from .step1 import Step1Data, step1_data
 from .step2 import StateSpaceModes, assemble_mck
 
@@ -33,8 +34,6 @@ if TYPE_CHECKING:  # only for annotations: ssid.bands imports this module
 __all__ = [
     "fit_scale_factors",
     "frf_share",
-    "normal_mode_mck",
-    "normal_mode_shapes",
     "residual_runs",
     "root_shapes",
     "scale_selected_roots",
@@ -331,68 +330,6 @@ def fit_scale_factors(d: Step1Data, lam: np.ndarray, theta_x: np.ndarray,
     return v[:m] + 1j * v[m:]
 
 
-def normal_mode_mck(lam: np.ndarray, theta_x: np.ndarray,
-                    u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """M, C, K (n, n) from n complex pairs taken as real normal modes.
-
-    Eq. 3.26 gives ``A_s^-1 = Theta diag(u) Theta^T``, whose partitions are, with Eq. 3.15,
-    ``X = Theta_x diag(u) Theta_x^T = 0``, ``M^-1 = Theta_x diag(u lambda) Theta_x^T`` and
-    ``K^-1 = -Theta_x diag(u / lambda) Theta_x^T`` (sums over both members of each pair). M
-    taken from the inverse of the whole ``Theta`` (:func:`ssid.step2.assemble_mck`) is
-    ``(M^-1 + X K X)^-1``: a residue ``X`` of 1e-5 of ``M^-1`` (slightly complex shapes of noisy
-    bands), multiplied by the stiffness of modes three decades above the lowest, makes M
-    indefinite. For a lightly damped structure whose modes are normal (what criterion 3, MPC,
-    checks), ``theta_r`` is a real shape ``phi_r`` times a phase and
-    ``u_r = -j / (2 omega_dr m_r)``; then X = 0 exactly and
-
-        M^-1 = Phi diag(1/m) Phi^T,  K^-1 = Phi diag(1/(m omega^2)) Phi^T,
-        C = M Phi diag(2 zeta omega / m) Phi^T M      (modal damping, report section 6.2.3)
-
-    with ``omega_r = |lambda_r|``, ``zeta_r`` of Eq. 5.18. M and K are positive definite when
-    every modal mass ``m_r > 0`` and the shapes are independent, and eig(K, M) = omega_r^2
-    exactly: the scale factors set the modal masses, not the frequencies.
-
-    Parameters
-    ----------
-    lam : (n,) complex roots (Im > 0), rad/s.
-    theta_x : (n, n) complex displacement shapes, any normalisation.
-    u : (n,) complex ``1/a~_r`` for that normalisation (Eq. 3.23).
-
-    Returns
-    -------
-    (M, C, K, m): m (n,) the modal masses of the real shapes ``phi_r`` (kg for unit-free
-    shapes if H is in (m/s^2)/N); M, C, K in the units of Eq. 3.15.
-    """
-    lam = np.asarray(lam, dtype=complex)
-    phi, inv_m = normal_mode_shapes(lam, theta_x, u)
-    wn = np.abs(lam)
-    zeta = -lam.real / wn
-    Minv = (phi * inv_m) @ phi.T
-    Kinv = (phi * (inv_m / wn**2)) @ phi.T
-    M = np.linalg.inv(Minv)
-    K = np.linalg.inv(Kinv)
-    MP = M @ phi
-    C = (MP * (2 * zeta * wn * inv_m)) @ MP.T
-    with np.errstate(divide="ignore"):
-        # Symmetric by construction; remove rounding asymmetry only.
-        return (M + M.T) / 2, (C + C.T) / 2, (K + K.T) / 2, 1.0 / inv_m
-
-
-def normal_mode_shapes(lam: np.ndarray, theta_x: np.ndarray,
-                       u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Real shapes ``phi`` (n, m) and inverse modal masses ``1/m`` (m,) of complex pairs taken
-    as real normal modes (see :func:`normal_mode_mck`): each shape turned by the phase that
-    makes it most nearly real, ``u_r = -j / (2 omega_dr m_r)`` read for that phase."""
-    lam = np.asarray(lam, dtype=complex)
-    th = np.asarray(theta_x, dtype=complex)
-    # Phase that makes each shape most nearly real: maximises |Re(e^{j a} theta)|^2 =
-    # (|theta|^2 + Re(e^{2ja} theta^T theta)) / 2.
-    alpha = -0.5 * np.angle(np.sum(th * th, axis=0))
-    phi = (th * np.exp(1j * alpha)).real
-    u_real = np.asarray(u) * np.exp(-2j * alpha)  # u theta theta^T = u_real phi phi^T (to the imag part)
-    return phi, -2 * lam.imag * u_real.imag
-
-
 def scale_selected_roots(
     frf: FRFData,
     result: BandResult,
@@ -422,7 +359,7 @@ def scale_selected_roots(
         window (BP2) or run of contiguous lines (BP3): True, False or "auto" (only where no
         unresolved selected mode lies, :func:`residual_runs`).
     assembly : "state-space": Eq. 3.26 through :func:`ssid.step2.assemble_mck` (the report's);
-        "normal": :func:`normal_mode_mck` (real normal modes, modal damping).
+        "normal": :func:`ssid.real_modes.normal_mode_mck` (real normal modes, modal damping).
     assemble : False to return the scale factors only.
 
     Returns

@@ -20,7 +20,7 @@ from .band_residual import (
     normal_mode_accelerance,
     rigid_body_fit_refusal,
 )
-from .band_scaling import normal_mode_mck, normal_mode_shapes, root_shapes, scale_selected_roots, strongest_roots
+from .band_scaling import root_shapes, scale_selected_roots, strongest_roots
 from .bands import BandResult, band_layout, default_band_width_hz, process_bands
 from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from .errors import IdentificationError
@@ -28,6 +28,7 @@ from .frf import FRFData
 from .identify import SSIDResult, identify_mck, model_accelerance, model_frf_errors, model_output_error
 from .modal import modal_phase_collinearity, physical_checks, real_modes, unit_max_shapes
 from .noise import data_noise_weights
+from .real_modes import normal_mode_mck, normal_mode_shapes, real_mode_mck
 
 __all__ = ["band_ladder", "default_band_width_hz", "identify_mck_band_select", "identify_mck_modal",
            "model_accelerance", "result_problems"]
@@ -144,24 +145,19 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
 
 def _rigid_body_mck(lam: np.ndarray, phi: np.ndarray, inv_m: np.ndarray,
                     phi_rb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """M, C, K of rigid-body shapes ``phi_rb`` (n, r) and found real modes (roots ``lam``,
-    shapes ``phi`` (n, m), inverse modal masses ``inv_m``), all for unit modal mass:
-    ``M = Psi^-T Psi^-1``, ``K = Psi^-T diag(w^2) Psi^-1``, ``C = Psi^-T diag(2 zeta w) Psi^-1``
-    with ``Psi = [phi_rb, phi / sqrt(m)]`` and w = 0 on the rigid-body modes.
-    :func:`ssid.band_scaling.normal_mode_mck` builds K from the flexibility, which a free
-    structure does not have."""
+    """M, C, K of rigid-body shapes ``phi_rb`` (n, r), for unit modal mass, and found real
+    modes (roots ``lam``, shapes ``phi`` (n, m), inverse modal masses ``inv_m``), by
+    :func:`ssid.real_modes.real_mode_mck` with omega = zeta = 0 on the rigid-body modes."""
     if np.any(inv_m <= 0):
         raise IdentificationError("a kept mode has a modal mass <= 0: the modal model is not physical")
-    psi = np.column_stack([phi_rb, phi * np.sqrt(inv_m)])
-    if not _independent(psi):
+    shapes = np.column_stack([phi_rb, phi])
+    if not _independent(shapes):
         raise IdentificationError("the rigid-body shapes lie in the span of the found modes' at "
                                   "the sensors")
     r = phi_rb.shape[1]
     wn = np.concatenate([np.zeros(r), np.abs(lam)])
     zeta = np.concatenate([np.zeros(r), -lam.real / np.abs(lam)])
-    P = np.linalg.inv(psi)
-    M, C, K = (P.T @ (d[:, None] * P) for d in (np.ones(wn.size), 2 * zeta * wn, wn**2))
-    return (M + M.T) / 2, (C + C.T) / 2, (K + K.T) / 2
+    return real_mode_mck(shapes, np.concatenate([np.ones(r), inv_m]), wn, zeta)
 
 
 def _independent(shapes: np.ndarray, rtol: float = 1e-8) -> bool:
@@ -265,7 +261,7 @@ def modal_model_from_bands(
 
     Keeps the n strongest selected roots with independent shapes at the sensors
     (:func:`ssid.band_scaling.strongest_roots`), fits their scale factors (Eq. 3.23) and
-    assembles M, C, K as real normal modes (:func:`ssid.band_scaling.normal_mode_mck`):
+    assembles M, C, K as real normal modes (:func:`ssid.real_modes.normal_mode_mck`):
     physical whenever every kept modal mass is positive, with eig(K, M) the kept roots'
     |lambda|^2 exactly. Which n modes it holds is the data's choice (their contribution to
     the measured FRFs), unless an analyst lists target modes (``prefer_shapes``, e.g. an FE

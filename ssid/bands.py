@@ -53,7 +53,6 @@ from .band_edges import (
 from .band_scaling import (
     fit_scale_factors,
     frf_share,
-    normal_mode_mck,
     residual_runs,
     scale_selected_roots,
     strongest_roots,
@@ -62,6 +61,7 @@ from .frf import FRFData, require_response
 from .identify import identify_step1
 from .modal import modal_phase_collinearity, root_frequency_damping
 from .plots_bands import plot_band_roots
+from .real_modes import normal_mode_mck
 from .step1 import Step1Data
 from .step2 import state_space_modes
 

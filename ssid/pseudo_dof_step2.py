@@ -14,7 +14,7 @@ step 2 is done on the measured FRFs, not on the pseudo DOFs:
    of a passive structure (a further, data-based indicator after the partition
    consistency and the repeat test).
 2. :func:`pseudo_dof_mck`: M, C, K from the modes with ``m_r > 0``, as real normal modes with
-   modal damping (:func:`ssid.bands.normal_mode_mck`). An n-DOF model holds n modes; with
+   modal damping (:func:`ssid.real_modes.normal_mode_mck`). An n-DOF model holds n modes; with
    more, either the n strongest independent ones are kept (``n_keep = n``, the reduced
    physical model band processing builds), or all are kept in an m-DOF model whose first n
    coordinates are the measured DOFs and whose m - n others are generalised coordinates (the
@@ -36,12 +36,12 @@ from .bands import (
     BandResult,
     BandRoot,
     fit_scale_factors,
-    normal_mode_mck,
     strongest_roots,
 )
 from .errors import IdentificationError
 from .frf import FRFData
 from .noise import frf_noise_weights
+from .real_modes import normal_mode_mck
 from .step1 import Step1Data, step1_data
 
 if TYPE_CHECKING:  # annotations only: ssid.pseudo_dof imports this module
@@ -120,7 +120,7 @@ class PseudoDofMCK:
 def _real_phase(phi: np.ndarray) -> np.ndarray:
     """Phase ``alpha`` (m,) that makes each column of ``phi`` most nearly real.
 
-    The same rule as :func:`ssid.bands.normal_mode_mck` (it maximises
+    The same rule as :func:`ssid.real_modes.normal_mode_mck` (it maximises
     ``|Re(e^{j alpha} phi)|^2``), needed here to build generalised coordinates that leave it
     unchanged.
     """

@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as sla
-
 from report_truth import REPORT, Truth, fmt
+from target_status import TargetRow
+
 from ssid.correlate import modal_assurance, pair_modes_by_mac
 from ssid.frf import FRFData, selection_matrix
 from ssid.identify import identify_mck
@@ -81,22 +82,24 @@ def reactions(truth: Truth, seeds: list[int]):
     jobs = [(reaction_row, (label, data, sub_model), 2.0 if label == "noise-free" else 20.0)
             for label, data in records]
 
-    def show(lines: list[str]) -> None:
+    def show(rows: list[tuple[str, TargetRow]]) -> None:
         print("\n## 6. Reaction forces: substructure on three 9-DOF test stands (section 6.6)\n")
         print("16-DOF Guyan substructure; coupled 25-DOF Guyan model with Rayleigh damping; inputs "
               "at 11+Z and 16+Z; reactions at 4+Z, 8+Z, 18+Z; 512 lines 1-1000 Hz; substructure "
               f"modes in the band: {inband.size} of 16 ({fs[inband[0]]:.3g}-{fs[inband[-1]]:.4g} Hz)")
         print(f"- report: {REPORT['reactions']}")
-        for line in lines:
+        for line, status in rows:
             print(line)
+            truth.status.append(status)
         print(REACTION_NOTES)
 
     return jobs, show
 
 
-def reaction_row(label: str, data: FRFData, sub_model: tuple) -> str:
+def reaction_row(label: str, data: FRFData, sub_model: tuple) -> tuple[str, TargetRow]:
     """Section 6's lines for one record (worker process): the identified substructure
-    against the true one and, for noisy data, the errors-in-variables cost of both."""
+    against the true one and, for noisy data, the errors-in-variables cost of both; and the
+    Target's row."""
     Ms, Cs, Ks, fs, phi_s, inband, low, mid = sub_model
     r = identify_mck(data)
     cost = ""
@@ -124,11 +127,21 @@ def reaction_row(label: str, data: FRFData, sub_model: tuple) -> str:
 
     e_mid, m_mid = band_err(mid)
     e_low, m_low = band_err(low)
+    if label == "noise-free":
+        status = TargetRow("6", "full order, noise-free", "M, C, K within 0.03 %, frequencies 0.01 %",
+                           f"M, C, K within {100 * max(em, ec):.2g} %, frequencies {ef:.2g} %",
+                           "yes" if 100 * max(em, ec) <= 0.03 and ef <= 0.01 else "no")
+    else:
+        low_cell = (f"all {low.size} missed" if m_low == low.size else
+                    f"{e_low:.3g} %" + (f" ({m_low} missed)" if m_low else ""))
+        status = TargetRow("6", f"full order, {label}", "no solution",
+                           f"in-band modes above 10 Hz {e_mid:.3g} %" + (f" ({m_mid} missed)" if m_mid else "")
+                           + f"; suspension modes {low_cell}", "the report had none: ours stated")
     return (f"- ours, {label}: in-band modes {fs[mid[0]]:.3g}-{fs[mid[-1]]:.4g} Hz max frequency "
            f"error {fmt(e_mid, None, m_mid).strip()} %; suspension modes below 10 Hz "
            f"{fmt(e_low, None, m_low).strip()} %; M, K max entry error {100 * em:.3g} % of max "
            f"entry (C {100 * ec:.3g} %); all 16 undamped frequencies max error {ef:.3g} %"
-           + ("" if not r.warnings else f"; warnings: {len(r.warnings)}") + cost)
+           + ("" if not r.warnings else f"; warnings: {len(r.warnings)}") + cost), status
 
 
 REACTION_NOTES = """- what we achieve where the report had no solution: noise-free, the substructure exactly.

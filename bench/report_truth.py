@@ -30,6 +30,7 @@ REPORT = {
     "pseudo": ("10-DOF, 1-2100 Hz, noise-free: original 10-DOF model 7 of its 16 targets within 1 %, "
                "20-DOF pseudo model 12 (\"4 additional target modes\": 21, 22, 29, 30; counted "
                "from Table 6.18); no indicator of computational modes; step 2 unresolved"),
+    ("pseudo", "original"): 7, ("pseudo", "20-DOF"): 12,
     "reactions": "full order, noise-free: M, C, K within 0.03 %, frequencies 0.01 %; noisy: none",
 }
 
@@ -51,6 +52,8 @@ class Truth:
         #: (n, f_max) -> whether the noise-free data gave an n-DOF modal model (section 2);
         #: section 3 skips the modal candidate where they did not (noise adds no modes).
         self.modal_possible: dict[tuple[int, float], bool] = {}
+        #: The Target's rows (``target_status.TargetRow``), added as each section prints.
+        self.status: list = []
 
     def sensors(self, n: int) -> tuple[list[str], np.ndarray]:
         """EfI choice (Eq. 6.1) of n Z DOFs for the first n target modes; interface DOFs kept."""

@@ -20,13 +20,14 @@ from report_truth import (
     worker_truth,
 )
 from target_status import TargetRow, figure, no_worse
-from ssid.band_select import identify_mck_band_select, modal_model_from_bands, result_problems
+from ssid.band_select import identify_mck_band_select, result_problems
+from ssid.modal_model import modal_model_from_bands
 from ssid.identify import identify_mck
 from ssid.noise import report_noise_frf
 
 
 def modal_cell(truth: Truth, sensors, tm, cands: dict, frf) -> tuple[str, tuple | None]:
-    """The band-processed modal candidate's errors (``ssid.band_select.identify_mck_modal``),
+    """The band-processed modal candidate's errors (``ssid.modal_model.identify_mck_modal``),
     the modes it holds that are not targets and, if it missed targets, the errors with the
     FE model's target modes kept first (also returned); or why there is none."""
     r = cands.get((float(frf.freq_hz[-1]), "bands"))
@@ -74,7 +75,7 @@ def reduced_noise_free(truth: Truth) -> None:
           "(ls, tls, stls, ml) chosen from the data alone: a physical model first, the modal "
           "candidate when it is physical, else the lowest noise-weighted output error of its "
           "M, C, K over all lines; the modal candidate is "
-          "`modal (bands)`: `ssid.band_select.identify_mck_modal`, the n strongest modes with "
+          "`modal (bands)`: `ssid.modal_model.identify_mck_modal`, the n strongest modes with "
           "independent shapes found by band processing over the whole spectrum (bands of 1/12 "
           "of it, 50 % overlap, section 4's criteria), scaled by BP3 and assembled as real "
           "normal modes; it holds the modes the data show most strongly, not necessarily the "

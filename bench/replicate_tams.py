@@ -52,12 +52,12 @@ from ssid.correlate import (
     pair_modes_by_mac,
     pair_modes_by_mac_and_frequency,
 )
-from ssid.band_select import identify_mck_modal
 from ssid.craig_bampton import craig_bampton_form
 from ssid.craig_bampton_tam import craig_bampton_tam
 from ssid.errors import IdentificationError, InputError
 from ssid.frf import accelerance_from_model
 from ssid.identify import identify_mck
+from ssid.modal_model import identify_mck_modal
 from ssid.tam import (
     dof_indices,
     guyan_reduce,
@@ -133,7 +133,7 @@ def _freq_table(name: str, f_exact, columns: dict[str, np.ndarray]) -> list[str]
 
 def _identify(frf, solver: str, phi_t: np.ndarray, f_t: np.ndarray):
     """SSID model of ``frf`` by ``solver``: an ``identify_mck`` step-1 solver, or ``"bands"``
-    (:func:`ssid.band_select.identify_mck_modal` with the target modes kept first, as the
+    (:func:`ssid.modal_model.identify_mck_modal` with the target modes kept first, as the
     report picked its band-processing roots by hand). Returns the result or the reason none."""
     try:
         if solver == "bands":

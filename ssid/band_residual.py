@@ -1,6 +1,6 @@
 """One pair above the band for a modal model one mode short (beyond the report).
 
-An n-DOF modal model needs n modes (:func:`ssid.band_select.modal_model_from_bands`). When
+An n-DOF modal model needs n modes (:func:`ssid.modal_model.modal_model_from_bands`). When
 band processing finds n - 1 in the measured band, the modes above the band are in the data
 too, as what the found modes leave of the FRFs: their resonances' lower skirts. The nearest
 of them, when its skirt reaches into the band, sets the shape of that residual; the others

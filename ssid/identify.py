@@ -75,7 +75,7 @@ class SSIDResult:
         For a band-processed modal model (``solver == "bands"``), the band-processing result
         it was assembled from: every root and its verdict (for
         :func:`ssid.bands.plot_band_roots`, or another choice of modes with
-        :func:`ssid.band_select.modal_model_from_bands`). Not written to JSON.
+        :func:`ssid.modal_model.modal_model_from_bands`). Not written to JSON.
     step1 : tuple (Step1Estimate, Step1Data) or None
         Step 1's estimate (the refinement's, also when a start with fewer problems replaced
         it in step 2) and the data it was fitted to, with the noise weights it ended with:

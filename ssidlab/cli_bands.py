@@ -12,7 +12,7 @@ repeated in another band within ``--repeat-tol`` of the width that locates it); 
 mode kept. It prints the modes found, writes every root and its verdict to the JSON file, the
 stabilisation-style chart of roots per band to ``--plot`` and, with ``--out``, the n-DOF model
 assembled from the n strongest modes with independent shapes as real normal modes, scaled by
-``--scale`` (``ssid.band_select.modal_model_from_bands``). Which n modes that model holds is
+``--scale`` (``ssid.modal_model.modal_model_from_bands``). Which n modes that model holds is
 the data's choice unless an FE model names the target modes (``--targets``; the report picked
 its roots by hand): roots paired with them (MAC >= 0.8 and frequency) are kept first. With
 one mode too few, the last pair is fitted above the band to what the found modes leave of the
@@ -108,9 +108,9 @@ def run_bands(args: argparse.Namespace) -> int:
     check_output_paths(inputs, [args.json, args.out, args.plot])
 
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
-    from ssid.band_select import modal_model_from_bands
     from ssid.bands import band_layout, plot_band_roots, process_bands
     from ssid.io import read_measured_frf, write_model
+    from ssid.modal_model import modal_model_from_bands
 
     frf = read_measured_frf(args.frf)
     if frf.H_reaction is not None:

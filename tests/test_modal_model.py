@@ -1,4 +1,4 @@
-"""The band-processed modal model (``ssid.band_select.identify_mck_modal``).
+"""The band-processed modal model (``ssid.modal_model.identify_mck_modal``).
 
 Each case builds a system with known M, C, K, synthesises its accelerances and checks what
 comes back against it.
@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 from test_identify import _four_dof_with_unmeasured_modes, true_frequencies_hz
 
-from ssid.band_select import identify_mck_band_select, identify_mck_modal
+from ssid.band_select import identify_mck_band_select
 from ssid.correlate import modal_assurance
 from ssid.errors import IdentificationError
 from ssid.frf import FRFData, accelerance_from_model
 from ssid.modal import real_modes
+from ssid.modal_model import identify_mck_modal
 from ssid.models import example_system
 from ssid.models.payload import modal_damping
 from ssid.noise import report_noise_frf

@@ -3,6 +3,8 @@ model and its target modes, the report's figures, the error measure, a two-proce
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import scipy.linalg as sla
 
@@ -12,6 +14,11 @@ from ssid.modal import root_frequency_damping
 from ssid.models.payload import INTERFACE_DOFS, Z_DOFS, modal_damping, payload_simulator, target_modes
 from ssid.placement import effective_independence
 from ssid.step2 import state_space_modes
+
+#: A section run in the shared pool: its jobs ``(fn, args, seconds)`` (``seconds``: about what
+#: the job takes on one core, for the pool's longest-first order) and what prints its text
+#: from their results, in the order of the jobs.
+Section = tuple[list[tuple[Callable, tuple, float]], Callable[[list], None]]
 
 # The report's figures: largest |% error| over the target modes in each table column.
 REPORT = {

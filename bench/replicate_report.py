@@ -136,6 +136,19 @@ def pseudo_dof_lines(truth: Truth) -> list[TargetRow]:
     near = [(f, np.min(np.abs(fs2 - f)) / f * 100) for f in tf[(tf <= 2100) & ~hit]]
     print("  in-band targets not within 1 %, with the nearest structural root's error: "
           + ", ".join(f"{f:.1f} Hz {e:.2g} %" for f, e in near))
+    # Why: how many modes each partition's 10 pseudo DOFs would have to hold. A mode counts
+    # as seen where its mass-normalised shape at the sensors has norm >= 0.5 (the targets'
+    # are 1.2-2.2 in the lower partition).
+    norm = np.linalg.norm(truth.phi[truth.p.index(sensors)], axis=0)
+    edges = [frf.freq_hz[0], *res.split_hz, 2100.0]
+    parts = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        modes = np.flatnonzero((truth.f >= lo) & (truth.f <= hi))
+        weak = [f"{truth.f[i]:.0f} Hz {norm[i]:.2f}" for i in modes if i in tm and norm[i] < 0.5]
+        parts.append(f"{lo:.0f}-{hi:.0f} Hz {np.sum(norm[modes] >= 0.5)} of its {modes.size} modes"
+                     + (f" (targets seen less: {', '.join(weak)})" if weak else ""))
+    print(f"  modes the {len(sensors)} sensors see (mass-normalised shape norm >= 0.5 there), for "
+          f"{len(sensors)} pseudo DOFs per partition: " + "; ".join(parts))
     _pseudo_step2(frf, res, found, "two partitions")
     auto = identify_pseudo_dof_auto(frf)
     sc = auto.scan

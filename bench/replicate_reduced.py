@@ -112,7 +112,8 @@ def reduced_noise_free(truth: Truth) -> None:
 
 def reduced_noise_free_row(n: str, label: str, key: int, spec) -> tuple[str, bool, dict]:
     """One row of section 2, whether the modal candidate existed, and the errors of the
-    default and the band-selected model (worker process)."""
+    default and the band-selected model (and of the modal model with the FE targets first,
+    where the automatic one missed targets) (worker process)."""
     truth = worker_truth()
     sensors, tm = truth.sensors(int(n))
     frf = truth.frf(sensors, spec)

@@ -62,10 +62,11 @@ def identify_mck_modal(
         Accelerances (L, n, n_in) without interface reactions.
     band_width_hz : float, optional
         Width of the overlapping bands. Default: :func:`ssid.bands.band_layout` (bands
-        of :func:`default_band_width_hz` on evenly spaced lines, of equal line count otherwise).
+        of :func:`ssid.bands.default_band_width_hz` on evenly spaced lines, of equal line count
+        otherwise).
     scale, prefer_shapes, prefer_freq_hz, residual_pair, rigid_body
         As for :func:`modal_model_from_bands`.
-    solver : step-1 solver in each band (as for :func:`identify_mck`).
+    solver : step-1 solver in each band (as for :func:`ssid.identify.identify_mck`).
 
     Returns
     -------
@@ -150,7 +151,7 @@ def modal_model_from_bands(
     how many modes the bands selected, the kept frequencies, the residual pair's frequency
     (``residual_pair_hz``, None without one; the pair is then the last mode, and a warning
     says so) and the number of rigid-body modes (``n_rigid_body_modes``, also the result's;
-    a warning says so; they are not among the listed modes, as in :func:`identify_mck`),
+    a warning says so; they are not among the listed modes, as in :func:`ssid.identify.identify_mck`),
     ``band_result`` is ``res``.
 
     Raises

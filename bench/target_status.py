@@ -58,7 +58,8 @@ def status_table(rows: list[TargetRow]) -> str:
            "report failed, what we achieve. Each row below is one figure the sections that "
            "follow compare with the report's, and `ours` is the cell named in it (for sections "
            "2 and 3 the band search's choice, `ssid.band_select.identify_mck_band_select`, made "
-           "from the data alone; a figure is frequency / damping max |% error| over the target "
+           "from the data alone; in section 3 without the modal model a residual pair completes, "
+           "as its notes say; a figure is frequency / damping max |% error| over the target "
            "modes, and the targets missed). `no worse`: ours misses no more targets and neither "
            "error is larger (or, for counts, ours holds no fewer). Why a row falls short is in "
            "its section's notes.",

@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import IdentificationError
 from .frf import FRFData
-from .real_modes import normal_mode_mck
+from .real_modes import normal_mode_mck, shapes_independent
 from .step1 import Step1Data, step1_data
 from .step2 import StateSpaceModes, assemble_mck
 
@@ -413,8 +413,7 @@ def scale_selected_roots(
     if not assemble or len(sel) != n:
         return u, None
     theta = root_shapes(sel)
-    sv = np.linalg.svd(theta[:n] / np.linalg.norm(theta[:n], axis=0), compute_uv=False)
-    if sv[-1] < 1e-8 * sv[0]:
+    if not shapes_independent(theta[:n]):
         raise IdentificationError(
             "the selected roots' shapes are linearly dependent at the sensors (Eq. 3.26 has no "
             "inverse, M^-1 is singular); select independent roots (strongest_roots)")

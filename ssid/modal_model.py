@@ -33,7 +33,7 @@ from .frf import FRFData
 from .identify import SSIDResult, model_frf_errors, model_output_error
 from .modal import modal_phase_collinearity, physical_checks, real_modes, unit_max_shapes
 from .noise import data_noise_weights
-from .real_modes import normal_mode_mck, normal_mode_shapes, real_mode_mck
+from .real_modes import normal_mode_mck, normal_mode_shapes, real_mode_mck, shapes_independent
 
 __all__ = ["identify_mck_modal", "modal_model_from_bands"]
 
@@ -281,7 +281,7 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
     # strongest_roots tests independence only when it has more roots than DOFs to choose from:
     # fewer found ones can be dependent (a symmetry class with more modes than it has
     # dimensions at the sensors).
-    if not _independent(phi):
+    if not shapes_independent(phi):
         raise IdentificationError("the found modes' shapes are linearly dependent at the "
                                   "sensors: no modal model of this order")
     resid = np.where(w > 0, frf.H, 0.0) - normal_mode_accelerance(omega, lam, phi, inv_m,
@@ -292,7 +292,7 @@ def _complete_found_modes(frf: FRFData, kept: BandResult, scale: str, lam: np.nd
     if try_pair:
         try:
             lam_r, phi_r = fit_residual_pair(omega, resid, w, frf.input_index(), zeta, found=lam)
-            if not _independent(np.column_stack([phi, phi_r])):
+            if not shapes_independent(np.column_stack([phi, phi_r])):
                 raise IdentificationError("its shape lies in the span of the found modes' at the "
                                           "sensors")
             # The pair's real shape is for unit modal mass: u = -j / (2 omega_d) (Eq. 3.23's
@@ -335,17 +335,10 @@ def _rigid_body_mck(lam: np.ndarray, phi: np.ndarray, inv_m: np.ndarray,
     if np.any(inv_m <= 0):
         raise IdentificationError("a kept mode has a modal mass <= 0: the modal model is not physical")
     shapes = np.column_stack([phi_rb, phi])
-    if not _independent(shapes):
+    if not shapes_independent(shapes):
         raise IdentificationError("the rigid-body shapes lie in the span of the found modes' at "
                                   "the sensors")
     r = phi_rb.shape[1]
     wn = np.concatenate([np.zeros(r), np.abs(lam)])
     zeta = np.concatenate([np.zeros(r), -lam.real / np.abs(lam)])
     return real_mode_mck(shapes, np.concatenate([np.ones(r), inv_m]), wn, zeta)
-
-
-def _independent(shapes: np.ndarray, rtol: float = 1e-8) -> bool:
-    """Whether the columns of ``shapes`` (n, m), each normalised, are linearly independent to
-    ``rtol`` (smallest over largest singular value), as Eq. 3.26's inverse needs."""
-    sv = np.linalg.svd(shapes / np.linalg.norm(shapes, axis=0), compute_uv=False)
-    return bool(sv[-1] >= rtol * sv[0])

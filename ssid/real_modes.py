@@ -18,7 +18,7 @@ import numpy as np
 
 from .errors import IdentificationError
 
-__all__ = ["normal_mode_mck", "normal_mode_shapes", "real_mode_mck"]
+__all__ = ["normal_mode_mck", "normal_mode_shapes", "real_mode_mck", "shapes_independent"]
 
 
 def real_mode_mck(phi: np.ndarray, inv_m: np.ndarray, omega_n: np.ndarray,
@@ -108,3 +108,11 @@ def normal_mode_shapes(lam: np.ndarray, theta_x: np.ndarray,
     phi = (th * np.exp(1j * alpha)).real
     u_real = np.asarray(u) * np.exp(-2j * alpha)  # u theta theta^T = u_real phi phi^T (to the imag part)
     return phi, -2 * lam.imag * u_real.imag
+
+
+def shapes_independent(shapes: np.ndarray, rtol: float = 1e-8) -> bool:
+    """Whether the columns of ``shapes`` (n, m), real or complex, each normalised, are linearly
+    independent to ``rtol`` (smallest over largest singular value), as Eq. 3.26's inverse
+    (and :func:`real_mode_mck`'s) needs."""
+    sv = np.linalg.svd(shapes / np.linalg.norm(shapes, axis=0), compute_uv=False)
+    return bool(sv[-1] >= rtol * sv[0])

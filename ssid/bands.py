@@ -195,7 +195,7 @@ def process_bands(
             data.append(None)
             continue
         est, d, _ = identify_step1(sub, solver=solver, restart_real_roots=False, low_line_starts=False,
-                                   search_above_band=False)
+                                   search_above_band=False, model_error_levels=False)
         data.append(d)
         modes = state_space_modes(est.C_hat, est.K_hat)
         m = modes.n_pairs

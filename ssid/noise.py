@@ -15,8 +15,12 @@ import numpy as np
 
 from .frf import FRFData
 
-__all__ = ["add_report_noise", "data_noise_weights", "fit_additive_proportional", "frf_noise_weights",
-           "report_noise_frf", "roughness_weights"]
+__all__ = ["add_report_noise", "data_noise_weights", "difference_flat_levels", "fit_additive_proportional",
+           "frf_noise_weights", "report_noise_frf", "roughness_weights"]
+
+#: A flat level below this fraction of the differences' median-based level is taken as not
+#: determined by them (:func:`difference_flat_levels`).
+UNDETERMINED_FLAT = 1e-2
 
 
 def add_report_noise(
@@ -201,6 +205,94 @@ def fit_additive_proportional(
             break
     corr = 1.0 - trim * np.exp(-trim) / (1.0 - np.exp(-trim))
     return a2 / corr, b2 / corr
+
+
+def difference_flat_levels(
+    H: np.ndarray,
+    valid: np.ndarray,
+    b2: np.ndarray,
+    order: int = 4,
+    trim: float = 7.0,
+    max_iter: int = 50,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Flat noise level of each FRF from its differences along frequency, with no model.
+
+    The ``order``-th difference of an FRF along equally spaced lines annihilates polynomials
+    of degree < ``order``; where the FRF is smooth on the scale of a few lines it holds noise
+    only, of variance ``sum_m c_m^2 var[k + m]`` (``c``: the difference's coefficients). With
+    the proportional level ``b2`` given, the flat level ``a2`` of the model
+    ``var = a2 + b2 |H|^2`` (:func:`fit_additive_proportional`) is fitted to the squared
+    differences by maximum likelihood, values above ``trim`` times the model trimmed (sharp
+    resonances, where curvature survives the difference). Unlike a level fitted to a model's
+    residuals, it does not count a reduced-order model's error as noise.
+
+    Whether the differences hold noise or curvature, their lag-1 correlation tells: for white
+    noise it is ``sum c_m c_(m+1) / sum c_m^2`` (-0.8 for order 4), while the differences of a
+    noise-free FRF vary smoothly from line to line (near +1).
+
+    Parameters
+    ----------
+    H : (L, n, n_in) complex FRFs on equally spaced lines.
+    valid : (L, n, n_in) bool; a difference uses windows of valid values only.
+    b2 : (n_in,) relative variance of the proportional part (e.g. from a fit's residuals:
+        a model's error shows mostly away from resonances, in the flat part).
+    order : int
+        4 annihilates cubics; order 2 let resonance curvature into the levels on the payload
+        records (``bench/replicate_report.py``).
+    trim, max_iter : as :func:`fit_additive_proportional`.
+
+    Returns
+    -------
+    a2 : (n, n_in) float, the flat variance of each FRF; NaN where no window is valid or the
+        proportional part leaves it undetermined (below :data:`UNDETERMINED_FLAT` times the
+        median-based level of the differences).
+    rho : (n, n_in) float, the lag-1 correlation of its normalised differences over the lines
+        kept; NaN where undefined.
+    """
+    L = H.shape[0]
+    shape = H.shape[1:]
+    if L < order + 3:  # the correlation needs two differences
+        return np.full(shape, np.nan), np.full(shape, np.nan)
+    c = np.array([1.0])
+    for _ in range(order):
+        c = np.convolve(c, [1.0, -1.0])
+    window = range(order + 1)
+    diff = sum(c[m] * H[m:L - order + m] for m in window)
+    ok = np.logical_and.reduce([valid[m:L - order + m] for m in window])
+    gain = float(np.sum(c**2))
+    # |H|^2 weighted as the difference weights each line's variance (H's own noise hardly
+    # moves it).
+    h2 = sum(c[m] ** 2 * np.abs(H[m:L - order + m]) ** 2 for m in window) / gain
+    r2 = np.where(ok, np.abs(diff) ** 2 / gain, np.nan)
+    prop = np.asarray(b2, dtype=float)[None, None] * h2
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        start = np.nanmedian(r2, axis=0) / np.log(2.0)  # (n, n_in); NaN: no valid window
+    a2 = start.copy()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for _ in range(max_iter):
+            var = a2[None] + prop
+            keep = ok & (r2 < trim * var)
+            w = np.where(keep, 1.0 / var**2, 0.0)
+            a2_new = np.maximum((w * np.where(keep, r2 - prop, 0.0)).sum(axis=0) / w.sum(axis=0),
+                                1e-4 * start)
+            done = np.allclose(a2_new, a2, rtol=1e-6, atol=0, equal_nan=True)
+            a2 = a2_new
+            if done:
+                break
+        var = a2[None] + prop
+        keep = ok & (r2 < trim * var)
+        z = np.where(keep, diff / np.sqrt(gain * var), 0.0)
+        both = keep[:-1] & keep[1:]
+        num = np.where(both, np.real(np.conj(z[:-1]) * z[1:]), 0.0).sum(axis=0)
+        den = np.sqrt(np.where(both, np.abs(z[:-1]) ** 2, 0.0).sum(axis=0)
+                      * np.where(both, np.abs(z[1:]) ** 2, 0.0).sum(axis=0))
+        rho = num / den
+    corr = 1.0 - trim * np.exp(-trim) / (1.0 - np.exp(-trim))
+    # Where the proportional part explains the differences, the flat level sinks toward the
+    # fit's floor: there the differences do not determine it.
+    a2 = np.where(a2 >= UNDETERMINED_FLAT * start, a2 / corr, np.nan)
+    return a2, rho
 
 
 def roughness_weights(H: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -378,7 +378,9 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   missed, at 12 DOFs, 1-650 Hz (the pair's model chosen on seed 3 only: on seeds 1 and 2
   the noisy bands find too few modes), and from 0.28 / 4.1 % to 0.24 / 4.1 % at 10 DOFs,
   1-551 Hz (worst over seeds 1-3; regenerated so, this bench took 560 and 596 s, too
-  close to its 600 s budget, against 511 and 545 s without).
+  close to its 600 s budget, against 511 and 545 s without). Those figures predate the
+  flat noise levels from the data's differences (notes below), which moved the narrower
+  search's cells to 0.81 / 15 % (2 missed, the two above the band) and 0.63 / 8.7 %.
 - **The modal candidate** exists only when the band holds at least as many modes as the
   model has DOFs, or one fewer (above); it then holds those modes to the accuracy of band processing, and which
   modes it holds is the data's choice: at 12 and 16 Z sensors some rotation-dominated modes

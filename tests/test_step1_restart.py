@@ -68,18 +68,25 @@ def test_no_real_roots_no_restart():
 def test_suspension_mode_between_the_first_lines_is_found(seed):
     """The 10-DOF payload model (the EfI sensors of docs/replication.md), 1-551 Hz, 512
     lines, the report's noise, seed 2: the 1.29 Hz suspension mode lies between the first two
-    lines (1.0 and 2.08 Hz). The refinement ended with real roots -10.9 and +10.4 rad/s in its
-    place; from the restart it reaches an output error 2.7 times lower and all ten target
-    modes, measured within 0.071 % (seeds 1 and 3, no restart needed: 0.28, 0.24 %). The
-    tolerance, 0.5 %, is twice the other seeds' worst."""
+    lines (1.0 and 2.08 Hz). The refinement ends with real roots in its place; from the
+    restart it reaches an output error 1.79 times lower and all ten target modes, measured
+    within 0.51 % (seeds 1 and 3, no restart needed: 0.58, 0.63 %; the worst are the three
+    suspension modes). The tolerance, 1.3 %, is twice the other seeds' worst; the cost must
+    fall below 0.7 times.
+
+    Measured with the flat noise levels taken from the data's differences where the
+    residuals hold model error (``ssid.step1_ml``, step 4). With the residual levels alone
+    the restart ended 2.7 times lower and the targets within 0.071 % (seeds 1, 3: 0.28,
+    0.24 %): on this record that change costs the suspension modes accuracy
+    (docs/replication.md, section 3's notes)."""
     p = payload_simulator()
     C = modal_damping(p.M, p.K, 0.02)
     sensors = ["1+Z", "2+Z", "3+Z", "4+Z", "5+Z", "6+Z", "7+Z", "8+Z", "17+Z", "18+Z"]
     frf = accelerance_from_model(p.M, C, p.K, p.dofs, np.linspace(1, 551, 512), sensors, INTERFACE_DOFS)
     r = identify_mck(report_noise_frf(frf, seed=seed))
     restart = r.info["real_root_restart"]
-    assert restart["kept"] and restart["cost_restart"] < 0.5 * restart["cost"]
+    assert restart["kept"] and restart["cost_restart"] < 0.7 * restart["cost"]
     assert r.real_roots.size == 0
     targets = np.sqrt(sla.eigh(p.K, p.M, eigvals_only=True)[target_modes(p, 10)]) / (2 * np.pi)
     assert r.natural_freq_hz.size == 10
-    assert np.allclose(r.natural_freq_hz, targets, rtol=5e-3)
+    assert np.allclose(r.natural_freq_hz, targets, rtol=1.3e-2)

@@ -203,8 +203,28 @@ def fit_additive_proportional(
         a2, b2 = a2_new, b2_new
         if done:
             break
-    corr = 1.0 - trim * np.exp(-trim) / (1.0 - np.exp(-trim))
+    corr = _trimmed_mean_fraction(trim)
     return a2 / corr, b2 / corr
+
+
+def _trimmed_mean_fraction(trim: float) -> float:
+    """Mean of a unit-mean exponential variable truncated at ``trim``, ``1 - t e^-t / (1 - e^-t)``:
+    what trimming values above ``trim`` times their variance leaves of the mean."""
+    return 1.0 - trim * np.exp(-trim) / (1.0 - np.exp(-trim))
+
+
+def _differences(H: np.ndarray, valid: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``order``-th differences of ``H`` along axis 0 (frequency lines): (L - order, ...) values,
+    whether each window holds valid values only, and the coefficients ``c`` (binomial, alternating
+    sign; white noise of variance s^2 gives differences of variance ``sum c^2 s^2``)."""
+    c = np.array([1.0])
+    for _ in range(order):
+        c = np.convolve(c, [1.0, -1.0])
+    L = H.shape[0]
+    window = range(order + 1)
+    diff = sum(c[m] * H[m:L - order + m] for m in window)
+    ok = np.logical_and.reduce([valid[m:L - order + m] for m in window])
+    return diff, ok, c
 
 
 def difference_flat_levels(
@@ -254,12 +274,8 @@ def difference_flat_levels(
     shape = H.shape[1:]
     if L < order + 3:  # the correlation needs two differences
         return np.full(shape, np.nan), np.full(shape, np.nan)
-    c = np.array([1.0])
-    for _ in range(order):
-        c = np.convolve(c, [1.0, -1.0])
+    diff, ok, c = _differences(H, valid, order)
     window = range(order + 1)
-    diff = sum(c[m] * H[m:L - order + m] for m in window)
-    ok = np.logical_and.reduce([valid[m:L - order + m] for m in window])
     gain = float(np.sum(c**2))
     # |H|^2 weighted as the difference weights each line's variance (H's own noise hardly
     # moves it).
@@ -289,7 +305,7 @@ def difference_flat_levels(
         den = np.sqrt(np.where(both, np.abs(z[:-1]) ** 2, 0.0).sum(axis=0)
                       * np.where(both, np.abs(z[1:]) ** 2, 0.0).sum(axis=0))
         rho = num / den
-    corr = 1.0 - trim * np.exp(-trim) / (1.0 - np.exp(-trim))
+    corr = _trimmed_mean_fraction(trim)
     # Where the proportional part explains the differences, the flat level sinks toward the
     # fit's floor: there the differences do not determine it.
     a2 = np.where(a2 >= UNDETERMINED_FLAT * start, a2 / corr, np.nan)
@@ -306,8 +322,7 @@ def roughness_weights(H: np.ndarray, valid: np.ndarray) -> np.ndarray:
     the median over lines keeps the few lines at sharp resonances from setting the level.
     ``H`` and ``valid``: (n_freq, n_out, n_in); returns weights of that shape, 0 where blanked.
     """
-    d2 = H[:-2] - 2 * H[1:-1] + H[2:]
-    ok = valid[:-2] & valid[1:-1] & valid[2:]
+    d2, ok, _ = _differences(H, valid, 2)
     r2 = np.where(ok, np.abs(d2) ** 2, np.nan)
     # An FRF with no three valid lines in a row (or a band of two lines) has no level:
     # NaN here, filled by _weights_from_levels, without numpy's "empty slice" warning

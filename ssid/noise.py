@@ -176,7 +176,10 @@ def fit_additive_proportional(
     r2 = np.asarray(r2, dtype=float)
     h2 = np.asarray(h2, dtype=float)
     ok = np.asarray(ok, dtype=bool) & np.isfinite(r2) & np.isfinite(h2)
-    with np.errstate(all="ignore"):
+    # An FRF blanked everywhere has no level (NaN, filled below), without numpy's "All-NaN
+    # slice" warning reaching the engineer's terminal.
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         flat = np.nanmedian(np.where(ok, r2, np.nan), axis=0) / np.log(2.0)  # (n, n_in)
     pos = flat[np.isfinite(flat) & (flat > 0)]
     fill = np.median(pos) if pos.size else 1.0

@@ -201,3 +201,17 @@ def test_a_flat_level_the_data_do_not_show_is_undetermined(system6, seed):
     a2, rho = difference_flat_levels(frf.H * (1 + e), np.ones(frf.H.shape, dtype=bool), np.full(2, b2))
     assert np.count_nonzero(np.isnan(a2)) >= 10
     assert np.all(rho < -0.55)
+
+
+def test_fit_with_an_frf_blanked_everywhere_is_quiet(system6):
+    """An FRF with no valid value takes the others' median level, with no warning."""
+    import warnings
+
+    _, frf, _, _ = system6
+    noisy = report_noise_frf(frf, seed=1)
+    ok = np.ones(frf.H.shape, dtype=bool)
+    ok[:, 3, 1] = False
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        a2, b2 = fit_additive_proportional(np.abs(noisy.H - frf.H) ** 2, np.abs(frf.H) ** 2, ok)
+    assert np.all(np.isfinite(a2)) and np.all(np.isfinite(b2))

@@ -416,8 +416,13 @@ REDUCED_NOTES = """Reading sections 2 and 3:
   version ranges), section 3's 10-DOF 1-300 Hz `ml` row went from 0.59 / 27 % to 3.9 / 142 %
   (three targets missed on both), the 12-DOF `bands` row (as 650 Hz) from 0.58 / 6.6 % to
   0.30 / 7.2 % and the 16-DOF one from 0.84 / 3.0 % to 2.5 / 10.9 %, and section 4's noisy
-  cells; the noise-free rows moved in their last digits only. This bench runs its cases two
-  at a time with one BLAS thread each.
+  cells; the noise-free rows moved in their last digits only. Regenerated on a third (the
+  code of this document, 2026-11-28, in 248 s), section 3's 12-DOF 1-650 Hz `ml` row read
+  0.97 / 15 % (2 missed), the `bands` rows 0.59 / 6.5 % (12-DOF, as 650 Hz) and 0.71 / 54 %
+  (16-DOF; seed 3, the 1.29 Hz mode's frequency and the 2.8 Hz mode's damping), section 4's
+  noisy cells 0.10 %, and section 6's seed 1 paired one suspension mode, 412 % off, where it
+  had missed all three; no row of the Target table changed its verdict. This bench runs its
+  cases two at a time with one BLAS thread each.
 - **The restart from oscillatory roots** (docs/algorithm.md, step 1, 4). On seed 2 the 10-DOF
   `ml` fit at 1-551 Hz (as 300 Hz) held the 1.29 Hz suspension mode, between the first two
   lines, as two real roots (-10.9, +10.4 rad/s), and the row read 0.32 / 4.1 % with that

@@ -176,11 +176,7 @@ def fit_additive_proportional(
     r2 = np.asarray(r2, dtype=float)
     h2 = np.asarray(h2, dtype=float)
     ok = np.asarray(ok, dtype=bool) & np.isfinite(r2) & np.isfinite(h2)
-    # An FRF blanked everywhere has no level (NaN, filled below), without numpy's "All-NaN
-    # slice" warning reaching the engineer's terminal.
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        flat = np.nanmedian(np.where(ok, r2, np.nan), axis=0) / np.log(2.0)  # (n, n_in)
+    flat = _median_flat_level(r2, ok)  # NaN for an FRF blanked everywhere: filled below
     pos = flat[np.isfinite(flat) & (flat > 0)]
     fill = np.median(pos) if pos.size else 1.0
     flat = np.where(np.isfinite(flat) & (flat > 0), flat, fill)
@@ -208,6 +204,15 @@ def fit_additive_proportional(
             break
     corr = _trimmed_mean_fraction(trim)
     return a2 / corr, b2 / corr
+
+
+def _median_flat_level(r2: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Median-based flat level ``median(r2) / ln 2`` of each FRF (n, n_in) over the values
+    ``ok`` (the mean of an exponential variable from its median); NaN where there are none,
+    without numpy's "All-NaN slice" warning reaching the engineer's terminal."""
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(np.where(ok, r2, np.nan), axis=0) / np.log(2.0)
 
 
 def _trimmed_mean_fraction(trim: float) -> float:
@@ -285,9 +290,7 @@ def difference_flat_levels(
     h2 = sum(c[m] ** 2 * np.abs(H[m:L - order + m]) ** 2 for m in window) / gain
     r2 = np.where(ok, np.abs(diff) ** 2 / gain, np.nan)
     prop = np.asarray(b2, dtype=float)[None, None] * h2
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        start = np.nanmedian(r2, axis=0) / np.log(2.0)  # (n, n_in); NaN: no valid window
+    start = _median_flat_level(r2, ok)  # (n, n_in); NaN: no valid window
     a2 = start.copy()
     with np.errstate(invalid="ignore", divide="ignore"):
         for _ in range(max_iter):

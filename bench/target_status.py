@@ -69,7 +69,7 @@ section's notes):
   11th target were dominated by X rotation (its section 6.2.3). Counting is not all, though:
   with every mode not dominated by Z translation left out of the FRFs (`bench/hidden_modes.py`,
   a diagnostic), the 12-DOF rows at 1-300, 1-650 and 1-551 Hz still miss one target each
-  (19-30 % off) and the 16-DOF rows below 2300 Hz three or four.
+  (19-30 % off) and the 16-DOF rows below 2300 Hz three to five.
 - *Which modes the data show most strongly* (section 2: 12- and 16-DOF 1-2300 Hz). Band
   processing finds every target, and the modal model keeps the n strongest modes, some of
   them rotation-dominated (832-1604 Hz) instead of targets; with the FE model's target

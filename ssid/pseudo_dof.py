@@ -195,7 +195,7 @@ def _own_partition(f_hz: np.ndarray, freq_hz: np.ndarray, ne: int, n_partitions:
 
 
 def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
-                        n_partitions: int = 2) -> PseudoDofResult:
+                        n_partitions: int = 2, weight_exponent: float = 0.0) -> PseudoDofResult:
     """Step 1 with pseudo DOFs (Eq. 5.24), Eq. 3.12, the indicator, and our step-2 attempt.
 
     Parameters
@@ -204,6 +204,11 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
     consistency_min : threshold of the partition-consistency indicator.
     n_partitions : p, the number of partitions stacked (the report's Eq. 5.24: 2); the
         model has order p n for n sensors.
+    weight_exponent : each pseudo output's equations (Eq. 3.7) on pseudo line k weighted by
+        ``omega_k ** weight_exponent``, omega_k the frequency of that output's partition at
+        line k. 0 (default) is the report's least squares, every line alike; below 0 the
+        lower lines of each partition weigh more. Not chosen from the data: on the payload of
+        Table 6.18 it trades targets found between cases (docs/replication.md, section 5).
     """
     require_response(frf)
     if not frf.valid_mask().all():
@@ -221,7 +226,10 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
     eye = np.broadcast_to(np.eye(n_in), (ne, n_in, n_in)).astype(complex)
     Z = np.concatenate([h / (1j * Wt), -h / Wt**2, -eye], axis=2).reshape(-1, 2 * n2 + n_in)
     Y = -h.reshape(-1, n2)
-    X = solve_ls(np.vstack([Z.real, Z.imag]), np.vstack([Y.real, Y.imag])).T
+    if weight_exponent == 0.0:
+        X = solve_ls(np.vstack([Z.real, Z.imag]), np.vstack([Y.real, Y.imag])).T
+    else:
+        X = _weighted_rows(Z, Y, W, n_in, frf.n_out, n_partitions, weight_exponent)
     C_hat, K_hat = X[:, :n2], X[:, n2 : 2 * n2]
     modes = state_space_modes(C_hat, K_hat)
     m = modes.n_pairs
@@ -243,6 +251,19 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
                           u=u, split_hz=split, own=own)
     res.second_copy = _copies_of(res.lam, structural)
     return res
+
+
+def _weighted_rows(Z: np.ndarray, Y: np.ndarray, W: np.ndarray, n_in: int, n: int,
+                   n_partitions: int, exponent: float) -> np.ndarray:
+    """Eq. 3.7 on the pseudo lines, each line's equation of a pseudo output weighted by its
+    own omega**exponent: (p n, 2 p n + n_in). A row of X (one pseudo output) is its own
+    least-squares problem, so the rows of one partition share one weighted solve."""
+    X = np.empty((Y.shape[1], Z.shape[1]))
+    for q in range(n_partitions):
+        w = np.repeat(W[:, q * n] ** exponent, n_in)[:, None]  # (Ne n_in, 1)
+        Zq, Yq = w * Z, w * Y[:, q * n:(q + 1) * n]
+        X[q * n:(q + 1) * n] = solve_ls(np.vstack([Zq.real, Zq.imag]), np.vstack([Yq.real, Yq.imag])).T
+    return X
 
 
 #: Roots within this fraction of |lambda| of each other are one cluster: one mode found more

@@ -1,5 +1,5 @@
 """Pseudo-DOF models on the payload: the report's two partitions against the number chosen
-from the data (``ssid.pseudo_dof.identify_pseudo_dof_auto``), noise-free and noisy.
+from the data (``ssid.pseudo_dof_scan.identify_pseudo_dof_auto``), noise-free and noisy.
 
     python bench/pseudo_dof_partitions.py        # about a minute on 2 cores
 
@@ -25,11 +25,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from report_truth import Truth  # noqa: E402
 from ssid.noise import report_noise_frf  # noqa: E402
-from ssid.pseudo_dof import (  # noqa: E402
-    identify_pseudo_dof,
-    identify_pseudo_dof_auto,
-    matched_one_to_one,
-)
+from ssid.pseudo_dof import identify_pseudo_dof, matched_one_to_one  # noqa: E402
+from ssid.pseudo_dof_scan import identify_pseudo_dof_auto  # noqa: E402
 
 RECORDS = [(10, 300.0), (10, 600.0), (10, 1000.0), (10, 2100.0), (12, 2100.0), (16, 2100.0),
            (16, 3000.0)]

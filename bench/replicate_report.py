@@ -46,7 +46,6 @@ from ssid.pseudo_dof import (  # noqa: E402
     free_residue_error,
     frf_relative_error,
     identify_pseudo_dof,
-    identify_pseudo_dof_auto,
     matched_one_to_one,
     mck_accelerance,
     modal_model_accelerance,
@@ -54,6 +53,7 @@ from ssid.pseudo_dof import (  # noqa: E402
     pseudo_dof_mck,
     pseudo_modal_model,
 )
+from ssid.pseudo_dof_scan import identify_pseudo_dof_auto  # noqa: E402
 from ssid.step1 import step1_data  # noqa: E402
 from ssid.errors import IdentificationError  # noqa: E402
 
@@ -215,7 +215,7 @@ def _weighting_scan(frf, found, n_in_band: int) -> str:
     return ("- two partitions, Eq. 3.7's equations on each line weighted by omega^p (`identify_pseudo_dof"
             "(..., weight_exponent=p)`; the report's least squares is p = 0): targets found within "
             f"1 % of {n_in_band}, by p: {', '.join(cells)}; the data's choice, the lowest step-2 FRF "
-            f"error (modal model of the structural roots): p = {best:g}, {errs[best][1]} targets, "
+            f"error (modal model of the structural roots): p = {best + 0.0:g}, {errs[best][1]} targets, "
             f"{100 * errs[best][0]:.1f} % (p = 0: {100 * errs[0.0][0]:.1f} %)")
 
 

@@ -6,7 +6,7 @@
 
 The record is split into P partitions of equal length and these are stacked (Eq. 5.24, where
 the report used P = 2): step 1 and the eigenproblem then give up to P times as many modes as
-sensors. By default P is chosen from the data (``identify_pseudo_dof_auto``): raised from 2
+sensors. By default P is chosen from the data (``ssid.pseudo_dof_scan``): raised from 2
 until the roots of the model and of the one with one partition more repeat each other. Each root is flagged structural
 (in the band, positive damping, partition consistency >= ``--consistency-min``, and, with P
 chosen, repeated) or computational. Step 2, which the report left open, is ours
@@ -93,12 +93,11 @@ def run_pseudo(args: argparse.Namespace) -> int:
     from ssid.pseudo_dof import (
         frf_relative_error,
         identify_pseudo_dof,
-        identify_pseudo_dof_auto,
         mck_accelerance,
-        plot_partition_scan,
         pseudo_dof_mck,
         pseudo_modal_model,
     )
+    from ssid.pseudo_dof_scan import identify_pseudo_dof_auto, plot_partition_scan
 
     frf = read_measured_frf(args.frf)
     if frf.H_reaction is not None:

@@ -20,12 +20,12 @@ from ssid.pseudo_dof import (
     free_residue_error,
     frf_relative_error,
     identify_pseudo_dof,
-    identify_pseudo_dof_auto,
     mck_accelerance,
     modal_model_accelerance,
     pseudo_dof_mck,
     pseudo_modal_model,
 )
+from ssid.pseudo_dof_scan import identify_pseudo_dof_auto
 from ssid.step1 import step1_data
 
 N_DOF = 6
@@ -227,3 +227,5 @@ def test_weighted_lines_solve_the_weighted_least_squares():
     lam = np.sort_complex(modes.lam[:modes.n_pairs])
     np.testing.assert_allclose(np.sort_complex(res.lam), lam, rtol=1e-9)
     assert np.max(np.abs(np.sort_complex(plain.lam) - lam) / np.abs(lam)) > 1e-3
+    with pytest.raises(ValueError, match="finite"):
+        identify_pseudo_dof(frf, weight_exponent=float("nan"))

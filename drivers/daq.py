@@ -146,7 +146,9 @@ class CanFdDaq:
     timeout_s : float
         Response timeout of each request.
     stream_timeout_s : float
-        A stream with no sample frame for this long is dead (node silent or bus-off).
+        A stream with no sample frame for this long is dead (node silent or bus-off). Time
+        the caller spends between reads does not count: the frames queued meanwhile are
+        read first.
     on_gap, on_overload : {"raise", "mark"}
         Lost frames: raise :class:`~drivers.errors.FramesLost` or return NaN samples.
         Overload: raise :class:`~drivers.errors.SensorOverload` (the block is attached as
@@ -402,12 +404,16 @@ class CanFdDaq:
             self._raise_errors()
             if all(s.finished for s in streams):
                 raise StreamError(f"{self.name}: acquisition ended with {min(s.available for s in streams)} of {n_scans} scans left")
-            now = time.monotonic()
-            if now - self._last_data > self.stream_timeout_s:
-                raise BusOff(f"{self.name}: no sample frames for {now - self._last_data:.1f} s (DAQ silent, disconnected or bus-off)")
-            if deadline is not None and now > deadline:
+            if deadline is not None and time.monotonic() > deadline:
                 raise InstrumentTimeout(f"{self.name}: {n_scans} scans not complete within {timeout_s:g} s")
+            # Listen before judging the stream dead: frames that queued while the caller was
+            # away (processing a block, a slow disk) are a live node's, not silence.
             self._pump(0.05)
+            silent_s = time.monotonic() - self._last_data
+            if (silent_s > self.stream_timeout_s and min(s.available for s in streams) < n_scans
+                    and not all(s.finished for s in streams)):
+                self._raise_errors()  # the controller's own report first, if it sent one
+                raise BusOff(f"{self.name}: no sample frames for {silent_s:.1f} s (DAQ silent, disconnected or bus-off)")
         self._raise_errors()
         first = streams[0].base
         data = np.empty((len(streams), n_scans))

@@ -57,16 +57,18 @@ def _interrupts_deferred():
 
     A second Ctrl-C (an impatient operator, or a UI that both signals and closes the run's
     input) would otherwise raise inside the cleanup and leave a drive on or the file's state
-    unwritten. Signals that arrive meanwhile are logged and dropped: the run is stopping
-    anyway. Only the main thread can own signal handlers; elsewhere this does nothing.
+    unwritten. Yields the list of the signals held back (logged when the block ends): the
+    caller drops them where the run is stopping anyway, and raises them once the file is
+    complete where the run was finishing. Only the main thread can own signal handlers;
+    elsewhere this does nothing (and yields an empty list).
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     held: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield held
+        return
     previous = {s: signal.signal(s, lambda signum, frame: held.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        yield
+        yield held
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
@@ -202,6 +204,11 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         try:
             stored = setup_in_effect(rf)
             changes = setup_changes_on_resume(stored, setup, path)
+            sessions = rf.meta.get("sessions") or [{}]
+            if rf.state != "complete" and sessions[-1].get("simulated") and not sim:
+                # Its setup's addresses are the simulated lab's placeholders: without --sim
+                # the resume would fail to reach them and blame the addresses.
+                raise InputError(f"{path}: the run was measured on the simulated lab; resume it with --sim")
             if sim and rf.state != "complete":  # a complete run measures nothing more
                 world = build_world(setup)
         except BaseException:
@@ -306,7 +313,7 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         state = f"failed: {type(exc).__name__}: {exc}"
         raise
     finally:
-        with _interrupts_deferred(), _stall_report():
+        with _interrupts_deferred() as held, _stall_report():
             problems: list[str] = []
             if rig is not None:
                 problems = rig.safe_state()
@@ -329,6 +336,11 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
                 # is what the engineer must hear first: never "stopped safely" or "interrupted".
                 raise RunStopped(f"safe state NOT confirmed (check the instruments): {'; '.join(problems)}; "
                                  f"the run ended as: {ended}")
+        if held and state == "complete":
+            # A Ctrl-C while the finished run reached its safe state: the file is complete
+            # now, and what follows (the UFF export) is cut as the operator asked; the
+            # command says so, and a resume of the complete file does those steps.
+            raise KeyboardInterrupt
     summary.update({"state": state, "file": str(path), "resumed": bool(resume)})
     uff = _uff_path(setup, path, out)
     if uff is not None:

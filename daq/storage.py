@@ -22,6 +22,7 @@ renames it over the run file - so the finished file replaces the running one ato
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import time
@@ -138,16 +139,52 @@ class RunFile:
             f = h5py.File(path, "r+")
         except OSError as exc:
             raise InputError(f"{path}: cannot open the run file for resuming ({exc})") from None
-        if "acq" not in f or "n_done" not in f["acq"] or "setup_toml" not in f["acq"]:
+        try:
+            if "acq" not in f or "n_done" not in f["acq"] or "setup_toml" not in f["acq"]:
+                raise InputError(f"{path}: not an ssidlab run file (no /acq records)")
+            rf = cls(path, f)
+            rf._read_everything_resume_needs()
+            n = rf.n_done
+            rec = rf.acq["records"]
+            for name in rec:
+                if rec[name].shape[0] > n and rec[name].maxshape[0] is None:
+                    rec[name].resize(n, axis=0)
+        except InputError:
             f.close()
-            raise InputError(f"{path}: not an ssidlab run file (no /acq records)")
-        rf = cls(path, f)
-        n = rf.n_done
-        rec = rf.acq["records"]
-        for name in rec:
-            if rec[name].shape[0] > n and rec[name].maxshape[0] is None:
-                rec[name].resize(n, axis=0)
+            raise
+        except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
+            # HDF5 reports a damaged file (a disk error, a copy cut short) only when the
+            # damaged part is read. Read it all here, before a resume enables an amplifier.
+            f.close()
+            raise InputError(f"{path}: the run file is damaged and cannot be resumed "
+                             f"({type(exc).__name__}: {exc})") from None
+        # A compact file a finalize that was killed left half-written: we hold the run file
+        # now (HDF5's lock), so no other process is finishing it.
+        for stale in path.parent.glob(f".{glob.escape(path.name)}.*.final"):
+            stale.unlink(missing_ok=True)
         return rf
+
+    def _read_everything_resume_needs(self) -> None:
+        """Read what a resume reads (state, setup, metadata, committed records, the contract
+        view, the stored arrays), so that a damaged file fails here; of the raw time samples,
+        which can be large and are only appended to, the index and the last row."""
+        _ = self.state, self.kind, self.setup_text, self.setup_sha256, self.meta, self.freq_hz
+        n = self.n_done
+        for ds in self.acq["records"].values():
+            ds[:n]
+        for name in ("H", "valid", "coherence", "H_var", "H_reaction", "H_reaction_var"):
+            if name in self.f:
+                self.f[name][()]
+        self.acq["line_done"][()]
+        for group in self.acq.values():
+            if isinstance(group, h5py.Group) and group.name not in ("/acq/records", "/acq/raw"):
+                for ds in group.values():
+                    ds[()]
+        raw = self.acq.get("raw")
+        if isinstance(raw, h5py.Group):
+            for ds in raw.values():
+                if ds.shape[0]:
+                    ds[-1]
 
     # ------------------------------------------------------------------ properties
     @property
@@ -276,20 +313,30 @@ class RunFile:
 
     # ------------------------------------------------------------------ finish
     def finalize(self, frf: FRFData, state: str = "complete") -> None:
-        """Replace the run file by the compact FRF file plus ``/acq``, atomically; closes."""
-        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.final")
-        self.acq.attrs["state"] = state
-        self.acq.attrs["finished_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        """Replace the run file by the compact FRF file plus ``/acq``, atomically; closes.
+
+        The final ``state`` is written into the compact file only: until the rename, the run
+        file on disk is the running one, so a crash while the compact file is being written
+        leaves a file that a resume finishes (a "complete" run file in the running layout
+        would never be made compact, and would hold the unmeasured lines as NaN rows).
+        """
+        tmp = self._final_name(os.getpid())
         self.f.flush()
         try:
             write_frf(tmp, frf)
             with h5py.File(tmp, "a") as g:
                 self.f.copy(self.acq, g, name="acq")
+                g["acq"].attrs["state"] = state
+                g["acq"].attrs["finished_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
             self.f.close()
             os.replace(tmp, self.path)
         except BaseException:
             tmp.unlink(missing_ok=True)
             raise
+
+    def _final_name(self, pid: int | str) -> Path:
+        """The compact file's temporary name while :meth:`finalize` writes it."""
+        return self.path.with_name(f".{self.path.name}.{pid}.final")
 
     def close(self) -> None:
         if self.f.id.valid:

@@ -1,0 +1,117 @@
+"""The edges of a run: a kill or a Ctrl-C while its file is being finished, a damaged run
+file, a simulated run resumed without ``--sim``."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from daq.setup import parse_setup
+from ssid.io import read_frf
+
+from test_daq_helpers import cli, ctrl_c_at_line, run_on_sim, sine_setup
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _state(path: Path) -> str:
+    with h5py.File(path, "r") as f:
+        return str(f["acq"].attrs["state"])
+
+
+def test_kill_9_while_the_file_is_finished_leaves_a_run_that_resume_finishes(tmp_path):
+    """The process dies after the compact file is written and before it replaces the run
+    file. The run file on disk must still be a running one, which a resume makes compact;
+    it was marked complete first, so the resume found nothing to do and the file kept the
+    running layout (every grid line, the unmeasured ones NaN) and the half-written copy."""
+    text = sine_setup(n_lines=3, refine=2)
+    (tmp_path / "s.toml").write_text(text)
+    code = ("import os, signal, sys; sys.path[:0] = [%r, %r]\n"
+            "import daq.storage as st\n"
+            "write_frf = st.write_frf\n"
+            "def then_killed(path, frf):\n"
+            "    write_frf(path, frf)\n"
+            "    os.kill(os.getpid(), signal.SIGKILL)\n"
+            "st.write_frf = then_killed\n"
+            "from test_daq_helpers import cli\n"
+            "sys.exit(cli(sys.argv[1:])[0])\n" % (str(ROOT), str(ROOT / "tests")))
+    run = tmp_path / "run.h5"
+    p = subprocess.run([sys.executable, "-c", code, str(tmp_path / "s.toml"), "--sim", "--out", str(run), "--quiet"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert p.returncode == -signal.SIGKILL, p.stderr
+    assert list(tmp_path.glob(".run.h5.*.final"))  # killed between the two files
+    assert _state(run) == "running"
+    status, _ = cli(["--resume", str(run), "--sim", "--quiet"])
+    assert status == 0 and _state(run) == "complete"
+    assert not list(tmp_path.glob(".run.h5.*.final"))
+    run_on_sim(parse_setup(text, str(tmp_path / "s.toml")), tmp_path / "full.h5")
+    resumed, uninterrupted = read_frf(run), read_frf(tmp_path / "full.h5")
+    assert np.array_equal(resumed.freq_hz, uninterrupted.freq_hz)  # compact: measured lines only
+    assert resumed.valid_mask().all()
+
+
+def test_a_ctrl_c_while_the_finished_run_reaches_its_safe_state_is_not_lost(tmp_path, monkeypatch):
+    """Held back while the file is finished (it must not cut the safe state or the file),
+    the Ctrl-C is raised once the file is complete: the steps after it (the UFF export) are
+    cut, as the operator asked. It used to be dropped and the command went on to exit 0."""
+    from daq.storage import RunFile
+
+    finalize = RunFile.finalize
+
+    def ctrl_c_then_finalize(self, *args, **kw):
+        os.kill(os.getpid(), signal.SIGINT)
+        return finalize(self, *args, **kw)
+
+    monkeypatch.setattr(RunFile, "finalize", ctrl_c_then_finalize)
+    setup = parse_setup(sine_setup(n_lines=3, refine=2).replace('file = "run.h5"', 'file = "run.h5"\nuff = "run.uff"'),
+                        str(tmp_path / "s.toml"))
+    with pytest.raises(KeyboardInterrupt):
+        run_on_sim(setup, tmp_path / "run.h5")
+    assert _state(tmp_path / "run.h5") == "complete"
+    assert not (tmp_path / "run.uff").exists()
+
+
+def _interrupted_run(tmp_path: Path) -> Path:
+    """A stepped-sine run on the simulated lab (``--sim``) stopped by Ctrl-C at its 6th line."""
+    from daq.run import run_test
+
+    setup = parse_setup(sine_setup(), str(tmp_path / "s.toml"))
+    out = tmp_path / "run.h5"
+    with pytest.raises(KeyboardInterrupt):
+        run_test(setup, out=str(out), sim=True, echo=ctrl_c_at_line(6))
+    assert _state(out) == "interrupted"
+    return out
+
+
+def test_a_damaged_run_file_is_refused_before_any_instrument_is_touched(tmp_path):
+    """A run file whose second half is zeros (a disk error, a copy cut short) opened, and
+    HDF5 reported the damage only when the resume replayed its records: after the
+    amplifiers were enabled, as a message that did not name the file, and the file's state
+    was overwritten."""
+    out = _interrupted_run(tmp_path)
+    data = bytearray(out.read_bytes())
+    half = len(data) // 2
+    data[half:] = bytes(len(data) - half)
+    out.write_bytes(bytes(data))
+    status, err = cli(["--resume", str(out), "--sim", "--quiet"])
+    assert status == 2 and err.startswith(f"{out}: the run file is damaged and cannot be resumed"), err
+    assert out.read_bytes() == bytes(data)  # not written to
+
+
+def test_a_simulated_run_resumed_without_sim_is_told_to_add_it(tmp_path):
+    """Without ``--sim`` the resume went for the setup's placeholder addresses, stopped with
+    "instrument lost (link down)" and advised a new address."""
+    out = _interrupted_run(tmp_path)
+    before = out.read_bytes()
+    status, err = cli(["--resume", str(out), "--quiet"])
+    assert status == 2 and err == f"{out}: the run was measured on the simulated lab; resume it with --sim", err
+    assert out.read_bytes() == before
+    status, _ = cli(["--resume", str(out), "--sim", "--quiet"])
+    assert status == 0 and _state(out) == "complete"

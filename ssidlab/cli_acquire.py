@@ -207,12 +207,15 @@ def run_acquire(args: argparse.Namespace) -> int:
     if stacks_on_usr1:
         previous_usr1 = signal.signal(signal.SIGUSR1, _print_thread_stacks)
     control = RunControl() if args.control_stdin else None
-    if control is not None:
-        threading.Thread(target=_read_control, args=(control, sys.stdin), name="acquire-control", daemon=True).start()
     run_path = Path(out or setup.output_file)
     # From here the run never waits for whoever reads its output (ssidlab.output_pump).
     pump = OutputPump().start()
     try:
+        if control is not None:
+            # Inside the try: input already at its end (``< /dev/null``) aborts at once, and
+            # that abort is an interrupt like any other (safe state, how to continue, --json).
+            threading.Thread(target=_read_control, args=(control, sys.stdin), name="acquire-control",
+                             daemon=True).start()
         with modbus_log_held_back():
             summary = run_test(setup, out=out, resume=bool(args.resume), sim=args.sim, echo=echo, control=control,
                                events=_print_event if args.events else None, new_instruments=args.new_instruments)

@@ -1,5 +1,6 @@
-"""The edges of a run: a kill or a Ctrl-C while its file is being finished, a damaged run
-file, a simulated run resumed without ``--sim``."""
+"""The edges of a run: a kill or a Ctrl-C while its file is being finished, a control input
+that is already at its end, a damaged run file, a simulated run resumed without ``--sim``,
+and a Ctrl-C before the command has finished importing."""
 
 from __future__ import annotations
 
@@ -78,6 +79,18 @@ def test_a_ctrl_c_while_the_finished_run_reaches_its_safe_state_is_not_lost(tmp_
     assert not (tmp_path / "run.uff").exists()
 
 
+def test_end_of_control_input_before_the_run_starts_is_an_interrupt_like_any_other(tmp_path):
+    """``--control-stdin`` with its input already at the end (``< /dev/null``): the abort
+    came before the command's handler was in place and ended with a bare "interrupted"."""
+    (tmp_path / "s.toml").write_text(sine_setup())
+    p = subprocess.run([sys.executable, "-m", "ssidlab", "acquire", str(tmp_path / "s.toml"), "--sim",
+                        "--out", str(tmp_path / "run.h5"), "--control-stdin"], stdin=subprocess.DEVNULL,
+                       capture_output=True, text=True, cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                       timeout=120)
+    assert p.returncode == 130, p.stderr
+    assert "ssidlab acquire: interrupted (outputs off, amplifiers disabled)" in p.stderr, p.stderr
+
+
 def _interrupted_run(tmp_path: Path) -> Path:
     """A stepped-sine run on the simulated lab (``--sim``) stopped by Ctrl-C at its 6th line."""
     from daq.run import run_test
@@ -115,3 +128,23 @@ def test_a_simulated_run_resumed_without_sim_is_told_to_add_it(tmp_path):
     assert out.read_bytes() == before
     status, _ = cli(["--resume", str(out), "--sim", "--quiet"])
     assert status == 0 and _state(out) == "complete"
+
+
+def test_a_ctrl_c_while_the_command_imports_is_one_line_not_a_traceback(monkeypatch, capsys):
+    """The console command's first second goes to importing numpy, scipy and h5py: a
+    Ctrl-C then raised inside an import, before ``ssidlab.cli.main`` could catch it."""
+    import importlib.abc
+
+    import ssidlab.cli  # noqa: F401 -- imported, so that it can be taken out below
+    from ssidlab.__main__ import entry
+
+    class CtrlCOnImport(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path, target=None):
+            if name == "ssidlab.cli":
+                raise KeyboardInterrupt
+            return None
+
+    monkeypatch.delitem(sys.modules, "ssidlab.cli")
+    monkeypatch.setattr(sys, "meta_path", [CtrlCOnImport(), *sys.meta_path])
+    assert entry() == 130
+    assert capsys.readouterr().err == "ssidlab: interrupted\n"

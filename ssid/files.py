@@ -17,9 +17,15 @@ def written_atomically(path: str | os.PathLike) -> Iterator[Path]:
     never leaves a half file under the name asked for (nor replaces a good one).
 
     A file that cannot be created or renamed raises ``OSError`` whose message names ``path``,
-    not the temporary name the user never gave.
+    not the temporary name the user never gave; so does a ``path`` that exists and is not a
+    regular file (a device, a pipe), which the rename would replace.
     """
     target = Path(path)
+    if target.exists() and not target.is_file() and not target.is_dir():
+        # The rename would put a regular file in place of the device, pipe or socket (run as
+        # root with --out /dev/null: the system's /dev/null), not write to it.
+        raise OSError(f"{target}: cannot write (it exists and is not a regular file: a device, a pipe "
+                      "or a socket; give the name of a file)")
     tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
     try:
         yield tmp

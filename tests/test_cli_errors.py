@@ -231,6 +231,19 @@ def test_identify_writes_model_json_and_table(tmp_path, good_file, fake_identify
     assert table[3].split() == ["3", "21.9000", "-", "22.0000"]
 
 
+def test_an_output_that_is_a_pipe_is_refused_not_replaced(tmp_path, good_file, fake_identify, capsys):
+    """Files are written under a temporary name and renamed onto the name given: onto a
+    device or a pipe that replaced it with a regular file (as root, ``--out /dev/null``
+    replaced the system's /dev/null). A named pipe stands in for the device here."""
+    out = tmp_path / "m.h5"
+    os.mkfifo(out)
+    rc = main(["identify", str(good_file), "--out", str(out), "--json", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith(f"ssidlab identify: error: {out}: cannot write (it exists and is not a "
+                                      "regular file"), err
+    assert out.is_fifo()
+
+
 def test_identify_defaults_and_quiet(tmp_path, good_file, fake_identify, capsys):
     rc = main(["identify", str(good_file), "--out", str(tmp_path / "m.h5"),
                "--json", str(tmp_path / "r.json"), "--quiet"])

@@ -66,6 +66,10 @@ def peek_run_file(path: str | Path) -> tuple[str | None, int] | None:
         return None
 
 
+class _Inconsistent(ValueError):
+    """A run file that HDF5 reads but that contradicts how run files are written."""
+
+
 class RunFile:
     """An open run file (create with :meth:`create`, reopen with :meth:`open`)."""
 
@@ -144,6 +148,8 @@ class RunFile:
                 raise InputError(f"{path}: not an ssidlab run file (no /acq records)")
             rf = cls(path, f)
             rf._read_everything_resume_needs()
+            if rf.state != "complete":  # the compact file: nothing is resumed from it
+                rf._check_consistent()
             n = rf.n_done
             rec = rf.acq["records"]
             for name in rec:
@@ -152,6 +158,9 @@ class RunFile:
         except InputError:
             f.close()
             raise
+        except _Inconsistent as exc:
+            f.close()
+            raise InputError(f"{path}: the run file is damaged and cannot be resumed ({exc})") from None
         except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
             # HDF5 reports a damaged file (a disk error, a copy cut short) only when the
             # damaged part is read. Read it all here, before a resume enables an amplifier.
@@ -185,6 +194,42 @@ class RunFile:
             for ds in raw.values():
                 if ds.shape[0]:
                     ds[-1]
+
+    def _check_consistent(self) -> None:
+        """Raise :class:`_Inconsistent` where the file contradicts how it is written: a commit
+        counter past the records (a resume would append after zero rows), a record field or
+        the grid's bookkeeping missing or of the wrong size, the metadata not an object,
+        or a kept stepped-sine record with a non-finite or non-positive value where the
+        schedule's replay computes with it. A crash cannot leave these; another program
+        writing into the file, or damage HDF5 does not detect, can."""
+        nf, n = self.freq_hz.shape[0], self.n_done
+        if not isinstance(self.meta, dict):
+            raise _Inconsistent("/acq/meta_json is not a JSON object")
+        if self.acq["line_done"].shape != (nf,) or self.f["H"].shape[0] != nf:
+            raise _Inconsistent(f"/acq/line_done or /H does not have the grid's {nf} lines")
+        rec = self.acq["records"]
+        if n < 0 or any(ds.shape[0] < n for ds in rec.values()):
+            raise _Inconsistent(f"/acq/n_done is {n}, but the records hold "
+                                f"{min((ds.shape[0] for ds in rec.values()), default=0)} rows")
+        if self.kind != "stepped_sine":
+            return
+        nch = self.acq["channels"].shape[0]
+        for name, (_, per_ch) in SINE_FIELDS.items():
+            if name == "X_transient" and name not in rec:  # files from before it was kept
+                continue
+            if name not in rec:
+                raise _Inconsistent(f"record field {name!r} is missing")
+            if per_ch and rec[name].shape[1:] != (nch,):
+                raise _Inconsistent(f"record field {name!r} does not have one value per channel ({nch})")
+        ok = rec["status"][:n] == STATUS_OK
+        kept = {name: rec[name][:n][ok] for name in ("freq_hz", "drive_vpp", "settle_s", "dwell_s", "X", "X_var")}
+        grid = rec["grid_index"][:n]
+        if np.any((grid < 0) | (grid >= nf)):
+            raise _Inconsistent(f"a record's grid line is outside the grid's {nf} lines")
+        for name, v in kept.items():
+            bad = ~np.isfinite(v) | ((v <= 0) if name == "freq_hz" else (v < 0) if name != "X" else False)
+            if np.any(bad):
+                raise _Inconsistent(f"a kept record's {name!r} is not finite or out of range")
 
     # ------------------------------------------------------------------ properties
     @property

@@ -118,6 +118,37 @@ def test_a_damaged_run_file_is_refused_before_any_instrument_is_touched(tmp_path
     assert out.read_bytes() == bytes(data)  # not written to
 
 
+def _meta_not_an_object(f: h5py.File) -> None:
+    del f["acq/meta_json"]
+    f["acq"].create_dataset("meta_json", data="[1, 2]", dtype=h5py.string_dtype())
+
+
+def _set(name: str, index, value):
+    def change(f: h5py.File) -> None:
+        f[name][index] = value
+    return change
+
+
+@pytest.mark.parametrize("change, what", [
+    (_set("acq/n_done", 0, 500), "/acq/n_done is 500, but the records hold"),
+    (lambda f: f["acq/records"].__delitem__("thd"), "record field 'thd' is missing"),
+    (_set("acq/records/X", (3, 0), np.nan), "a kept record's 'X' is not finite"),
+    (_set("acq/records/freq_hz", 2, -1.0), "a kept record's 'freq_hz' is not finite or out of range"),
+    (_meta_not_an_object, "/acq/meta_json is not a JSON object"),
+])
+def test_a_run_file_that_contradicts_how_it_is_written_is_refused(tmp_path, change, what):
+    """Files HDF5 reads without complaint but that no crash leaves (another program wrote
+    into them): the resume drove the shakers and then stopped on an internal error
+    (KeyError, ValueError), or with n_done past the records appended after 450 empty rows."""
+    out = _interrupted_run(tmp_path)
+    with h5py.File(out, "r+") as f:
+        change(f)
+    before = out.read_bytes()
+    status, err = cli(["--resume", str(out), "--sim", "--quiet"])
+    assert status == 2 and err.startswith(f"{out}: the run file is damaged and cannot be resumed ({what}"), err
+    assert out.read_bytes() == before
+
+
 def test_a_simulated_run_resumed_without_sim_is_told_to_add_it(tmp_path):
     """Without ``--sim`` the resume went for the setup's placeholder addresses, stopped with
     "instrument lost (link down)" and advised a new address."""
@@ -148,3 +179,4 @@ def test_a_ctrl_c_while_the_command_imports_is_one_line_not_a_traceback(monkeypa
     monkeypatch.setattr(sys, "meta_path", [CtrlCOnImport(), *sys.meta_path])
     assert entry() == 130
     assert capsys.readouterr().err == "ssidlab: interrupted\n"
+

@@ -301,6 +301,6 @@ class RandomRun:
     def summary(self) -> dict:
         d = self.result()
         return {"excitation": f"random ({self.spec.kind}, {self.spec.estimator})", "n_lines": int(self.freq.size),
-                "n_avg": int(self.S.n_avg), "n_values_blanked": int(np.count_nonzero(~d["valid"])),
+                "n_avg": int(self.S.n_avg), "n_values_blanked": int(np.count_nonzero(~d["valid"])), "n_values": int(d["valid"].size),
                 "test_time_s": self.test_time_s, "min_coherence": float(np.min(d["coherence"])),
                 **({"unsettled_averages": self.unsettled} if self.spec.kind != "random" else {})}

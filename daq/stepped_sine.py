@@ -363,7 +363,7 @@ class SteppedSineRun:
             "n_level_off": sum(1 for r in off if HELD not in r["reason"]),
             # kept after a limit aborted their first attempt (retried below it)
             "n_measured_again": sum(1 for r in ok if MEASURED_AGAIN in r["reason"]),
-            "n_values_blanked": int(np.count_nonzero(~frf.valid_mask())),
+            "n_values_blanked": int(np.count_nonzero(~frf.valid_mask())), "n_values": int(frf.H.size),
             "test_time_s": self.test_time_s,
             "settle_time_s": float(sum(r["settle_s"] for r in rows)),
             "dwell_time_s": float(sum(r["dwell_s"] for r in rows)),

@@ -51,6 +51,9 @@ __all__ = ["EXIT_INTERRUPTED", "EXIT_STOPPED", "add_acquire_subcommand", "run_ac
 
 HELP = "Run a stepped-sine or random vibration test from a setup file (real or simulated lab)."
 EXIT_STOPPED = 3
+#: The run went to its end and every FRF value is blanked (the setup's limits or sensors):
+#: the bad-input status, as the setup is what to change.
+EXIT_NOTHING_MEASURED = 2
 EXIT_INTERRUPTED = 130
 
 
@@ -245,6 +248,17 @@ def run_acquire(args: argparse.Namespace) -> int:
     if not args.quiet and "n_lines" in summary:
         print(f"done: {summary['file']} ({summary['state']}; {summary['n_lines']} lines, "
               f"{summary['test_time_s']:.1f} s test time{_caveats(summary)})")
+    if summary.get("n_values") and summary.get("n_values_blanked") == summary["n_values"]:
+        # A schedule run to its end is no measurement when nothing in it can be used: a
+        # limit no drive keeps (every line aborted), or a sensor whose noise swamps the signal.
+        n_aborted, n_sub = summary.get("n_aborted", 0), summary.get("n_sub_lines", 0)
+        why = ("every sub-line aborted by a limit" if n_aborted and n_aborted == n_sub else
+               f"{n_aborted} of {n_sub} sub-lines aborted by a limit, the others below min_coherence"
+               if n_aborted else "coherence below min_coherence everywhere")
+        print(f"ssidlab acquire: error: {summary['file']}: the run is complete but measured nothing usable: "
+              f"every FRF value is blanked ({why}); check the setup's [limits], min_coherence and the "
+              "sensors", file=sys.stderr)
+        return EXIT_NOTHING_MEASURED
     return 0
 
 

@@ -180,3 +180,15 @@ def test_a_ctrl_c_while_the_command_imports_is_one_line_not_a_traceback(monkeypa
     assert entry() == 130
     assert capsys.readouterr().err == "ssidlab: interrupted\n"
 
+
+def test_a_run_that_kept_nothing_is_not_a_success(tmp_path, capsys):
+    """Every line aborted by a limit no drive keeps: the schedule ran to its end and the
+    command said "complete" with exit 0 (nothing on stderr under --quiet), leaving a file
+    every analysis refuses."""
+    (tmp_path / "s.toml").write_text(sine_setup(n_lines=3, refine=1, limits="max_accel_m_per_s2 = 1e-6"))
+    status, _ = cli([str(tmp_path / "s.toml"), "--sim", "--out", str(tmp_path / "run.h5"), "--quiet"])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert (f"ssidlab acquire: error: {tmp_path / 'run.h5'}: the run is complete but measured nothing usable: "
+            "every FRF value is blanked (every sub-line aborted by a limit)") in err, err
+    assert _state(tmp_path / "run.h5") == "complete"  # what was measured is kept, as always

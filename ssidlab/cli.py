@@ -66,7 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     int
         0 on success, 2 on bad input, 1 on an internal error, 130 interrupted.
     """
-    with _interruptible():
+    with _interruptible(), _terminated_as_interrupted():
         return _run(argv)
 
 
@@ -92,6 +92,10 @@ def _run(argv: Sequence[str] | None) -> int:
         return exc.code if isinstance(exc.code, int) else EXIT_OK
 
     prog = f"ssidlab {args.command}"
+    if args.command == "tui" and threading.current_thread() is threading.main_thread():
+        # Textual owns the terminal and its event loop; SIGTERM keeps its default there (the
+        # runs it started see their control input end and stop safely).
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         # Library warnings (numpy, scipy) are held back: on success they are shown one line
         # each, on failure they are dropped, so an error is always exactly one line.
@@ -452,6 +456,27 @@ def _interruptible() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def _terminated_as_interrupted() -> Iterator[None]:
+    """SIGTERM (a job scheduler's or a controlling program's stop) raises KeyboardInterrupt,
+    so that a command ends as after Ctrl-C: one line, status 130, and no output file half
+    written (they are written whole or not at all), instead of dying silently with 143.
+    ``acquire`` and ``sim-lab`` put their own handlers in place for their runs. Only where
+    SIGTERM has its default action, only in the main thread, restored afterwards."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) != signal.SIG_DFL:
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _say(message: str) -> None:

@@ -274,6 +274,23 @@ def test_unexpected_exception_is_internal_error(tmp_path, good_file, fake_identi
     assert err == "ssidlab identify: internal error: ZeroDivisionError: division by zero\n"
 
 
+def test_sigterm_ends_a_command_as_ctrl_c_does(tmp_path, good_file):
+    """A scheduler's or a controlling program's SIGTERM during the computation: the command
+    died with 143 and said nothing, where docs/formats.md promises 130 and "interrupted"."""
+    code = ("import os, signal, sys, time, types\n"
+            "def identify_mck(frf, **kw):\n"
+            "    os.kill(os.getpid(), signal.SIGTERM)\n"
+            "    time.sleep(60)\n"
+            "sys.modules['ssid.identify'] = types.SimpleNamespace(identify_mck=identify_mck)\n"
+            "from ssidlab.cli import main\n"
+            "sys.exit(main(sys.argv[1:]))\n")
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+    p = subprocess.run([sys.executable, "-c", code, "identify", str(good_file), "--out", str(tmp_path / "m.h5"),
+                        "--json", str(tmp_path / "r.json")], capture_output=True, text=True, env=env, timeout=60)
+    assert p.returncode == 130 and p.stderr == "ssidlab identify: interrupted\n", (p.returncode, p.stderr)
+    assert not (tmp_path / "m.h5").exists()
+
+
 def test_debug_env_reraises(tmp_path, good_file, fake_identify, monkeypatch):
     fake_identify.behaviour["raise"] = ZeroDivisionError("division by zero")
     monkeypatch.setenv("SSIDLAB_DEBUG", "1")

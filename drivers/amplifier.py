@@ -171,13 +171,19 @@ class ShakerAmplifier:
         if not ok:
             self.client.close()
             raise ConnectionLost(f"{self.name}: cannot connect to {self.host}:{self.port}")
-        model, serial_hi, serial_lo = await self._read(REG["MODEL_ID"], 3)
-        if model != MODEL_ID:
+        try:
+            model, serial_hi, serial_lo = await self._read(REG["MODEL_ID"], 3)
+            if model != MODEL_ID:
+                raise ProtocolError(f"{self.name}: unexpected model id 0x{model:04X} (want 0x{MODEL_ID:04X})")
+            self.serial = serial_hi << 16 | serial_lo
+            await self._write(REG["WATCHDOG_MS"], self.watchdog_ms)
+            self.last_status = await self.read_status()
+        except BaseException:
+            # A peer that accepts and then drops the link (or answers as another device):
+            # left open, pymodbus's reconnect task outlived the loop ("Task was destroyed
+            # but it is pending!" on stderr).
             self.client.close()
-            raise ProtocolError(f"{self.name}: unexpected model id 0x{model:04X} (want 0x{MODEL_ID:04X})")
-        self.serial = serial_hi << 16 | serial_lo
-        await self._write(REG["WATCHDOG_MS"], self.watchdog_ms)
-        self.last_status = await self.read_status()
+            raise
         self._monitor_task = asyncio.get_running_loop().create_task(self._monitor())
 
     async def _request(self, make):
@@ -431,6 +437,19 @@ class SyncShakerAmplifier:
             self._shutdown_loop()
 
     def _shutdown_loop(self) -> None:
+        async def cancel_the_rest() -> None:
+            # Tasks the library still runs (a reconnect after a dropped link) are cancelled
+            # and given the loop to end in, not destroyed pending with the loop.
+            rest = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+            for t in rest:
+                t.cancel()
+            await asyncio.gather(*rest, return_exceptions=True)
+
+        if self._thread.is_alive():
+            try:
+                asyncio.run_coroutine_threadsafe(cancel_the_rest(), self._loop).result(timeout=2.0)
+            except Exception:  # noqa: BLE001 -- shutting down: the loop is stopped below anyway
+                pass
         self._loop.call_soon_threadsafe(self._loop.stop)
         self._thread.join(timeout=5.0)
         if not self._thread.is_alive():

@@ -60,7 +60,7 @@ class SerialLine:
         except serial.SerialTimeoutException as exc:
             raise InstrumentTimeout(f"{self.url}: write timed out ({self.timeout_s:g} s)") from exc
         except (serial.SerialException, OSError) as exc:
-            raise ConnectionLost(f"{self.url}: write failed: {exc}") from exc
+            raise ConnectionLost(f"{self.url}: write failed: {_detail(exc, 'write failed: ')}") from exc
 
     def read_line(self, timeout_s: float | None = None) -> str:
         """One reply line without its terminator.
@@ -77,7 +77,7 @@ class SerialLine:
         try:
             raw = self._port.read_until(self.terminator, self.max_line_bytes)
         except (serial.SerialException, OSError) as exc:
-            raise ConnectionLost(f"{self.url}: read failed: {exc}") from exc
+            raise ConnectionLost(f"{self.url}: read failed: {_detail(exc, 'read failed: ')}") from exc
         if not raw.endswith(self.terminator):
             if len(raw) >= self.max_line_bytes:
                 raise ProtocolError(f"{self.url}: reply longer than {self.max_line_bytes} bytes")
@@ -104,3 +104,9 @@ class SerialLine:
     @property
     def is_open(self) -> bool:
         return bool(self._port.is_open)
+
+
+def _detail(exc: BaseException, said: str) -> str:
+    """The exception's text without what our message says already (pyserial's socket://
+    transport words its own errors "read failed: ...")."""
+    return str(exc).removeprefix(said)

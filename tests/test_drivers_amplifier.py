@@ -242,6 +242,40 @@ def test_something_else_at_the_amplifiers_address_is_no_modbus_reply():
         srv.close()
 
 
+def test_a_peer_that_drops_the_link_leaves_no_library_task_behind(caplog, capfd):
+    """A listener that accepts and closes at once: pymodbus reconnects, and the failed
+    connect left that task pending in the facade's loop when it closed ("Task was destroyed
+    but it is pending!" on stderr after `ssidlab check`'s table, where nothing else belongs)."""
+    import gc
+    import socket
+    import threading
+
+    srv = socket.create_server(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def serve() -> None:
+        srv.settimeout(0.1)
+        while not stop.is_set():
+            try:
+                conn, _ = srv.accept()
+            except TimeoutError:
+                continue
+            conn.close()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        with pytest.raises(InstrumentError):
+            SyncShakerAmplifier("127.0.0.1", srv.getsockname()[1], **FAST)
+        gc.collect()  # where a task still pending with its closed loop says so
+    finally:
+        stop.set()
+        thread.join(5)
+        srv.close()
+    said = caplog.text + capfd.readouterr().err
+    assert "Task was destroyed" not in said, said
+
+
 def test_sync_facade(sim):
     with SyncShakerAmplifier("127.0.0.1", sim.port, **FAST) as amp:
         amp.set_gain(3.0)

@@ -86,13 +86,15 @@ def build_world(setup: TestSetup):
     zeta = t.num("damping_ratio", 0.02, lo=0.0, hi=0.5)
     noise = t.bool("noise", True)
     seed = t.int("seed", 0, lo=0)
-    noise_v = t.num("sensor_noise_volt_rms", 2e-6, lo=0.0)
-    range_v = t.num("sensor_range_volt", 5.0, lo=0.01, lo_open=True)
+    # finite=True: an inf in these tables otherwise reached the world's matrices and came
+    # back as "Array must not contain infs", or as a defective state matrix, naming no key.
+    noise_v = t.num("sensor_noise_volt_rms", 2e-6, lo=0.0, finite=True)
+    range_v = t.num("sensor_range_volt", 5.0, lo=0.01, lo_open=True, finite=True)
     t.str("generator_transport", "tcp", choices=("pty", "tcp"))
     oversample = t.int("oversample", 4, lo=1, hi=64)
     t.done()
     st = TomlTable(src, "[sim.stand]", stand_raw)
-    stand_kw = {k: st.num(k, getattr(StandSpec, k), lo=0.0)
+    stand_kw = {k: st.num(k, getattr(StandSpec, k), lo=0.0, finite=True)
                 for k in ("stand_mass_kg", "stand_k_n_per_m", "stand_c_n_s_per_m", "ground_k_n_per_m")}
     st.done()
     if not isinstance(effects_raw, list):
@@ -102,7 +104,8 @@ def build_world(setup: TestSetup):
         e = TomlTable(src, f"[[sim.effects]] #{i + 1}", raw)
         kind = e.str("type", required=True, choices=tuple(EFFECT_KEYS))
         cls_name, keys = EFFECT_KEYS[kind]
-        args = [e.str(k, required=True) if k.startswith("dof") else e.num(k, required=True) for k in keys]
+        args = [e.str(k, required=True) if k.startswith("dof") else e.num(k, required=True, finite=True)
+                for k in keys]
         e.done()
         effects.append(getattr(eff_mod, cls_name)(*args))
 
@@ -282,6 +285,10 @@ def nominal_model(setup: TestSetup, mounted: bool = True) -> Model:
     With ``mounted`` the stand is included as the lab has it (taken as known): DOFs are the
     structure's followed by one ``"stand@<dof>"`` per stand mass. Without, the structure alone.
     """
+    # The hidden effects are left out of the model, but the setup is checked with them, as
+    # `check` and `acquire` check it (an unknown effect type, a missing or non-finite value,
+    # an unknown DOF): a setup the lab refuses must not give a model silently.
+    build_world(setup)
     sim = {k: v for k, v in setup.sim.items() if k != "effects"}
     world = build_world(dataclasses.replace(setup, sim=sim))
     if not mounted:

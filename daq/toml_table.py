@@ -49,11 +49,17 @@ class TomlTable:
         return v
 
     def num(self, key: str, default: float | None = None, *, required: bool = False,
-            lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
+            lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False,
+            finite: bool = False) -> float:
+        """A number in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``). With ``finite``, ``inf``
+        is refused too where the range is unbounded: TOML writes it, and a physical quantity
+        (a mass, a stiffness) that is infinite is no value."""
         v = self._get(key, default, required)
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise self.error(key, f"must be a number, got {v!r}")
         v = float(v)
+        if finite and math.isinf(v):
+            raise self.error(key, f"must be a finite number, got {v:g}")
         if math.isnan(v) or (v <= lo if lo_open else v < lo) or v > hi:
             rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
             raise self.error(key, f"must be in {rng}, got {v:g}")

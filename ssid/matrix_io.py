@@ -150,16 +150,42 @@ def _read_mat73(src: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     try:
         with h5py.File(src, "r") as f:
-            for name, obj in f.items():
+            for name in f:
                 if name.startswith("#"):
                     continue
-                out[name.lower()] = _mat73_value(f, obj)
-    except OSError as exc:
+                # MATLAB writes no links: a soft or external link that leads nowhere (or to a
+                # file that is not there) is damage, and h5py gives None for it, not an error.
+                obj = f.get(name)
+                if obj is None:
+                    raise _Damaged(_broken_link(f, name))
+                out[name.lower()] = _mat73_value(f, obj, name)
+    except (_Damaged, OSError) as exc:
         raise _err(src, f"damaged MATLAB v7.3 file ({exc})") from None
+    except (KeyError, ValueError, TypeError, IndexError, RuntimeError) as exc:
+        # h5py reports damage inside a file (a bad chunk, a dangling object reference, a
+        # sparse matrix whose index arrays disagree) with any of these.
+        raise _err(src, f"damaged MATLAB v7.3 file ({type(exc).__name__}: {exc})") from None
     return out
 
 
-def _mat73_value(f: Any, obj: Any) -> Any:
+class _Damaged(Exception):
+    """A MATLAB v7.3 file whose HDF5 structure is damaged; the message says where."""
+
+
+def _broken_link(f: Any, name: str) -> str:
+    """What the link ``name`` that h5py cannot follow is, for the message."""
+    import h5py
+
+    link = f.get(name, getlink=True)
+    if isinstance(link, h5py.SoftLink):
+        return f"variable {name!r} is a soft link to {link.path!r}, which does not exist"
+    if isinstance(link, h5py.ExternalLink):
+        return (f"variable {name!r} is an external link to {link.path!r} in {link.filename!r}, "
+                "which cannot be opened")
+    return f"variable {name!r} cannot be opened"
+
+
+def _mat73_value(f: Any, obj: Any, name: str) -> Any:
     import h5py
     import scipy.sparse
 
@@ -179,8 +205,18 @@ def _mat73_value(f: Any, obj: Any) -> Any:
         return ["".join(chr(c) for c in row if c).strip() for row in codes]
     if cls == "cell":
         items = []
-        for ref in np.asarray(data).T.ravel():
-            v = _mat73_value(f, f[ref])
+        for k, ref in enumerate(np.asarray(data).T.ravel()):
+            # A cell holds object references; a null one (never set) or one to an object
+            # that is gone cannot be followed (h5py: "Invalid HDF5 object reference").
+            if not isinstance(ref, h5py.Reference):
+                raise _Damaged(f"{name!r} is marked a cell array but holds no object references")
+            if not ref:
+                raise _Damaged(f"cell {k + 1} of {name!r} holds a null reference")
+            try:
+                target = f[ref]
+            except (KeyError, ValueError) as exc:
+                raise _Damaged(f"cell {k + 1} of {name!r} refers to no object ({exc})") from None
+            v = _mat73_value(f, target, name)
             if not (isinstance(v, list) and len(v) == 1):
                 return np.asarray(data)
             items.append(v[0])
@@ -306,4 +342,10 @@ def _model_from_variables(src: str, variables: dict[str, Any], dofs: Sequence[st
         labels = _labels(src, raw, M.shape[0] if M.ndim == 2 else -1)
     else:
         labels = list(dofs)
+    # An empty cell or a blank row of a char matrix reads as "": a DOF without a label, not a
+    # label. The shared validation (ssid.io) takes any string, so it is refused here.
+    empty = next((k for k, label in enumerate(labels) if isinstance(label, str) and not label.strip()), None)
+    if empty is not None:
+        raise _err(src, f"dofs: label {empty + 1} of {len(labels)} is empty (an empty cell or a "
+                        "blank row?); every DOF needs a label")
     return validate_model(Model(M=M, K=K, C=C, dofs=labels), src)

@@ -103,11 +103,11 @@ def run_convert(args: argparse.Namespace) -> int:
                    + (f", {blanked} blanked values" if blanked else ""))
     elif in_kind == "model" and out_kind == "uff":
         model = read_model(args.input)
-        modes = modes_from_model(model.M, model.C, model.K, model.dofs)
+        modes = modes_from_model(model.M, model.C, model.K, model.dofs, source=args.input)
         write_uff_modes(args.output, modes, geometry=geometry)
         summary = f"{modes.natural_freq_hz.size} modes of the model as UFF 55"
     elif in_kind == "result" and out_kind == "uff":
-        modes = modes_from_result(_read_json(args.input))
+        modes = modes_from_result(_read_json(args.input), source=args.input)
         if modes.natural_freq_hz.size == 0:
             raise InputError(f"{args.input}: no mode with a determined frequency and damping")
         write_uff_modes(args.output, modes, geometry=geometry)

@@ -79,6 +79,9 @@ def _check_plot_dir(path: str, inputs: list[str]) -> None:
 
 def run_discrepancy(args: argparse.Namespace) -> int:
     """Carry out ``ssidlab discrepancy``; returns 0, raises InputError on bad input."""
+    if args.max_effects == 2 and args.no_second_round:
+        # The second effect is what the second round finds: without it, 2 would be ignored.
+        raise InputError("--max-effects 2 needs the second round, which --no-second-round leaves out")
     if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
         raise InputError(f"--fmin ({args.fmin:g} Hz) must be below --fmax ({args.fmax:g} Hz)")
     inputs = [args.model, args.measured]
@@ -99,6 +102,10 @@ def run_discrepancy(args: argparse.Namespace) -> int:
     except InputError as exc:
         raise InputError(f"{args.model}: {exc}") from None
     frf = read_measured_frf(args.measured)
+    if args.reactions == "apply" and frf.H_reaction is None:
+        # Nothing to apply: the model would be compared as it is, as with "ignore".
+        raise InputError(f"{args.measured}: --reactions apply needs measured interface reactions "
+                         "(H_reaction), and the file has none")
     lo = -math.inf if args.fmin is None else args.fmin
     hi = math.inf if args.fmax is None else args.fmax
     in_band = (frf.freq_hz >= lo) & (frf.freq_hz <= hi)

@@ -57,19 +57,22 @@ def _err(src: str, problem: str) -> InputError:
 # ----------------------------------------------------------------------------------------------
 
 
-def _normalise(raw: bytes) -> tuple[bytes, bool]:
+def _normalise(raw: bytes) -> tuple[bytes, bool, list[int]]:
     """``D`` exponents -> ``E`` and trailing blanks removed, on numeric lines of ASCII datasets
     and on the ``-1`` delimiter lines.
 
     Binary (58b) datasets are left byte for byte: their payload is not text. The flag is True
-    when the file ends inside a dataset (no closing ``-1``: a truncated file).
+    when the file ends inside a dataset (no closing ``-1``: a truncated file). The list holds
+    the line number (from 1) of each dataset's opening ``-1``, for messages that point at a
+    line; lines are only edited, never added or removed, so the numbers are the file's.
     """
     lines = raw.splitlines(keepends=True)
     out = []
+    starts: list[int] = []
     in_block = False
     binary = False
     expect_type = False
-    for line in lines:
+    for number, line in enumerate(lines, start=1):
         body = line.rstrip(b"\r\n")
         ending = line[len(body):]
         if in_block and binary:
@@ -81,6 +84,8 @@ def _normalise(raw: bytes) -> tuple[bytes, bool]:
         if _DELIM.match(body):
             in_block = not in_block
             expect_type = in_block
+            if in_block:
+                starts.append(number)
             # Without its trailing blanks: pyuff takes "    -1" followed by blanks for a
             # delimiter only when they reach column 80, and otherwise pairs the others wrongly
             # (datasets after it were lost without a word).
@@ -96,7 +101,7 @@ def _normalise(raw: bytes) -> tuple[bytes, bool]:
             body = _D_EXPONENT.sub(b"E", body).rstrip()
             line = body + ending
         out.append(line)
-    return b"".join(out), in_block
+    return b"".join(out), in_block, starts
 
 
 def read_datasets(path: str | os.PathLike, *, types: Iterable[int] | None = None) -> list[dict]:
@@ -112,7 +117,8 @@ def read_datasets(path: str | os.PathLike, *, types: Iterable[int] | None = None
     -------
     list of dict
         pyuff's dictionaries in file order, each with ``"type"`` and ``"_index"`` (position of
-        the dataset in the file, from 0, for messages).
+        the dataset in the file, from 0, for messages) and, where known, ``"_line"`` (line
+        number, from 1, of the dataset's opening ``-1``).
 
     Raises
     ------
@@ -131,7 +137,7 @@ def read_datasets(path: str | os.PathLike, *, types: Iterable[int] | None = None
     if raw.startswith(b"\x89HDF"):
         raise _err(src, "is an HDF5 file, not a UFF (universal) file")
     pyuff = _pyuff(src)
-    fixed, unterminated = _normalise(raw)
+    fixed, unterminated, starts = _normalise(raw)
     if unterminated:
         raise _err(src, "the file ends inside a dataset (no closing '    -1' line): truncated?")
     with tempfile.TemporaryDirectory(prefix="ssidlab-uff-") as tmp:
@@ -147,6 +153,9 @@ def read_datasets(path: str | os.PathLike, *, types: Iterable[int] | None = None
         if not set_types:
             raise _err(src, "not a UFF file: no datasets delimited by '    -1' lines found")
         wanted = None if types is None else set(types)
+        # Our pairing of the delimiters is pyuff's when it finds as many datasets; only then
+        # can a message point at a line of the file.
+        lines_known = len(starts) == len(set_types)
         out = []
         for index, set_type in enumerate(set_types):
             if wanted is not None and set_type not in wanted:
@@ -160,6 +169,8 @@ def read_datasets(path: str | os.PathLike, *, types: Iterable[int] | None = None
             if not isinstance(dset, dict):
                 raise _err(src, f"dataset {index + 1} (type {set_type}) is malformed")
             dset["_index"] = index
+            if lines_known:
+                dset["_line"] = starts[index]
             out.append(dset)
     return out
 

@@ -118,6 +118,7 @@ def frf_datasets(src: str, frf: FRFData, *, binary: bool = False,
     data = validate_frf(frf, src)
     target = "UFF dataset 58"
     nodes = dict(zip(data.outputs, labels_to_node_dirs(src, data.outputs, "output", target)))
+    _refuse_opposite_senses(src, nodes)
     freq = data.freq_hz
     if freq.size < 2:
         raise InputError(f"{src}: UFF 58 needs at least 2 frequency lines, got {freq.size}")
@@ -161,6 +162,30 @@ def frf_datasets(src: str, frf: FRFData, *, binary: bool = False,
         warnings.warn(f"{src}: {len(short)} FRF(s) with a single valid line not written "
                       f"(UFF 58 needs 2 points), e.g. {short[0]}", UFFWarning, stacklevel=3)
     return out
+
+
+def _refuse_opposite_senses(src: str, nodes: dict[str, tuple[int, int]]) -> None:
+    """Refuse two outputs that are one DOF in UFF 58: ``4+Z`` and ``4-Z``.
+
+    In dataset 58 a DOF is a node and a direction code, and the code's sign is only the sense
+    in which that DOF was measured (record 6: direction -3 is -Z): ``4+Z`` and ``4-Z`` are
+    the same coordinate, one the negative of the other, not two DOFs. Our reader takes them so
+    (``_fold_opposite_directions``: one DOF ``4+Z``, the ``-Z`` values negated) and would find
+    two functions for each pair, refusing the file; keeping both apart instead would read a
+    meaning into the sign that the format does not give it. So such a file is refused here
+    rather than written. Inputs and reactions are outputs too: the outputs cover every label.
+    """
+    seen: dict[tuple[int, int], str] = {}
+    for label, (node, direction) in nodes.items():
+        if direction == 0:  # a scalar point has no sense, its label is its node alone
+            continue
+        other = seen.setdefault((node, abs(direction)), label)
+        if other != label:
+            raise InputError(
+                f"{src}: outputs {other!r} and {label!r} are the same DOF in UFF 58 (node {node}, "
+                f"direction {abs(direction)}; the sign is only the measuring sense), which cannot "
+                "hold both: a reader would take them for one DOF measured twice; leave one out "
+                "or give it another node")
 
 
 def _check_ascii_abscissa(src: str, freq: np.ndarray) -> None:
@@ -286,7 +311,13 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
             kind = "reaction" if d.get("ordinate_spec_data_type") == SPEC_REACTION else "frf"
             f = _read_function(src, d, kind, units)
             factor, known = units.frf_factor(d, kind, f.x)
-            f.y = f.y * factor
+            finite = np.isfinite(f.y)  # NaN is a blanked value, and stays one
+            with np.errstate(over="ignore", invalid="ignore"):
+                f.y = f.y * factor
+            if not np.isfinite(f.y[finite]).all():
+                # Finite in the file's units, infinite in SI: no blank, a value lost.
+                raise InputError(f"{src}: {_where(d)}: {f.rsp}/{f.ref} overflows float64 when "
+                                 "converted to SI units (values too large)")
             unknown_units += not known
             (reacts if kind == "reaction" else frfs).append(f)
         elif ftype in (FUNC_COHERENCE, FUNC_MULTIPLE_COHERENCE):
@@ -429,7 +460,37 @@ def _read_function(src: str, d: dict, kind: str, units: FileUnits) -> _Function:
                 raise InputError(f"{src}: {where}: coherence {rsp}/{ref} is complex")
             y = y.real
         y = y.astype(float)
+    _refuse_infinite(src, d, f"{rsp}/{ref}", x, y)
     return _Function(kind, d["_index"], rsp, ref, x, y)
+
+
+# Values per data line of an ASCII dataset 58 (record 12), by ordinate data type (2, 4: real
+# single, double; 5, 6: complex single, double) and abscissa spacing (1 even, 0 uneven):
+# 6E13.5, 4E20.12, 2(E13.5,E20.12), E13.5,2E20.12 ... as the standard lays them out.
+_VALUES_PER_LINE = {(2, 1): 6, (2, 0): 3, (4, 1): 4, (4, 0): 2,
+                    (5, 1): 3, (5, 0): 2, (6, 1): 2, (6, 0): 1}
+
+
+def _refuse_infinite(src: str, d: dict, pair: str, x: np.ndarray, y: np.ndarray) -> None:
+    """Refuse an infinite value (``Inf``, or a number beyond float64 such as ``1e+999``).
+
+    A NaN is a blanked value, which the reader keeps as such (``valid`` False); an infinite
+    one was blanked too, silently (``Inf`` times a unit factor is ``inf+nanj``), though it is
+    no blank but a damaged or overflowing number. The message gives the dataset, the value's
+    number and frequency and, for an ASCII dataset laid out as the standard says, its line.
+    """
+    bad = np.isinf(y.real) | np.isinf(y.imag)
+    if not bad.any():
+        return
+    k = int(np.flatnonzero(bad)[0])
+    line = ""
+    per_line = _VALUES_PER_LINE.get((d.get("ord_data_type"), d.get("abscissa_spacing")))
+    if not d.get("binary") and "_line" in d and per_line:
+        # The opening -1, the "58" line and the 11 records of the header come first.
+        line = f", line {d['_line'] + 13 + k // per_line}"
+    raise InputError(f"{src}: {_where(d)}: value {k + 1} of {pair} (at {x[k]:g} Hz{line}) is "
+                     "infinite (Inf, or a number beyond the float64 range such as 1e+999); UFF "
+                     "data must be finite")
 
 
 def _frequency_grid(src: str, functions: list[_Function]) -> tuple[np.ndarray, list[np.ndarray]]:

@@ -60,52 +60,174 @@ class UFFModes:
 # ----------------------------------------------------------------------------------------------
 
 
-def modes_from_result(result: Any) -> UFFModes:
+def modes_from_result(result: Any, *, source: str = "result") -> UFFModes:
     """Modes of an :class:`ssid.identify.SSIDResult` or of its JSON dictionary.
 
     Modes whose frequency or damping is undetermined (NaN, or null in JSON) are left out.
+
+    Parameters
+    ----------
+    result : SSIDResult or mapping
+        ``natural_freq_hz``, ``damping_ratio``, ``mode_shapes`` (in JSON: ``{"real", "imag",
+        "dofs"}``) and ``dofs``.
+    source : str
+        Names the result (its file) in messages.
+
+    Raises
+    ------
+    InputError
+        Not a result (a JSON array, number or string), missing or non-numeric parts, shapes
+        and labels that disagree, a frequency that is not positive, or a zero mode shape.
     """
     if isinstance(result, Mapping):
         shapes = result.get("mode_shapes")
         if not isinstance(shapes, Mapping) or "real" not in shapes or "imag" not in shapes:
-            raise InputError("result has no 'mode_shapes' with 'real' and 'imag' parts")
+            raise InputError(f"{source}: no 'mode_shapes' with 'real' and 'imag' parts")
         try:
             phi = np.asarray(shapes["real"], float) + 1j * np.asarray(shapes["imag"], float)
             f = np.array([np.nan if v is None else v for v in result["natural_freq_hz"]], float)
             z = np.array([np.nan if v is None else v for v in result["damping_ratio"]], float)
         except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"result: natural_freq_hz, damping_ratio or mode_shapes are not "
+            raise InputError(f"{source}: natural_freq_hz, damping_ratio or mode_shapes are not "
                              f"numeric lists ({exc})") from None
-        dofs = list(shapes.get("dofs") or result.get("dofs") or [])
-    else:
+        dofs = shapes.get("dofs") or result.get("dofs") or []
+    elif all(hasattr(result, name) for name in ("mode_shapes", "natural_freq_hz", "damping_ratio", "dofs")):
         phi = np.asarray(result.mode_shapes)
         f, z = np.asarray(result.natural_freq_hz, float), np.asarray(result.damping_ratio, float)
-        dofs = list(result.dofs)
+        dofs = result.dofs
+    else:
+        # A JSON file that parses but holds an array, a number or a string is not a result.
+        raise InputError(f"{source}: not an ssidlab result (expected a JSON object with "
+                         f"natural_freq_hz, damping_ratio and mode_shapes, got {_json_kind(result)})")
+    if isinstance(dofs, (str, bytes)) or not isinstance(dofs, Sequence) \
+            or not all(isinstance(d, str) for d in dofs):
+        raise InputError(f"{source}: dofs must be a list of DOF label strings, got {dofs!r:.60}")
+    dofs = list(dofs)
+    twice = next((d for k, d in enumerate(dofs) if d in dofs[:k]), None)
+    if twice is not None:
+        raise InputError(f"{source}: duplicate label {twice!r} in dofs")
     phi = np.atleast_2d(phi)
     if phi.ndim != 2 or phi.shape[1] != f.size or z.size != f.size:
-        raise InputError(f"result: mode_shapes {phi.shape} do not match {f.size} frequencies "
+        raise InputError(f"{source}: mode_shapes {phi.shape} do not match {f.size} frequencies "
                          f"and {z.size} damping ratios")
+    if phi.shape[0] != len(dofs):
+        raise InputError(f"{source}: mode_shapes have {phi.shape[0]} rows but dofs lists "
+                         f"{len(dofs)} labels")
+    labels_to_node_dirs(source, dofs, "dofs", "UFF dataset 55")
     keep = np.isfinite(f) & np.isfinite(z) & np.all(np.isfinite(phi), axis=0)
-    return UFFModes(f[keep], z[keep], phi[:, keep], dofs)
+    modes = UFFModes(f[keep], z[keep], phi[:, keep], dofs)
+    _refuse_bad_modes(source, modes, np.flatnonzero(keep) + 1, complex_=True)
+    return modes
+
+
+def _json_kind(value: Any) -> str:
+    """What a parsed JSON value is, for a message: ``an array``, ``a number`` ..."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true or false"
+    if isinstance(value, (int, float)):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, list):
+        return "an array"
+    return f"a {type(value).__name__}"
+
+
+def _refuse_bad_modes(where: str, modes: UFFModes, numbers: Sequence[int] | np.ndarray,
+                      *, complex_: bool) -> None:
+    """Refuse modes that dataset 55 would hold as garbage, naming ``where`` and the mode.
+
+    A negative frequency is no mode: a complex mode's eigenvalue reads back as ``|lambda|``,
+    so the sign would be lost without a word, and a normal mode's is plain garbage. A
+    complex mode at 0 Hz has no eigenvalue to write (its damping reads back as NaN); a
+    frequency whose ``2 pi f`` overflows is written as Inf; a shape that is zero at every DOF
+    is no shape. ``numbers`` are the modes' numbers in the source (1-based).
+    """
+    f = np.asarray(modes.natural_freq_hz, dtype=float)
+    phi = np.atleast_2d(np.asarray(modes.mode_shapes))
+    with np.errstate(over="ignore"):
+        wn = 2 * np.pi * f
+    low = (f <= 0) if complex_ else (f < 0)
+    for k in range(f.size):
+        if low[k]:
+            need = "positive" if complex_ else "at least 0 (rigid-body modes)"
+            raise InputError(f"{where}: mode {numbers[k]} has the frequency {f[k]:g} Hz; a mode's "
+                             f"natural frequency must be {need}")
+        if not np.isfinite(wn[k]):
+            raise InputError(f"{where}: mode {numbers[k]} has the frequency {f[k]:g} Hz, too large "
+                             "for its eigenvalue in rad/s to be a finite number")
+        if phi.shape[0] and not np.any(phi[:, k]):
+            raise InputError(f"{where}: the shape of mode {numbers[k]} is zero at every DOF")
 
 
 def modes_from_model(M: np.ndarray, C: np.ndarray | None, K: np.ndarray,
-                     dofs: Sequence[str]) -> UFFModes:
+                     dofs: Sequence[str], *, source: str = "model") -> UFFModes:
     """Complex modes of (M, C, K), or real normal modes of (M, K) when ``C`` is None.
 
-    Complex shapes are scaled so that their largest entry is 1 (as an SSIDResult's).
-    """
-    from ssid.modal import complex_modes, real_modes, root_frequency_damping, unit_max_shapes
+    Complex shapes are scaled so that their largest entry is 1 (as an SSIDResult's). Real
+    modes include a free-free model's rigid-body modes, at 0 Hz.
 
+    Parameters
+    ----------
+    M, C, K : (n, n) arrays; ``C`` None for an undamped model
+    dofs : sequence of str, (n,)
+    source : str
+        Names the model (its file) in messages.
+
+    Raises
+    ------
+    InputError
+        M not positive definite (zero, singular: massless DOFs, or with a negative
+        eigenvalue), K not positive semi-definite (an unstable structure), or no mode to write
+        (K zero: no elastic mode; every complex root real: overdamped throughout). These are
+        refused as ``ssidlab place`` and ``correlate`` refuse them where they compute modes.
+    """
+    from ssid.modal import complex_modes, root_frequency_damping, unit_max_shapes
+    from ssid.tam import n_unstable_modes, normal_modes
+
+    M, K = np.asarray(M, dtype=float), np.asarray(K, dtype=float)
+    labels_to_node_dirs(source, list(dofs), "dofs", "UFF dataset 55")
+    _require_mass_matrix(source, M)
+    lam, phi_real = normal_modes(M, K)  # M is positive definite: no LinAlgError
+    if n_unstable_modes(lam):
+        raise InputError(f"{source}: K is not positive semi-definite (mode 1 has omega^2 = "
+                         f"{lam[0]:.4g} (rad/s)^2): not the stiffness of a stable structure")
+    if not np.any(K):
+        raise InputError(f"{source}: K is zero: the model has no elastic modes to write")
+    if C is None:
+        # Round-off on rigid-body modes (within n_unstable_modes' tolerance) is 0 Hz.
+        wn = np.sqrt(np.clip(lam, 0.0, None))
+        return UFFModes(wn / (2 * np.pi), np.zeros(wn.size), phi_real, list(dofs))
     try:
-        if C is None:
-            wn, phi = real_modes(M, K)
-            return UFFModes(wn / (2 * np.pi), np.zeros(wn.size), phi, list(dofs))
-        lam, phi = complex_modes(M, C, K)
-    except np.linalg.LinAlgError as exc:
-        raise InputError(f"model: cannot compute its modes ({exc})") from None
-    wn, zeta = root_frequency_damping(lam)
+        roots, phi = complex_modes(M, np.asarray(C, dtype=float), K)
+    except np.linalg.LinAlgError as exc:  # pragma: no cover - M was checked above
+        raise InputError(f"{source}: cannot compute the model's modes ({exc})") from None
+    if roots.size == 0:
+        raise InputError(f"{source}: the model has no oscillating mode: every root of (M, C, K) "
+                         "is real (rigid-body or overdamped), so dataset 55 has nothing to hold")
+    wn, zeta = root_frequency_damping(roots)
     return UFFModes(wn / (2 * np.pi), zeta, unit_max_shapes(phi), list(dofs))
+
+
+def _require_mass_matrix(source: str, M: np.ndarray) -> None:
+    """Refuse an M that is not positive definite, saying how (the modes need ``M^-1``)."""
+    try:
+        np.linalg.cholesky(M)
+        return
+    except np.linalg.LinAlgError:
+        pass
+    ev = np.linalg.eigvalsh((M + M.T) / 2)
+    top = float(np.max(np.abs(ev))) if ev.size else 0.0
+    if top == 0.0:
+        problem = "M is zero"
+    elif ev[0] < -1e-12 * top:
+        problem = f"M has the negative eigenvalue {ev[0]:.4g}: not the mass matrix of a structure"
+    else:
+        problem = "M is singular (massless DOFs?); reduce them out first, e.g. by Guyan reduction"
+    raise InputError(f"{source}: {problem}; M must be positive definite for the modes written "
+                     "to UFF dataset 55")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -157,6 +279,7 @@ def mode_datasets(src: str, modes: UFFModes, *, real: bool | None = None,
     if not real and np.any(np.abs(zeta) >= 1):
         raise InputError(f"{src}: a complex mode needs |damping ratio| < 1, got "
                          f"{zeta[np.abs(zeta) >= 1][0]:g}")
+    _refuse_bad_modes(src, modes, np.arange(1, f.size + 1), complex_=not real)
     node_dirs = labels_to_node_dirs(src, dofs, "dofs", "UFF dataset 55")
     nodes, slots = _node_slots(src, dofs, node_dirs, allow_rotations=real)
     n_per_node = 6 if any(abs(d) > 3 for _, d in node_dirs) else 3

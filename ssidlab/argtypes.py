@@ -86,8 +86,10 @@ def parse_mode_list(text: str) -> list[int]:
             raise argparse.ArgumentTypeError(f"not a mode list: {text!r} (e.g. '1-10,17,18')")
         lo = int(m.group(1))
         hi = int(m.group(2) or lo)
-        if lo < 1 or hi < lo:
+        if lo < 1:
             raise argparse.ArgumentTypeError(f"bad mode range {part!r}: modes count from 1")
+        if hi < lo:
+            raise argparse.ArgumentTypeError(f"bad mode range {part!r}: the range is reversed (write {hi}-{lo})")
         out.update(range(lo, hi + 1))
     return sorted(out)
 

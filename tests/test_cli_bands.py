@@ -253,7 +253,8 @@ def test_bands_models_a_free_beam_short_of_modes_below_and_above_its_band(tmp_pa
     (["--overlap", "1.5"], "between 0 and 1"),
     (["--targets", "FE", "--target-modes", "99"], "has 8 modes"),
     (["--fmin", "600"], "fewer than two frequency lines"),
-    (["--target-modes", "2-1", "--targets", "FE"], "modes count from 1"),
+    (["--target-modes", "2-1", "--targets", "FE"], "the range is reversed (write 1-2)"),
+    (["--target-modes", "0-2", "--targets", "FE"], "modes count from 1"),
     # checked with the options, not after the computation (it was an internal error then)
     (["--plot", "roots.txt"], "a chart is written as one of"),
 ])

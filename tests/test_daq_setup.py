@@ -47,6 +47,8 @@ def test_free_example_is_the_stand_example_off_its_stand():
 @pytest.mark.parametrize("edit, key", [
     (("f_max_hz = 200.0", "f_max_hz = 50.0"), "[stepped_sine] f_max_hz"),
     (("force_n = 1.0", "force_n = -1"), "[stepped_sine] force_n"),
+    # TOML writes inf; it was accepted as a force target no drive reaches
+    (("force_n = 1.0", "force_n = inf"), "[stepped_sine] force_n: must be a finite number, got inf"),
     (("sample_rate_hz = 4096", "sample_rate_hz = 4096.5"), "[daq] sample_rate_hz"),
     (("sample_rate_hz = 4096", "sample_rate_hz = 4096\npassband_fraction = 0.6"), "[daq] passband_fraction"),
     # was an instrument "lost (link down)" to check, exit 3, once the run had started (QA)

@@ -13,7 +13,7 @@ import numpy as np
 
 from .bands import default_band_width_hz
 from .errors import IdentificationError
-from .frf import FRFData
+from .frf import FRFData, require_frequency_dependence
 from .identify import SSIDResult, identify_mck, model_accelerance, model_output_error
 from .modal_model import identify_mck_modal
 from .noise import data_noise_weights
@@ -126,6 +126,9 @@ def identify_mck_band_select(
         physicality and output error, and the choice (``choice``, one line; also a warning
         when no candidate was physical).
     """
+    # Refused here, not left to every candidate: each would fail alike and the search would
+    # end with "no band gave a model" instead of what is wrong with the data.
+    require_frequency_dependence(frf)
     w = data_noise_weights(frf)
     n_r = 0 if frf.H_reaction is None else frf.H_reaction.shape[1]
     p = 2 * frf.n_out + frf.n_in + n_r

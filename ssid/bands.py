@@ -57,8 +57,8 @@ from .band_scaling import (
     scale_selected_roots,
     strongest_roots,
 )
-from .frf import FRFData, require_response
-from .identify import identify_step1
+from .frf import FRFData, require_frequency_dependence, require_response
+from .identify import identify_step1, singular_fit_refused
 from .modal import modal_phase_collinearity, root_frequency_damping
 from .plots_bands import plot_band_roots
 from .real_modes import normal_mode_mck
@@ -144,6 +144,7 @@ class BandResult:
         return pick_representatives(self.roots, self.bands_hz)
 
 
+@singular_fit_refused()
 def process_bands(
     frf: FRFData,
     bands_hz: list[tuple[float, float]],
@@ -182,6 +183,7 @@ def process_bands(
     BandResult; ``selected`` holds one root per physical mode, ascending in frequency.
     """
     require_response(frf)
+    require_frequency_dependence(frf)
     need = min_lines if min_lines is not None else band_min_lines(frf.n_out, frf.n_in, frf.n_react)
     roots: list[BandRoot] = []
     data: list[Step1Data] = []

@@ -153,18 +153,26 @@ def cross_orthogonality(phi_test: np.ndarray, phi_analysis: np.ndarray, M: np.nd
 
 @dataclass
 class OrthogonalityCheck:
-    """Summary of an orthogonality or cross-orthogonality matrix against the criteria."""
+    """Summary of an orthogonality or cross-orthogonality matrix against the criteria.
+
+    For an empty matrix (no mode paired) there is nothing to summarise: ``min_diag`` and
+    ``max_offdiag`` are NaN, ``worst_offdiag`` None (null in JSON), and the check fails.
+    """
 
     min_diag: float
     max_offdiag: float
-    worst_offdiag: tuple[int, int]
+    worst_offdiag: tuple[int, int] | None
     passed: bool
 
     def to_dict(self) -> dict:
+        def number(x: float) -> float | None:
+            return float(x) if np.isfinite(x) else None
+
         return {
-            "min_abs_diag": self.min_diag,
-            "max_abs_offdiag": self.max_offdiag,
-            "worst_offdiag": [int(self.worst_offdiag[0]) + 1, int(self.worst_offdiag[1]) + 1],
+            "min_abs_diag": number(self.min_diag),
+            "max_abs_offdiag": number(self.max_offdiag),
+            "worst_offdiag": (None if self.worst_offdiag is None else
+                              [int(self.worst_offdiag[0]) + 1, int(self.worst_offdiag[1]) + 1]),
             "pass": bool(self.passed),
         }
 
@@ -175,8 +183,12 @@ def check_orthogonality(
     offdiag_max: float = ORTHOGONALITY_OFFDIAG_MAX,
 ) -> OrthogonalityCheck:
     """Check a square (paired) orthogonality matrix: ``|diag| >= diag_min``,
-    ``|offdiag| < offdiag_max``. ``worst_offdiag`` is 0-based (row, column)."""
+    ``|offdiag| < offdiag_max``. ``worst_offdiag`` is 0-based (row, column). An empty matrix
+    fails, with NaN and None for its numbers: no pair is no evidence of orthogonality, and a
+    minimum of 1 and maximum of 0 there would be placeholders read as values."""
     A = np.abs(np.asarray(O, dtype=float))
+    if A.size == 0:
+        return OrthogonalityCheck(float("nan"), float("nan"), None, False)
     m = min(A.shape)
     d = np.diagonal(A)[:m]
     off = A.copy()

@@ -53,6 +53,7 @@ from .tam import (
     natural_frequencies_hz,
     normal_modes,
     reduce_to_tam,
+    require_elastic_modes,
 )
 
 __all__ = ["ANALYSIS_BAND_FACTOR", "CorrelationStudy", "correlate_models", "correlate_with_frf"]
@@ -83,7 +84,8 @@ def _modes(model: Model, who: str) -> tuple[np.ndarray, np.ndarray]:
     """Normal modes: frequencies in Hz (a negative omega^2 as a negative frequency) and
     shapes. An analysis model with a clearly negative omega^2 is refused (not a stable
     structure: as ``ssidlab place`` and ``discrepancy`` refuse it); a test model's is said
-    in a warning (an identified model that is not physical is still worth correlating)."""
+    in a warning (an identified model that is not physical is still worth correlating).
+    Either model with K zero is refused (:func:`ssid.tam.require_elastic_modes`)."""
     try:
         lam, phi = normal_modes(model.M, model.K)
     except np.linalg.LinAlgError:
@@ -95,6 +97,9 @@ def _modes(model: Model, who: str) -> tuple[np.ndarray, np.ndarray]:
     if unstable:
         warnings.warn(f"{who} model: {unstable} mode(s) with omega^2 < 0 (K not positive "
                       "semi-definite), shown with negative frequencies", stacklevel=2)
+    # With K zero every mode is at 0 Hz and its shapes are any basis: the MAC, the pairs and
+    # the orthogonality checks would be of an arbitrary choice.
+    require_elastic_modes(model.K, f"{who} model", "the MAC pairing of its modes")
     return np.sign(lam) * np.sqrt(np.abs(lam)) / (2 * np.pi), phi
 
 

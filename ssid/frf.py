@@ -10,11 +10,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .errors import InputError
+from .errors import IdentificationError, InputError
 
 __all__ = [
     "FRFData",
     "require_response",
+    "require_frequency_dependence",
     "receptance",
     "mobility",
     "accelerance",
@@ -130,6 +131,17 @@ class FRFData:
 # form) leaves float64 before any physics does.
 PLAUSIBLE_ACCELERANCE = (1e-100, 1e100)
 
+# Frequency lines of a vibration test, Hz. Below 1e-6 Hz one period lasts 12 days, longer than
+# any test's record; above 1e9 Hz no accelerometer, shaker or force gauge responds. Lines
+# outside are a unit or scale error, and far outside the fits break: at 1e-200 Hz omega^2
+# underflows to 0 and h / omega^2 is inf; at 1e200 Hz omega^2 overflows. Inside, with |H| in
+# PLAUSIBLE_ACCELERANCE, the squares of the regressors h / omega^2 and h omega^2 stay within
+# float64 (|H|^2 / omega^4 at 1e100 (m/s^2)/N and 1e-6 Hz is 6e220).
+PLAUSIBLE_FREQUENCY_HZ = (1e-6, 1e9)
+
+# Relative change below which an FRF is taken as the same at every line: round-off only.
+_CONSTANT_RTOL = 1e-12
+
 
 def require_response(frf: FRFData, source: str = "FRF data") -> None:
     """Refuse FRFs that no analysis can use: nothing valid, no response, a dead channel or load cell.
@@ -140,7 +152,8 @@ def require_response(frf: FRFData, source: str = "FRF data") -> None:
     stops with the channel's name instead. The same holds for an input to which no output
     responds (a shaker that did not drive, or a channel map that points elsewhere), and for
     a reaction that is zero at every line (a dead load cell). A file whose largest |H| lies
-    outside :data:`PLAUSIBLE_ACCELERANCE` is refused as a unit or scale error.
+    outside :data:`PLAUSIBLE_ACCELERANCE`, or whose lines lie outside
+    :data:`PLAUSIBLE_FREQUENCY_HZ`, is refused as a unit or scale error.
 
     Parameters
     ----------
@@ -167,6 +180,12 @@ def require_response(frf: FRFData, source: str = "FRF data") -> None:
         raise InputError(f"{source}: the largest |H| is {largest:.3g} (m/s^2)/N, outside "
                          f"{lo:g} to {hi:g}: not an accelerance in SI units (a scale or unit "
                          "error?)")
+    f_lo, f_hi = PLAUSIBLE_FREQUENCY_HZ
+    first, last = float(frf.freq_hz[0]), float(frf.freq_hz[-1])
+    if first < f_lo or last > f_hi:
+        raise InputError(f"{source}: the frequency lines run from {first:.3g} to {last:.3g} Hz, "
+                         f"outside {f_lo:g} to {f_hi:g} Hz: not the frequencies of a vibration "
+                         "test in Hz (a scale or unit error?)")
     for other_axes, labels, kind, what in (
             ((0, 2), frf.outputs, "output", "an accelerometer that measured nothing (unwired or dead?)"),
             ((0, 1), frf.inputs, "input", "no output responded to it (a shaker that did not drive?)")):
@@ -184,6 +203,50 @@ def require_response(frf: FRFData, source: str = "FRF data") -> None:
             raise InputError(f"{source}: {_named('reaction', dead)} zero at every line: a load cell "
                              "that measured nothing (unwired or dead?); re-measure it, or write the "
                              "file without reactions if the support is free there")
+
+
+def require_frequency_dependence(frf: FRFData, source: str | None = None) -> None:
+    """Refuse FRFs that are the same at every line and do not span the outputs: no model fits them.
+
+    SSID finds ``M^-1 C`` and ``M^-1 K`` from how the accelerances change with frequency (they
+    multiply ``h / (j omega)`` and ``h / omega^2``, Eq. 3.6). FRFs that do not change at all
+    are a mass line alone, ``H = M^-1`` at the measured DOFs. That determines a model only when
+    it has full rank over the outputs (a rigid body driven at every DOF, whose K and C are
+    zero); of lower rank (fewer inputs than outputs, or outputs that read alike), step 1 has
+    no unique solution and its fits fail or return any model (a file whose H was overwritten
+    with one constant gave singular matrices, or modes all at 0 Hz).
+
+    Parameters
+    ----------
+    frf : FRFData
+        The FRFs to identify (already accepted by :func:`require_response`).
+    source : str, optional
+        Name put at the start of the message (the file, where the caller knows it).
+
+    Raises
+    ------
+    IdentificationError
+        The valid values of every FRF are the same at every line (to round-off) and that
+        constant matrix has rank below the number of outputs.
+    """
+    valid = frf.valid_mask()
+    lines = np.flatnonzero(valid.any(axis=(1, 2)))
+    if lines.size < 2:
+        return  # one line: nothing to compare; the fits' own line counts refuse it
+    H = np.where(valid, np.nan_to_num(frf.H), 0.0)
+    # Each FRF's value at its first valid line, compared with its valid values at the others.
+    first = np.argmax(valid, axis=0)  # (n_out, n_in)
+    ref = np.take_along_axis(H, first[None], axis=0)[0]
+    change = float(np.max(np.where(valid, np.abs(H - ref[None]), 0.0)))
+    if change > _CONSTANT_RTOL * float(np.max(np.abs(H))):
+        return
+    rank = int(np.linalg.matrix_rank(ref))
+    if rank < frf.n_out:
+        raise IdentificationError(
+            ("" if source is None else f"{source}: ")
+            + f"H is the same at every frequency line (a mass line alone, of rank {rank} "
+            f"for {frf.n_out} outputs): the response does not determine a model (no resonance, "
+            "no stiffness or damping in the data; was H overwritten?)")
 
 
 def _named(kind: str, labels: list[str]) -> str:

@@ -22,8 +22,8 @@ import numpy as np
 from .errors import InputError
 from .frf import FRFData, require_response
 
-__all__ = ["CALIBRATION_TOLERANCE", "SHAPE_NOISE_RATIO", "SHAPE_TOLERANCE", "CurveComparison", "FRFComparison",
-           "compare_curves", "compare_frfs"]
+__all__ = ["CALIBRATION_TOLERANCE", "MIN_COMMON_LINES", "SHAPE_NOISE_RATIO", "SHAPE_TOLERANCE", "CurveComparison",
+           "FRFComparison", "common_lines", "compare_curves", "compare_frfs"]
 
 #: Gain departure from 1 that calibrations are expected to hold: accelerometers and force
 #: gauges are calibrated to about 1 % each, and a gain compares ratios of several of them.
@@ -43,6 +43,23 @@ SHAPE_NOISE_RATIO = 3.0
 #: noise-free simulation, very long averages) would be called different for effects of
 #: 1e-5 that no engineer would act on.
 SHAPE_TOLERANCE = 1e-3
+
+#: Fewest lines two curves are compared over. The gain takes one complex degree of freedom,
+#: so over one line it fits exactly: FRAC is 1 and nothing is left, "agree" whatever the
+#: curves. Over n lines noise alone leaves the residual of a Gamma(n - 1) sum, and calls a
+#: shape different (mean above SHAPE_NOISE_RATIO) for 1 FRF in 400 at 2 lines, 1 in 5000 at
+#: 5, 1 in 76,000 at 8: from 8 on, a shape verdict over a test's tens of FRFs is not noise.
+MIN_COMMON_LINES = 8
+
+#: Two lines are one frequency when they differ by less than this fraction of the local line
+#: spacing (the resolution of the records): a line grid stored in float32 (relative rounding
+#: 6e-8, 3e-5 Hz at 500 Hz) or written by a format that keeps six digits still matches its
+#: float64 original, while a grid shifted by a part of a spacing does not.
+LINE_MATCH_FRACTION = 0.01
+
+#: Relative frequency difference always taken as the same line: float32 rounding (2**-24)
+#: with a margin, for records too short to have a spacing (one line).
+FLOAT32_RTOL = 4.0 * 2.0**-24
 
 
 @dataclass(frozen=True)
@@ -99,7 +116,11 @@ class CurveComparison:
     def describe(self) -> str:
         """``gain 1.0000 at +0.00 deg, FRAC 1.0000``: the numbers an engineer reads first."""
         deg = round(math.degrees(np.angle(self.gain)), 2) + 0.0  # + 0.0: no "-0.00"
-        return f"gain {abs(self.gain):.4f} at {deg:+.2f} deg, FRAC {self.frac:.4f}"
+        g = abs(self.gain)
+        # Four decimals near 1, where calibrations are judged; a scale error of decades
+        # (a file in other units) as four digits and an exponent, not ninety digits.
+        size = f"{g:.4f}" if 1e-3 <= g < 1e4 else f"{g:.4g}"
+        return f"gain {size} at {deg:+.2f} deg, FRAC {self.frac:.4f}"
 
     def to_json_dict(self) -> dict:
         """The comparison's numbers as plain JSON values (the gain as magnitude and phase)."""
@@ -120,21 +141,38 @@ def compare_curves(a: np.ndarray, b: np.ndarray, var_a: np.ndarray | None = None
     nan = float("nan")
     if not (np.any(a) and np.any(b)):
         return CurveComparison(a.size, complex(nan), nan, nan, nan, nan)
+    # Each curve divided by a power of two at its largest magnitude before any product: FRAC
+    # forms fourth powers of |H|, which leave float64 at |H| ~ 1e77 or 1e-77 (FRAC NaN, a
+    # false "differ"), while the reader accepts |H| from 1e-100 to 1e100. Every quantity below
+    # is a ratio of the scaled curves and the gain takes the scales back; scaling by powers
+    # of two is exact, so where nothing overflowed the numbers are bit for bit the same.
+    sa, sb = _power_of_two_above(np.max(np.abs(a))), _power_of_two_above(np.max(np.abs(b)))
+    an, bn = a / sa, b / sb
     var = None
     if var_a is not None and var_b is not None:
         va, vb = np.asarray(var_a, float), np.asarray(var_b, float)
         if np.all(np.isfinite(va) & np.isfinite(vb)) and np.all(va + vb > 0):
             var = (va, vb)
-    # One weighting pass, as the gain is near 1 wherever the verdict hangs on it.
-    w = 1.0 / (var[0] + var[1]) if var is not None else np.ones(a.shape)
-    rho = complex(np.sum(w * a * np.conj(b)) / np.sum(w * np.abs(b) ** 2))
-    frac = float(np.abs(np.vdot(a, b)) ** 2 / (np.vdot(a, a).real * np.vdot(b, b).real))
-    relative = float(np.linalg.norm(a - rho * b) / np.linalg.norm(a))
+    # One weighting pass, as the gain is near 1 wherever the verdict hangs on it. The weights'
+    # common factor cancels in the gain: near 1 at most, so that w |b|^2 stays finite.
+    total = var[0] + var[1] if var is not None else np.ones(a.shape)
+    w = _power_of_two_above(np.min(total)) / total
+    rho_n = complex(np.sum(w * an * np.conj(bn)) / np.sum(w * np.abs(bn) ** 2))  # an ~ rho_n bn
+    rho = rho_n * (sa / sb)
+    frac = float(np.abs(np.vdot(an, bn)) ** 2 / (np.vdot(an, an).real * np.vdot(bn, bn).real))
+    left = an - rho_n * bn  # what the gain leaves, in units of sa
+    relative = float(np.linalg.norm(left) / np.linalg.norm(an))
     if var is None:
         return CurveComparison(a.size, rho, nan, frac, nan, relative)
-    v = var[0] + abs(rho) ** 2 * var[1]
-    return CurveComparison(a.size, rho, float(1.0 / math.sqrt(np.sum(np.abs(b) ** 2 / v))), frac,
-                           float(np.mean(np.abs(a - rho * b) ** 2 / v)), relative)
+    # The variances in the scaled units (divided twice: sa**2 itself may leave float64).
+    v = var[0] / sa / sa + abs(rho_n) ** 2 * (var[1] / sb / sb)
+    gain_std = (sa / sb) / math.sqrt(np.sum(np.abs(bn) ** 2 / v))
+    return CurveComparison(a.size, rho, float(gain_std), frac, float(np.mean(np.abs(left) ** 2 / v)), relative)
+
+
+def _power_of_two_above(x: float) -> float:
+    """The smallest power of two above ``x`` > 0 (finite)."""
+    return float(np.ldexp(1.0, int(np.frexp(float(x))[1])))
 
 
 @dataclass(frozen=True)
@@ -142,13 +180,16 @@ class FRFComparison:
     """Every FRF of one test (``a``) against the same FRF of another (``b``).
 
     ``curves[i][j]`` compares output ``outputs[i]`` per input ``inputs[j]`` over the
-    ``freq_hz`` lines both tests measured; None where no line is valid in both.
+    ``freq_hz`` lines both tests measured; None where fewer than :data:`MIN_COMMON_LINES`
+    lines are valid in both. ``n_unmatched`` counts the lines of the band both records
+    cover that have no line in the other (grids that differ there), left out.
     """
 
     freq_hz: np.ndarray
     outputs: list[str]
     inputs: list[str]
     curves: list[list[CurveComparison | None]]
+    n_unmatched: int = 0
 
     def disagreeing(self) -> list[tuple[str, str, CurveComparison]]:
         """``(output, input, comparison)`` of every FRF that does not agree."""
@@ -159,7 +200,35 @@ class FRFComparison:
         return sum(c is not None for row in self.curves for c in row)
 
 
-def compare_frfs(a: FRFData, b: FRFData, rtol_hz: float = 1e-9) -> FRFComparison:
+def _line_spacing(freq_hz: np.ndarray) -> np.ndarray:
+    """Each line's distance to its nearest neighbour, Hz (inf for a single line)."""
+    f = np.asarray(freq_hz, dtype=float)
+    gaps = np.diff(f)
+    if gaps.size == 0:
+        return np.full(f.shape, np.inf)
+    return np.minimum(np.r_[np.inf, gaps], np.r_[gaps, np.inf])
+
+
+def common_lines(fa: np.ndarray, fb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(ka, kb)`` of the lines two records share, matched one to one, ascending.
+
+    Each line of ``fa`` is paired with the nearest line of ``fb`` when they differ by at most
+    :data:`LINE_MATCH_FRACTION` of the finer local spacing of the two, or by float32 rounding
+    (:data:`FLOAT32_RTOL`), whichever is larger.
+    """
+    fa, fb = np.asarray(fa, dtype=float), np.asarray(fb, dtype=float)
+    hi = np.clip(np.searchsorted(fb, fa), 0, fb.size - 1)
+    lo = np.maximum(hi - 1, 0)
+    k_b = np.where(np.abs(fb[lo] - fa) < np.abs(fb[hi] - fa), lo, hi)
+    spacing = np.minimum(_line_spacing(fa), _line_spacing(fb)[k_b])
+    tol = np.maximum(LINE_MATCH_FRACTION * np.where(np.isfinite(spacing), spacing, 0.0), FLOAT32_RTOL * fa)
+    same = np.abs(fb[k_b] - fa) <= tol
+    # The tolerance is below half of fa's spacing (on any grid float32 can hold apart), so no
+    # two lines of fa reach one line of fb: the pairs are one to one.
+    return np.flatnonzero(same), k_b[same]
+
+
+def compare_frfs(a: FRFData, b: FRFData) -> FRFComparison:
     """Compare each FRF of ``a`` with the same (output, input) FRF of ``b``.
 
     Parameters
@@ -167,14 +236,17 @@ def compare_frfs(a: FRFData, b: FRFData, rtol_hz: float = 1e-9) -> FRFComparison
     a, b : FRFData
         Accelerances ``H: (n_freq, n_out, n_in)`` of two tests of one structure (e.g. at two
         force levels); FRFs are matched by output and input label, lines by frequency
-        (within ``rtol_hz`` relative: an adaptive stepped sine may measure other lines in
-        another run). ``valid`` and ``H_var`` are used where present.
+        (:func:`common_lines`: an adaptive stepped sine may measure other lines in another
+        run, a file may hold its frequencies in float32). ``valid`` and ``H_var`` are used
+        where present. An FRF with fewer than :data:`MIN_COMMON_LINES` valid values in
+        common is not compared (None in ``curves``).
 
     Raises
     ------
     InputError
-        No output and input label in common, no frequency line in common, or no valid
-        value in common (every common value blanked or non-finite in one of the two).
+        No output and input label in common, fewer than :data:`MIN_COMMON_LINES` frequency
+        lines in common, or no FRF with that many valid values in common (the common values
+        blanked or non-finite in one of the two).
     """
     require_response(a, "first FRF data")
     require_response(b, "second FRF data")
@@ -182,15 +254,22 @@ def compare_frfs(a: FRFData, b: FRFData, rtol_hz: float = 1e-9) -> FRFComparison
     inputs = [i for i in a.inputs if i in b.inputs]
     if not outputs or not inputs:
         raise InputError("the two FRF files share no output and input DOF labels")
-    # Common lines: each of a's lines and b's nearest, where that is within the tolerance.
-    hi = np.clip(np.searchsorted(b.freq_hz, a.freq_hz), 0, b.n_freq - 1)
-    lo = np.maximum(hi - 1, 0)
-    k_b = np.where(np.abs(b.freq_hz[lo] - a.freq_hz) < np.abs(b.freq_hz[hi] - a.freq_hz), lo, hi)
-    same = np.abs(b.freq_hz[k_b] - a.freq_hz) <= rtol_hz * a.freq_hz
-    if not same.any():
+    ka, kb = common_lines(a.freq_hz, b.freq_hz)
+    if ka.size == 0:
         raise InputError("the two FRF files have no frequency line in common")
-    ka, kb = np.flatnonzero(same), k_b[same]
+    if ka.size < MIN_COMMON_LINES:
+        f0, f1 = a.freq_hz[ka[0]], a.freq_hz[ka[-1]]
+        where = f"at {f0:g} Hz" if ka.size == 1 else f"{f0:g}-{f1:g} Hz"
+        raise InputError(
+            f"the two FRF files have only {ka.size} frequency line(s) in common ({where}; the "
+            f"first has {a.n_freq} lines, the second {b.n_freq}): at least {MIN_COMMON_LINES} "
+            "are needed to tell a gain from a shape difference")
+    # Lines inside the band both records cover that found no partner: different grids there.
+    f_lo, f_hi = max(a.freq_hz[0], b.freq_hz[0]), min(a.freq_hz[-1], b.freq_hz[-1])
+    inside = max(int(np.count_nonzero((a.freq_hz >= f_lo) & (a.freq_hz <= f_hi))),
+                 int(np.count_nonzero((b.freq_hz >= f_lo) & (b.freq_hz <= f_hi))))
     va, vb = a.valid_mask(), b.valid_mask()
+    most_valid = 0
     curves: list[list[CurveComparison | None]] = []
     for o in outputs:
         row = []
@@ -199,7 +278,9 @@ def compare_frfs(a: FRFData, b: FRFData, rtol_hz: float = 1e-9) -> FRFComparison
             ja, jb = a.inputs.index(i), b.inputs.index(i)
             ha, hb = a.H[ka, ia, ja], b.H[kb, ib, jb]
             ok = va[ka, ia, ja] & vb[kb, ib, jb] & np.isfinite(ha) & np.isfinite(hb)
-            if not ok.any():
+            n_ok = int(np.count_nonzero(ok))
+            most_valid = max(most_valid, n_ok)
+            if n_ok < MIN_COMMON_LINES:
                 row.append(None)
                 continue
             var_a = None if a.H_var is None else a.H_var[ka, ia, ja][ok]
@@ -208,6 +289,11 @@ def compare_frfs(a: FRFData, b: FRFData, rtol_hz: float = 1e-9) -> FRFComparison
         curves.append(row)
     if all(c is None for row in curves for c in row):
         # Otherwise "all 0 FRFs agree": nothing was compared, which is no agreement.
-        raise InputError(f"the two FRF files have no valid value in common ({len(ka)} common "
-                         "frequency lines, every value blanked or non-finite in one of them)")
-    return FRFComparison(a.freq_hz[ka], outputs, inputs, curves)
+        if most_valid == 0:
+            raise InputError(f"the two FRF files have no valid value in common ({len(ka)} common "
+                             "frequency lines, every value blanked or non-finite in one of them)")
+        raise InputError(f"no FRF has {MIN_COMMON_LINES} valid values in common in the two FRF files "
+                         f"(at most {most_valid} of {len(ka)} common frequency lines; the others "
+                         "blanked or non-finite in one of them)")
+    return FRFComparison(a.freq_hz[ka], outputs, inputs, curves,
+                         n_unmatched=max(inside - ka.size, 0))

@@ -9,6 +9,8 @@ coherence when it has them and from the fit's own residuals when it does not.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
@@ -16,7 +18,7 @@ import numpy as np
 
 from .errors import IdentificationError
 from .fit_checks import misfit_warning, relative_noise_level, unresolved_damping_warning
-from .frf import FRFData, accelerance_under_test_loads, require_response
+from .frf import FRFData, accelerance_under_test_loads, require_frequency_dependence, require_response
 from .jsonutil import to_jsonable
 from .modal import (
     modal_damping_matrix,
@@ -164,6 +166,25 @@ def model_frf_errors(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray,
     c = float(np.sum((weight * np.abs(r)) ** 2))
     e = float(np.linalg.norm(r) / scale) if scale > 0 else np.inf
     return (c if np.isfinite(c) else np.inf), (e if np.isfinite(e) else np.inf)
+
+
+@contextlib.contextmanager
+def singular_fit_refused() -> Iterator[None]:
+    """Turn a linear-algebra failure of an identification's fits into an IdentificationError.
+
+    The data that pass the entry checks (:func:`ssid.frf.require_response`,
+    :func:`ssid.frf.require_frequency_dependence`) can still leave a fit without a solution:
+    a singular dynamic-stiffness matrix or normal matrix, an SVD that does not converge. That
+    is a property of the data, not a bug, and its user needs a message rather than a
+    traceback. Only ``numpy.linalg.LinAlgError`` is turned; any other exception is a bug and
+    passes unchanged. Also usable as a decorator of an identification entry point.
+    """
+    try:
+        yield
+    except np.linalg.LinAlgError as exc:
+        raise IdentificationError(
+            f"the fit has no unique solution on these FRFs ({exc}): the response does not "
+            "determine a model (outputs that read alike, or no resonance in the band?)") from exc
 
 
 def _step2_weights(d: Step1Data, est: Step1Estimate) -> np.ndarray:
@@ -328,6 +349,7 @@ def identify_step1(
     return est, d, info
 
 
+@singular_fit_refused()
 def identify_mck(
     frf: FRFData,
     *,
@@ -368,7 +390,9 @@ def identify_mck(
     Raises
     ------
     IdentificationError
-        Too few valid lines, or a degenerate fit.
+        Too few valid lines, FRFs that do not determine a model (the same at every line, of
+        rank below the outputs; :func:`ssid.frf.require_frequency_dependence`), or a fit
+        without a unique solution (:func:`singular_fit_refused`).
     """
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
@@ -380,6 +404,7 @@ def identify_mck(
     data = frf.band(lo, hi)
     if data.n_freq == 0:
         raise IdentificationError(f"no frequency lines between {lo:g} and {hi:g} Hz")
+    require_frequency_dependence(data)
     starts: dict = {}
     est, d, info = identify_step1(data, solver=solver, candidates=starts, search_above_band=search_above_band)
     warnings = list(info.pop("warnings"))

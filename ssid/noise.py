@@ -176,6 +176,12 @@ def fit_additive_proportional(
     r2 = np.asarray(r2, dtype=float)
     h2 = np.asarray(h2, dtype=float)
     ok = np.asarray(ok, dtype=bool) & np.isfinite(r2) & np.isfinite(h2)
+    # The weights 1/var^2 are fourth powers of |H|: they leave float64 from |H| ~ 1e77 or
+    # 1e-77 on, inside the range the FRF reader accepts (1e-100 to 1e100). Squares relative
+    # to a power of two near the largest |H|^2 stay within it; multiplying by a power of two
+    # is exact, so on data that did not overflow the fit is bit for bit the same.
+    scale = _power_of_two_near(float(np.max(h2[ok])) if ok.any() else 1.0)
+    r2, h2 = r2 / scale, h2 / scale
     flat = _median_flat_level(r2, ok)  # NaN for an FRF blanked everywhere: filled below
     pos = flat[np.isfinite(flat) & (flat > 0)]
     fill = np.median(pos) if pos.size else 1.0
@@ -203,7 +209,14 @@ def fit_additive_proportional(
         if done:
             break
     corr = _trimmed_mean_fraction(trim)
-    return a2 / corr, b2 / corr
+    return a2 / corr * scale, b2 / corr
+
+
+def _power_of_two_near(x: float) -> float:
+    """The power of two nearest ``x`` in log scale (1 for 0 or a non-finite ``x``)."""
+    if not (np.isfinite(x) and x > 0):
+        return 1.0
+    return float(2.0 ** np.round(np.log2(x)))
 
 
 def _median_flat_level(r2: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -282,6 +295,10 @@ def difference_flat_levels(
     shape = H.shape[1:]
     if L < order + 3:  # the correlation needs two differences
         return np.full(shape, np.nan), np.full(shape, np.nan)
+    # As in fit_additive_proportional: H relative to a power of two near its largest value,
+    # so that the weights 1/var^2 (fourth powers of |H|) stay within float64; exact scaling.
+    scale = _power_of_two_near(float(np.max(np.abs(np.where(valid, H, 0.0)))))
+    H = H / scale
     diff, ok, c = _differences(H, valid, order)
     window = range(order + 1)
     gain = float(np.sum(c**2))
@@ -315,7 +332,7 @@ def difference_flat_levels(
     # Where the proportional part explains the differences, the flat level sinks toward the
     # fit's floor: there the differences do not determine it.
     a2 = np.where(a2 >= UNDETERMINED_FLAT * start, a2 / corr, np.nan)
-    return a2, rho
+    return a2 * scale * scale, rho
 
 
 def roughness_weights(H: np.ndarray, valid: np.ndarray) -> np.ndarray:

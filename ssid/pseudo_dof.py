@@ -45,7 +45,8 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .errors import IdentificationError
-from .frf import FRFData, require_response
+from .frf import FRFData, require_frequency_dependence, require_response
+from .identify import singular_fit_refused
 from .modal import modal_phase_collinearity, root_frequency_damping
 from .pseudo_dof_step2 import (
     PseudoDofMCK,
@@ -139,6 +140,7 @@ def _own_partition(f_hz: np.ndarray, freq_hz: np.ndarray, ne: int, n_partitions:
     return np.argmin(gap, axis=1)
 
 
+@singular_fit_refused()
 def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
                         n_partitions: int = 2, weight_exponent: float = 0.0) -> PseudoDofResult:
     """Step 1 with pseudo DOFs (Eq. 5.24), Eq. 3.12, the indicator, and our step-2 attempt.
@@ -157,6 +159,7 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
         payload of Table 6.18 in docs/replication.md, section 5).
     """
     require_response(frf)
+    require_frequency_dependence(frf)
     if not frf.valid_mask().all():
         raise IdentificationError("pseudo DOFs need a record without blanked values")
     if n_partitions < 2:
@@ -303,13 +306,16 @@ def _pseudo_design(frf: FRFData, lam: np.ndarray, theta_x: np.ndarray, ne: int,
     part = np.arange(n_partitions * ne) // ne
     Dp = np.vstack([np.eye(n)[:, frf.input_index()]] * n_partitions)  # (p n, n_in)
     q = theta_x.T @ Dp  # (r, n_in)
-    rows = theta_x.reshape(n_partitions, n, -1)[part]  # (L, n, r)
-    return np.einsum("kr,kir,rj->kijr", R, rows, q).reshape(-1, lam.size)
+    rows = theta_x.reshape(n_partitions, n, lam.size)[part]  # (L, n, r)
+    # Sized explicitly: without roots (lam.size 0) reshape(-1, 0) is ambiguous.
+    return np.einsum("kr,kir,rj->kijr", R, rows, q).reshape(w.size * n * q.shape[1], lam.size)
 
 
 def _pseudo_scale_factors(frf: FRFData, modes, ne: int, n_partitions: int) -> np.ndarray:
     """Least-squares ``1/a~_r`` of the pseudo model's oscillatory pairs (conjugates tied)."""
     m = modes.n_pairs
+    if m == 0:  # no oscillatory root: nothing to scale
+        return np.zeros(0, dtype=complex)
     lam = modes.lam[: 2 * m]
     th = modes.theta_x[:, : 2 * m]
     E = _pseudo_design(frf, lam, th, ne, n_partitions)

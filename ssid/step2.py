@@ -232,7 +232,9 @@ def fit_scale_factors(d: Step1Data, modes: StateSpaceModes, with_cost: bool = Fa
     # The model is H_kj = sum_t c_t Bt[:, t] Pt[kj, t] with c = T v, v real. One term per
     # root (the report's Eq. 3.23, left as it was); the block's terms are (a, e, b) of
     # Phi0[:, a] F_f[a, e] G_f[e, b] q_b, G_f[e, b] = G_f[b, e] one unknown.
-    Pt = (R[:, None, :] * q[:, :, :ns]).reshape(-1, ns)  # rows (k, j)
+    # Rows (k, j), sized explicitly: with every root taken as a rigid-body mode (a free
+    # structure's mass line and nothing else), ns is 0 and reshape(-1, 0) is ambiguous.
+    Pt = (R[:, None, :] * q[:, :, :ns]).reshape(d.omega.size * d.n_in, ns)
     Bt = basis[:, :ns]
     T = _root_terms(modes)
     n_sym = r * (r + 1) // 2

@@ -44,6 +44,7 @@ __all__ = [
     "natural_frequencies_hz",
     "normal_modes",
     "n_unstable_modes",
+    "require_elastic_modes",
     "omitted_indices",
     "reduce_by_transform",
     "reduce_to_tam",
@@ -146,6 +147,37 @@ def n_unstable_modes(lam: np.ndarray) -> int:
     (:data:`RIGID_ROUNDOFF_RTOL`)."""
     lam = np.asarray(lam, dtype=float)
     return int(np.sum(lam < -RIGID_ROUNDOFF_RTOL * np.max(np.abs(lam)))) if lam.size else 0
+
+
+def require_elastic_modes(K: np.ndarray, source: str, needed_for: str) -> None:
+    """Refuse a model with no elastic mode: K zero, every mode a rigid-body mode at 0 Hz.
+
+    Its modes are then one eigenvalue n times over, and any M-orthonormal basis is a set of
+    its mode shapes: what is computed from them (the sensors Effective Independence picks, the
+    MAC pairs of a correlation) is an arbitrary choice, not the model's. The discrepancy
+    workflow refuses such a model too (:func:`ssid.discrepancy.check_model`), and ``ssidlab
+    convert`` refuses to write its modes. A K with a positive eigenvalue (a free-free model's
+    elastic modes beside its rigid-body ones) passes; a K that is not positive semi-definite
+    is :func:`n_unstable_modes`' to refuse.
+
+    Parameters
+    ----------
+    K : (n, n)
+        Stiffness matrix.
+    source : str
+        Names the model (its file, or "test model" / "analysis model") in the message.
+    needed_for : str
+        What the caller would compute from the modes, for the message.
+
+    Raises
+    ------
+    InputError
+        ``K`` is zero.
+    """
+    if not np.any(np.asarray(K)):
+        raise InputError(f"{source}: K is zero: the model has no elastic modes (every mode is a "
+                         f"rigid-body mode at 0 Hz, its shapes any basis), so {needed_for} would be "
+                         "arbitrary")
 
 
 def natural_frequencies_hz(M: np.ndarray, K: np.ndarray) -> np.ndarray:

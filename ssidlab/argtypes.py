@@ -171,9 +171,11 @@ def fe_normal_modes(path: str) -> tuple[Any, np.ndarray, np.ndarray]:
     mass-normalised, ascending. A model whose M is not positive definite (massless DOFs of a
     lumped model) is bad input, with what to do about it; so is one whose K has a clearly
     negative eigenvalue (an unstable model: its modes would be read as 0 Hz). Round-off on
-    rigid-body modes (:func:`ssid.tam.n_unstable_modes`) counts as 0 Hz."""
+    rigid-body modes (:func:`ssid.tam.n_unstable_modes`) counts as 0 Hz. A model whose K
+    is zero is bad input too (:func:`ssid.tam.require_elastic_modes`): the sensors placed for
+    its modes, or the target modes picked from them, would be an arbitrary basis's."""
     from ssid.matrix_io import read_analysis_model
-    from ssid.tam import n_unstable_modes, normal_modes
+    from ssid.tam import n_unstable_modes, normal_modes, require_elastic_modes
 
     model = read_analysis_model(path)
     try:
@@ -184,4 +186,5 @@ def fe_normal_modes(path: str) -> tuple[Any, np.ndarray, np.ndarray]:
     if n_unstable_modes(lam):
         raise InputError(f"{path}: K is not positive semi-definite (mode 1 has omega^2 = "
                          f"{lam[0]:.4g} (rad/s)^2): not the stiffness of a stable structure")
+    require_elastic_modes(model.K, path, "what is computed from its modes")
     return model, np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi), phi

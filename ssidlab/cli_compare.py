@@ -14,6 +14,7 @@ found; the JSON's ``agree`` says), 2 on bad input.
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 import numpy as np
@@ -52,18 +53,25 @@ def run_compare(args: argparse.Namespace) -> int:
     cmp = compare_frfs(a, b)
     n, bad = cmp.n_compared(), cmp.disagreeing()
     f = cmp.freq_hz
+    if cmp.n_unmatched:
+        # Two grids that differ inside the band both cover: the verdict is over fewer lines
+        # than the records hold, which the user must know before trusting it.
+        print(f"warning: {cmp.n_unmatched} lines of the band both files cover have no line in the "
+              f"other file (different line grids?); compared over the {f.size} that match",
+              file=sys.stderr)
     if not args.quiet:
         print(f"{args.a} against {args.b}: {f.size} common lines ({f[0]:.4g}-{f[-1]:.4g} Hz), "
               f"{len(cmp.outputs)} outputs x {len(cmp.inputs)} inputs")
         for o, i, c in bad:
             print(f"  {o} / {i}: " + ("zero at every line in one file (a dead channel?)" if c.dead else _row(c)))
-    verdict = (f"all {n} FRFs agree within their noise and the calibration tolerance" if not bad else
-               f"{len(bad)} of {n} FRFs differ beyond their noise or the calibration tolerance")
+    over = f"over {f.size} common lines"
+    verdict = (f"all {n} FRFs agree within their noise and the calibration tolerance {over}" if not bad else
+               f"{len(bad)} of {n} FRFs differ beyond their noise or the calibration tolerance {over}")
     print(verdict)
     if args.json:
         write_json(args.json, {
-            "a": args.a, "b": args.b, "n_lines": int(f.size), "n_compared": n, "n_differ": len(bad),
-            "agree": not bad, "verdict": verdict,
+            "a": args.a, "b": args.b, "n_lines": int(f.size), "n_unmatched": cmp.n_unmatched,
+            "n_compared": n, "n_differ": len(bad), "agree": not bad, "verdict": verdict,
             "frfs": [{"output": o, "input": i, **c.to_json_dict()}
                      for o, row in zip(cmp.outputs, cmp.curves) for i, c in zip(cmp.inputs, row) if c is not None]})
     return 0

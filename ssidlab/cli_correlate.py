@@ -62,9 +62,9 @@ def add_correlate_subcommand(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--targets", type=parse_mode_list, metavar="LIST",
                    help="target modes of serep/hybrid/cb, 1-based analysis mode numbers, e.g. "
                    "'1-10,17,18' (default: the lowest as many as test DOFs)")
-    p.add_argument("--zeta", type=_damping_ratio, default=0.02, metavar="RATIO",
+    p.add_argument("--zeta", type=_damping_ratio, default=None, metavar="RATIO",
                    help="modal damping ratio for a model without C, with --frf (default 0.02)")
-    p.add_argument("--reactions", choices=REACTION_CHOICES, default="auto",
+    p.add_argument("--reactions", choices=REACTION_CHOICES, default=None,
                    help="--frf measured on a test stand (with interface reactions): apply them to the "
                    "model (a model of the substructure alone), ignore them (a model that includes "
                    "the stand), or auto (default): the one that reproduces the data better")
@@ -97,6 +97,13 @@ def run_correlate(args: argparse.Namespace) -> int:
         raise InputError("give a second --model (the analysis model) or --frf (measured FRFs)")
     if not args.frf and (args.fmin is not None or args.fmax is not None):
         raise InputError("--fmin and --fmax apply to --frf only")
+    if not args.frf and (args.zeta is not None or args.reactions is not None):
+        raise InputError("--zeta and --reactions apply to --frf only")
+    # Options a TAM does not use were ignored without a word (the audit): said, as --fmin is.
+    if args.targets is not None and args.tam not in ("serep", "hybrid", "cb"):
+        raise InputError(f"--targets applies to --tam serep, hybrid or cb; --tam {args.tam} uses no target modes")
+    if args.interface is not None and args.tam != "cb":
+        raise InputError(f"--interface applies to --tam cb only; --tam {args.tam} has no interface DOFs")
     if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
         raise InputError(f"--fmin ({args.fmin:g} Hz) must be below --fmax ({args.fmax:g} Hz)")
     sources = models + ([args.frf] if args.frf else [])
@@ -115,11 +122,15 @@ def run_correlate(args: argparse.Namespace) -> int:
     if args.frf:
         test_source, analysis_source = args.frf, models[0]
         frf = read_measured_frf(args.frf)
+        if args.reactions == "apply" and frf.H_reaction is None:
+            raise InputError(f"{args.frf}: --reactions apply needs measured interface reactions "
+                             "(H_reaction), and the file has none")
         _require_dofs_in(frf.outputs, "output", args.frf, analysis.dofs, models[0])
         with _models_named(test_source, analysis_source):
             study = correlate_with_frf(
                 frf, analysis, tam=args.tam, interface=args.interface, targets=args.targets,
-                zeta=args.zeta, f_min_hz=args.fmin, f_max_hz=args.fmax, reactions=args.reactions,
+                zeta=0.02 if args.zeta is None else args.zeta, f_min_hz=args.fmin, f_max_hz=args.fmax,
+                reactions=args.reactions or "auto",
             )
     else:
         test_source, analysis_source = models[0], models[1]
@@ -216,8 +227,14 @@ def pair_table(summary: dict) -> str:
                      f"{p['analysis_freq_hz']:>12.4f} {p['freq_error_percent']:>9.3f} "
                      f"{p['mac']:>6.3f} {p['cross_orthogonality']:>7.3f}")
     xo = summary["cross_orthogonality"]
-    lines.append(f"cross-orthogonality: min |diag| {xo['min_abs_diag']:.3f}, max |off-diag| "
-                 f"{xo['max_abs_offdiag']:.3f} -> {'pass' if xo['pass'] else 'fail'}")
+    if xo["min_abs_diag"] is None:  # nothing paired: no numbers to show, only the verdict
+        from ssid.correlate_models import MIN_PAIR_MAC
+
+        lines.append(f"cross-orthogonality: no modes were paired (no test mode has a MAC of "
+                     f"{MIN_PAIR_MAC:g} or more with an analysis mode) -> fail")
+    else:
+        lines.append(f"cross-orthogonality: min |diag| {xo['min_abs_diag']:.3f}, max |off-diag| "
+                     f"{xo['max_abs_offdiag']:.3f} -> {'pass' if xo['pass'] else 'fail'}")
     if "frf_gap" in summary:
         lines.append(f"FRAC mean {summary['frac']['mean']:.3f}, gap ({summary['frf_gap_metric']}) "
                      f"{summary['frf_gap']:.4g}, {summary['frf_gap_db']:.3g} dB rms")

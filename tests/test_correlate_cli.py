@@ -78,7 +78,8 @@ def files(tmp_path_factory):
 def test_model_against_model(files, tam):
     out = files / f"mm_{tam}.json"
     status, err = run(["--model", str(files / "test.h5"), "--model", str(files / "fem.mat"),
-                       "--tam", tam, "--interface", INTERFACE, "--json", str(out), "--quiet"])
+                       "--tam", tam, *(["--interface", INTERFACE] if tam == "cb" else []), "--json", str(out),
+                       "--quiet"])
     assert (status, err) == (0, "")
     s = json.loads(out.read_text())
     for key in ("test_natural_freq_hz", "analysis_natural_freq_hz", "tam_natural_freq_hz", "mac",
@@ -142,8 +143,17 @@ def test_mode_list():
          "fem.h5: DOF '[^']+' is not a DOF of the analysis model .*test.h5$"),
         (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--tam", "cb", "--json", "{d}/o.json"],
          "interface"),
-        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--interface", "2+Z",
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--tam", "cb", "--interface", "2+Z",
           "--json", "{d}/o.json"], "not among the test DOFs"),
+        # options the TAM or the comparison does not use were ignored without a word (audit)
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--interface", "2+Z",
+          "--json", "{d}/o.json"], "--interface applies to --tam cb only; --tam guyan has no interface DOFs"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--targets", "1-3",
+          "--json", "{d}/o.json"], "--targets applies to --tam serep, hybrid or cb; --tam guyan uses no target"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--zeta", "0.03",
+          "--json", "{d}/o.json"], "--zeta and --reactions apply to --frf only"),
+        (["--model", "{d}/fem.h5", "--frf", "{d}/frf.h5", "--reactions", "apply",
+          "--json", "{d}/o.json"], "frf.h5: --reactions apply needs measured interface reactions"),
         # Same DOFs, so no TAM is built: a mistyped interface is still refused.
         (["--model", "{d}/fem.h5", "--model", "{d}/fem.mat", "--tam", "cb", "--interface", "99+Z",
           "--json", "{d}/o.json"], "interface DOF '99\\+Z' is not among the test DOFs"),

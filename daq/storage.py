@@ -227,7 +227,11 @@ class RunFile:
         if np.any((grid < 0) | (grid >= nf)):
             raise _Inconsistent(f"a record's grid line is outside the grid's {nf} lines")
         for name, v in kept.items():
-            bad = ~np.isfinite(v) | ((v <= 0) if name == "freq_hz" else (v < 0) if name != "X" else False)
+            bad = ~np.isfinite(v)
+            if name == "freq_hz":
+                bad |= v <= 0
+            elif name != "X":  # times, drives and variances; X is complex
+                bad |= v < 0
             if np.any(bad):
                 raise _Inconsistent(f"a kept record's {name!r} is not finite or out of range")
 

@@ -210,3 +210,24 @@ def rig():
     except InstrumentError:
         pass
     sim.stop()
+
+
+@pytest.fixture
+def ssidlab(capsys):
+    """Run ``ssidlab ...`` in this process: (exit status, stdout, stderr). (Some modules
+    define their own, with more set up around the command.)"""
+    from ssidlab import cli
+
+    def run(*argv):
+        status = cli.main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        return status, out, err
+
+    return run
+
+
+def one_error_line(err: str, command: str) -> str:
+    """The one line ``ssidlab <command>: error: ...`` that a refusal writes to stderr."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"ssidlab {command}: error: "), err
+    return lines[0]

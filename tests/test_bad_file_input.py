@@ -15,34 +15,15 @@ import h5py
 import numpy as np
 import pytest
 import scipy.io
-from conftest import chain_frf, chain_model
+from conftest import chain_frf, chain_model, one_error_line
 
 from ssid.errors import InputError
 from ssid.exchange import modes_from_model, read_uff_frf, write_uff_frf
 from ssid.frf import FRFData
 from ssid.io import Model, write_frf, write_model
 from ssid.matrix_io import read_analysis_model
-from ssidlab import cli
 
 pytest.importorskip("pyuff")
-
-
-@pytest.fixture
-def ssidlab(capsys):
-    """Run ``ssidlab ...``: (exit status, stdout, stderr)."""
-
-    def run(*argv):
-        status = cli.main([str(a) for a in argv])
-        out, err = capsys.readouterr()
-        return status, out, err
-
-    return run
-
-
-def _one_error_line(err: str, command: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"ssidlab {command}: error: "), err
-    return lines[0]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -57,7 +38,7 @@ def test_convert_refuses_a_json_that_is_not_an_object(tmp_path, ssidlab, text, k
     src = tmp_path / "r.json"
     src.write_text(text)
     status, _, err = ssidlab("convert", src, tmp_path / "x.uff")
-    line = _one_error_line(err, "convert")
+    line = one_error_line(err, "convert")
     assert status == 2 and str(src) in line and "not an ssidlab result" in line and kind in line
     assert not (tmp_path / "x.uff").exists()
 
@@ -111,7 +92,7 @@ def test_damaged_mat73_on_the_command_line(tmp_path, ssidlab):
     p = tmp_path / "m73.mat"
     _mat73(p, lambda f: f.__setitem__("X", h5py.SoftLink("/nowhere")))
     status, _, err = ssidlab("place", p, "--sensors", "2", "--json", tmp_path / "x.json")
-    assert status == 2 and "damaged MATLAB v7.3 file" in _one_error_line(err, "place")
+    assert status == 2 and "damaged MATLAB v7.3 file" in one_error_line(err, "place")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -142,7 +123,7 @@ def test_convert_refuses_a_model_without_modes(tmp_path, ssidlab, change, match)
     the file's name."""
     src = _model_file(tmp_path, **change)
     status, _, err = ssidlab("convert", src, tmp_path / "x.uff")
-    line = _one_error_line(err, "convert")
+    line = one_error_line(err, "convert")
     assert status == 2 and line.startswith(f"ssidlab convert: error: {src}: ") and re.search(match, line), line
     assert not (tmp_path / "x.uff").exists()
 
@@ -176,7 +157,7 @@ def test_convert_refuses_a_result_with_garbage_modes(tmp_path, ssidlab, freq, ze
     src = tmp_path / "result.json"
     src.write_text(json.dumps(_result(freq, shapes)))
     status, _, err = ssidlab("convert", src, tmp_path / "x.uff")
-    line = _one_error_line(err, "convert")
+    line = one_error_line(err, "convert")
     assert status == 2 and f"{src}: " in line and re.search(match, line), line
 
 
@@ -199,7 +180,7 @@ def test_uff_writer_refuses_one_dof_in_both_senses(tmp_path, ssidlab):
         write_uff_frf(tmp_path / "x.uff", _opposite_outputs_frf())
     write_frf(tmp_path / "frf.h5", _opposite_outputs_frf())
     status, _, err = ssidlab("convert", tmp_path / "frf.h5", tmp_path / "y.uff")
-    assert status == 2 and "'1+Z' and '1-Z'" in _one_error_line(err, "convert")
+    assert status == 2 and "'1+Z' and '1-Z'" in one_error_line(err, "convert")
     assert not (tmp_path / "y.uff").exists()
 
 
@@ -238,7 +219,7 @@ def test_uff_value_beyond_float64_is_refused_with_its_line(tmp_path, ssidlab):
     with pytest.raises(InputError, match=rf"dataset 2 \(58\): value 4 of 1\+Z/1\+Z .*line {k + 1}\) is infinite"):
         read_uff_frf(src)
     status, _, err = ssidlab("convert", src, tmp_path / "back.h5")
-    assert status == 2 and "is infinite" in _one_error_line(err, "convert")
+    assert status == 2 and "is infinite" in one_error_line(err, "convert")
     assert not (tmp_path / "back.h5").exists()
 
 
@@ -282,7 +263,7 @@ def test_sim_model_validates_the_sim_tables(tmp_path, ssidlab, old, new, match):
     "Array must not contain infs" naming no key."""
     setup = _sim_setup(tmp_path, old, new)
     status, _, err = ssidlab("sim-model", setup, "--out", tmp_path / "model.h5")
-    line = _one_error_line(err, "sim-model")
+    line = one_error_line(err, "sim-model")
     assert status == 2 and f"{setup}: " in line and re.search(match, line), line
     assert not (tmp_path / "model.h5").exists()
 
@@ -295,7 +276,7 @@ def test_sim_model_validates_the_sim_tables(tmp_path, ssidlab, old, new, match):
 def test_discrepancy_refuses_two_effects_without_the_second_round(tmp_path, ssidlab):
     status, _, err = ssidlab("discrepancy", "--model", tmp_path / "m.h5", "--measured", tmp_path / "f.h5",
                              "--json", tmp_path / "d.json", "--max-effects", "2", "--no-second-round")
-    line = _one_error_line(err, "discrepancy")
+    line = one_error_line(err, "discrepancy")
     assert status == 2 and "--max-effects 2" in line and "--no-second-round" in line
 
 
@@ -304,6 +285,6 @@ def test_discrepancy_refuses_reactions_apply_without_reactions(tmp_path, ssidlab
     write_frf(tmp_path / "f.h5", chain_frf())
     status, _, err = ssidlab("discrepancy", "--model", tmp_path / "m.h5", "--measured", tmp_path / "f.h5",
                              "--json", tmp_path / "d.json", "--reactions", "apply")
-    line = _one_error_line(err, "discrepancy")
+    line = one_error_line(err, "discrepancy")
     assert status == 2 and f"{tmp_path / 'f.h5'}: --reactions apply" in line and "has none" in line
     assert not (tmp_path / "d.json").exists()

@@ -21,7 +21,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import DOFS, chain_frf, chain_model
+from conftest import DOFS, chain_frf, chain_model, one_error_line
 
 from ssid.correlate import check_orthogonality
 from ssid.errors import IdentificationError, InputError
@@ -31,25 +31,6 @@ from ssid.identify import identify_mck
 from ssid.io import Model, write_frf, write_model
 from ssid.noise import difference_flat_levels, fit_additive_proportional
 from ssid.reciprocity import reciprocity_check
-from ssidlab import cli
-
-
-@pytest.fixture
-def ssidlab(capsys):
-    """Run ``ssidlab ...`` in this process: (exit status, stdout, stderr)."""
-
-    def run(*argv):
-        status = cli.main([str(a) for a in argv])
-        out, err = capsys.readouterr()
-        return status, out, err
-
-    return run
-
-
-def _one_error_line(err: str, command: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"ssidlab {command}: error: "), err
-    return lines[0]
 
 
 def _write(tmp_path, frf: FRFData, name: str = "frf.h5") -> str:
@@ -83,7 +64,7 @@ def test_frequencies_no_vibration_test_has_are_refused_where_the_file_is_read(tm
     src = _write(tmp_path, frf)
     for command, args in _analyses(src, tmp_path):
         status, _, err = ssidlab(command, *args)
-        line = _one_error_line(err, command)
+        line = one_error_line(err, command)
         assert status == 2 and f"{src}: the frequency lines run from" in line and "scale or unit" in line, line
     # Lines from 1e-6 Hz to 1e9 Hz pass (a long-period structure, an ultrasonic test).
     require_response(dataclasses.replace(frf, freq_hz=np.linspace(1e-6, 1e-4, frf.n_freq)))
@@ -108,7 +89,7 @@ def test_an_frf_the_same_at_every_line_is_refused_as_no_model(tmp_path, ssidlab,
     rank = 1 if constant == "ones" else 2
     for command, args in _analyses(src, tmp_path):
         status, _, err = ssidlab(command, *args)
-        line = _one_error_line(err, command)
+        line = one_error_line(err, command)
         assert status == 2 and "H is the same at every frequency line" in line, line
         assert f"of rank {rank} for 3 outputs" in line and "does not determine a model" in line, line
 
@@ -164,7 +145,7 @@ def test_compare_refuses_too_few_common_lines(tmp_path, ssidlab, n_common):
     a = chain_frf()
     src_a, src_b = _write(tmp_path, a, "a.h5"), _write(tmp_path, _shifted_after(a, n_common), "b.h5")
     status, _, err = ssidlab("compare", src_a, src_b)
-    line = _one_error_line(err, "compare")
+    line = one_error_line(err, "compare")
     assert status == 2 and f"only {n_common} frequency line(s) in common" in line, line
     assert f"at least {MIN_COMMON_LINES} are needed" in line, line
 
@@ -267,7 +248,7 @@ def test_place_refuses_a_model_without_elastic_modes(tmp_path, ssidlab):
     whose shapes are any basis."""
     src = _zero_k_model(tmp_path)
     status, _, err = ssidlab("place", src, "--sensors", "2", "--json", tmp_path / "p.json")
-    line = _one_error_line(err, "place")
+    line = one_error_line(err, "place")
     assert status == 2 and f"{src}: K is zero: the model has no elastic modes" in line, line
     assert not (tmp_path / "p.json").exists()
 
@@ -281,10 +262,10 @@ def test_correlate_refuses_a_model_without_elastic_modes(tmp_path, ssidlab):
     frf = _write(tmp_path, chain_frf())
     for args, who in (([good, zero], "analysis model"), ([zero, good], "test model")):
         status, _, err = ssidlab("correlate", "--model", args[0], "--model", args[1], "--json", tmp_path / "c.json")
-        line = _one_error_line(err, "correlate")
+        line = one_error_line(err, "correlate")
         assert status == 2 and f"{zero} ({who}): K is zero: the model has no elastic modes" in line, line
     status, _, err = ssidlab("correlate", "--model", zero, "--frf", frf, "--json", tmp_path / "c.json")
-    assert status == 2 and "(analysis model): K is zero" in _one_error_line(err, "correlate")
+    assert status == 2 and "(analysis model): K is zero" in one_error_line(err, "correlate")
     assert not (tmp_path / "c.json").exists()
 
 

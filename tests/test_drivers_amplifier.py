@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import socket
+import threading
 import time
 
 import pytest
@@ -206,13 +209,10 @@ def test_unreachable_amplifier():
     run(go())
 
 
-def test_something_else_at_the_amplifiers_address_is_no_modbus_reply():
-    """A web server (or a network's interceptor) at the setup's address accepts the
-    connection and answers every request with HTTP. The blocking facade says so - no valid
-    Modbus reply - rather than blaming its own deadline for a call that ended at once."""
-    import socket
-    import threading
-
+@contextlib.contextmanager
+def _loopback_listener(handle):
+    """Something other than an amplifier at a loopback address: each connection it accepts
+    goes to ``handle(conn)``. Yields its port."""
     srv = socket.create_server(("127.0.0.1", 0))
     stop = threading.Event()
 
@@ -223,23 +223,34 @@ def test_something_else_at_the_amplifiers_address_is_no_modbus_reply():
                 conn, _ = srv.accept()
             except TimeoutError:
                 continue
-            with conn:
-                conn.settimeout(2.0)
-                try:
-                    while conn.recv(256):
-                        conn.sendall(b"HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n\r\n")
-                except OSError:
-                    pass
+            handle(conn)
 
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
     try:
-        with pytest.raises(InstrumentTimeout, match="no valid Modbus reply in 2 tries of 0.3 s"):
-            SyncShakerAmplifier("127.0.0.1", srv.getsockname()[1], **FAST)
+        yield srv.getsockname()[1]
     finally:
         stop.set()
         thread.join(5)
         srv.close()
+
+
+def test_something_else_at_the_amplifiers_address_is_no_modbus_reply():
+    """A web server (or a network's interceptor) at the setup's address accepts the
+    connection and answers every request with HTTP. The blocking facade says so - no valid
+    Modbus reply - rather than blaming its own deadline for a call that ended at once."""
+    def answer_http(conn) -> None:
+        with conn:
+            conn.settimeout(2.0)
+            try:
+                while conn.recv(256):
+                    conn.sendall(b"HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n\r\n")
+            except OSError:
+                pass
+
+    with _loopback_listener(answer_http) as port, \
+            pytest.raises(InstrumentTimeout, match="no valid Modbus reply in 2 tries of 0.3 s"):
+        SyncShakerAmplifier("127.0.0.1", port, **FAST)
 
 
 def test_a_peer_that_drops_the_link_leaves_no_library_task_behind(caplog, capfd):
@@ -247,31 +258,10 @@ def test_a_peer_that_drops_the_link_leaves_no_library_task_behind(caplog, capfd)
     connect left that task pending in the facade's loop when it closed ("Task was destroyed
     but it is pending!" on stderr after `ssidlab check`'s table, where nothing else belongs)."""
     import gc
-    import socket
-    import threading
 
-    srv = socket.create_server(("127.0.0.1", 0))
-    stop = threading.Event()
-
-    def serve() -> None:
-        srv.settimeout(0.1)
-        while not stop.is_set():
-            try:
-                conn, _ = srv.accept()
-            except TimeoutError:
-                continue
-            conn.close()
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
-    try:
-        with pytest.raises(InstrumentError):
-            SyncShakerAmplifier("127.0.0.1", srv.getsockname()[1], **FAST)
-        gc.collect()  # where a task still pending with its closed loop says so
-    finally:
-        stop.set()
-        thread.join(5)
-        srv.close()
+    with _loopback_listener(lambda conn: conn.close()) as port, pytest.raises(InstrumentError):
+        SyncShakerAmplifier("127.0.0.1", port, **FAST)
+    gc.collect()  # where a task still pending with its closed loop says so
     said = caplog.text + capfd.readouterr().err
     assert "Task was destroyed" not in said, said
 

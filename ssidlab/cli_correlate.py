@@ -121,6 +121,9 @@ def run_correlate(args: argparse.Namespace) -> int:
                          f"{analysis.n} modes")
     if args.frf:
         test_source, analysis_source = args.frf, models[0]
+        if args.zeta is not None and analysis.C is not None:
+            raise InputError(f"--zeta: {models[0]} has its own damping matrix C, which is used; "
+                             "--zeta applies to a model without C")
         frf = read_measured_frf(args.frf)
         if args.reactions == "apply" and frf.H_reaction is None:
             raise InputError(f"{args.frf}: --reactions apply needs measured interface reactions "

@@ -154,6 +154,8 @@ def test_mode_list():
           "--json", "{d}/o.json"], "--zeta and --reactions apply to --frf only"),
         (["--model", "{d}/fem.h5", "--frf", "{d}/frf.h5", "--reactions", "apply",
           "--json", "{d}/o.json"], "frf.h5: --reactions apply needs measured interface reactions"),
+        (["--model", "{d}/fem.h5", "--frf", "{d}/frf.h5", "--zeta", "0.03", "--json", "{d}/o.json"],
+         "--zeta: .*fem.h5 has its own damping matrix C, which is used"),
         # Same DOFs, so no TAM is built: a mistyped interface is still refused.
         (["--model", "{d}/fem.h5", "--model", "{d}/fem.mat", "--tam", "cb", "--interface", "99+Z",
           "--json", "{d}/o.json"], "interface DOF '99\\+Z' is not among the test DOFs"),

@@ -44,7 +44,7 @@ def _row(c) -> str:
 
 
 def run_compare(args: argparse.Namespace) -> int:
-    from ssid.frf_compare import compare_frfs
+    from ssid.frf_compare import MIN_COMMON_LINES, compare_frfs
     from ssid.io import read_measured_frf
     from ssidlab.argtypes import check_output_paths, write_json
 
@@ -59,6 +59,11 @@ def run_compare(args: argparse.Namespace) -> int:
         print(f"warning: {cmp.n_unmatched} lines of the band both files cover have no line in the "
               f"other file (different line grids?); compared over the {f.size} that match",
               file=sys.stderr)
+    skipped = len(cmp.outputs) * len(cmp.inputs) - n
+    if skipped:
+        # Not in the verdict's count: "all 30 agree" of 32 would read as all of them.
+        print(f"warning: {skipped} FRF(s) have fewer than {MIN_COMMON_LINES} valid values in common and "
+              "are not compared", file=sys.stderr)
     if not args.quiet:
         print(f"{args.a} against {args.b}: {f.size} common lines ({f[0]:.4g}-{f[-1]:.4g} Hz), "
               f"{len(cmp.outputs)} outputs x {len(cmp.inputs)} inputs")

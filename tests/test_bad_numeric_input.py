@@ -160,6 +160,20 @@ def test_compare_over_the_minimum_of_lines_says_how_many(tmp_path, ssidlab):
     assert err.startswith(f"warning: {a.n_freq - MIN_COMMON_LINES} lines of the band both files cover"), err
 
 
+def test_compare_says_which_frfs_it_left_out(tmp_path, ssidlab):
+    """An FRF with fewer than MIN_COMMON_LINES valid values in common is not compared; the
+    verdict "all 5 FRFs agree" of 6 must not read as all of them."""
+    a = chain_frf()
+    valid = np.ones(a.H.shape, dtype=bool)
+    valid[MIN_COMMON_LINES - 1:, 1, 0] = False  # 2+Z / 1+Z: one value short
+    b = dataclasses.replace(a, H=np.where(valid, a.H, np.nan), valid=valid)
+    src_a, src_b = _write(tmp_path, a, "a.h5"), _write(tmp_path, b, "b.h5")
+    status, out, err = ssidlab("compare", src_a, src_b, "--quiet")
+    assert status == 0 and out.startswith("all 5 FRFs agree"), out
+    assert err == (f"warning: 1 FRF(s) have fewer than {MIN_COMMON_LINES} valid values in common and are "
+                   "not compared\n"), err
+
+
 def test_compare_matches_lines_stored_in_float32(tmp_path, ssidlab):
     """freq_hz written as float32 in one file: only the lines float32 holds exactly matched a
     1e-9 relative tolerance (25 of 1024 on the demo record), with "agree" and no warning."""

@@ -21,6 +21,7 @@ import numpy as np
 
 from .errors import InputError
 from .frf import FRFData, require_response
+from .solvers import power_of_two_near
 
 __all__ = ["CALIBRATION_TOLERANCE", "MIN_COMMON_LINES", "SHAPE_NOISE_RATIO", "SHAPE_TOLERANCE", "CurveComparison",
            "FRFComparison", "common_lines", "compare_curves", "compare_frfs"]
@@ -146,7 +147,7 @@ def compare_curves(a: np.ndarray, b: np.ndarray, var_a: np.ndarray | None = None
     # false "differ"), while the reader accepts |H| from 1e-100 to 1e100. Every quantity below
     # is a ratio of the scaled curves and the gain takes the scales back; scaling by powers
     # of two is exact, so where nothing overflowed the numbers are bit for bit the same.
-    sa, sb = _power_of_two_above(np.max(np.abs(a))), _power_of_two_above(np.max(np.abs(b)))
+    sa, sb = power_of_two_near(np.max(np.abs(a))), power_of_two_near(np.max(np.abs(b)))
     an, bn = a / sa, b / sb
     var = None
     if var_a is not None and var_b is not None:
@@ -156,7 +157,7 @@ def compare_curves(a: np.ndarray, b: np.ndarray, var_a: np.ndarray | None = None
     # One weighting pass, as the gain is near 1 wherever the verdict hangs on it. The weights'
     # common factor cancels in the gain: near 1 at most, so that w |b|^2 stays finite.
     total = var[0] + var[1] if var is not None else np.ones(a.shape)
-    w = _power_of_two_above(np.min(total)) / total
+    w = power_of_two_near(np.min(total)) / total
     rho_n = complex(np.sum(w * an * np.conj(bn)) / np.sum(w * np.abs(bn) ** 2))  # an ~ rho_n bn
     rho = rho_n * (sa / sb)
     frac = float(np.abs(np.vdot(an, bn)) ** 2 / (np.vdot(an, an).real * np.vdot(bn, bn).real))
@@ -168,11 +169,6 @@ def compare_curves(a: np.ndarray, b: np.ndarray, var_a: np.ndarray | None = None
     v = var[0] / sa / sa + abs(rho_n) ** 2 * (var[1] / sb / sb)
     gain_std = (sa / sb) / math.sqrt(np.sum(np.abs(bn) ** 2 / v))
     return CurveComparison(a.size, rho, float(gain_std), frac, float(np.mean(np.abs(left) ** 2 / v)), relative)
-
-
-def _power_of_two_above(x: float) -> float:
-    """The smallest power of two above ``x`` > 0 (finite)."""
-    return float(np.ldexp(1.0, int(np.frexp(float(x))[1])))
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ import warnings
 import numpy as np
 
 from .frf import FRFData
+from .solvers import power_of_two_near
 
 __all__ = ["add_report_noise", "data_noise_weights", "difference_flat_levels", "fit_additive_proportional",
            "frf_noise_weights", "report_noise_frf", "roughness_weights"]
@@ -180,7 +181,7 @@ def fit_additive_proportional(
     # 1e-77 on, inside the range the FRF reader accepts (1e-100 to 1e100). Squares relative
     # to a power of two near the largest |H|^2 stay within it; multiplying by a power of two
     # is exact, so on data that did not overflow the fit is bit for bit the same.
-    scale = _power_of_two_near(float(np.max(h2[ok])) if ok.any() else 1.0)
+    scale = power_of_two_near(float(np.max(h2[ok])) if ok.any() else 1.0)
     r2, h2 = r2 / scale, h2 / scale
     flat = _median_flat_level(r2, ok)  # NaN for an FRF blanked everywhere: filled below
     pos = flat[np.isfinite(flat) & (flat > 0)]
@@ -210,13 +211,6 @@ def fit_additive_proportional(
             break
     corr = _trimmed_mean_fraction(trim)
     return a2 / corr * scale, b2 / corr
-
-
-def _power_of_two_near(x: float) -> float:
-    """The power of two nearest ``x`` in log scale (1 for 0 or a non-finite ``x``)."""
-    if not (np.isfinite(x) and x > 0):
-        return 1.0
-    return float(2.0 ** np.round(np.log2(x)))
 
 
 def _median_flat_level(r2: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -297,7 +291,7 @@ def difference_flat_levels(
         return np.full(shape, np.nan), np.full(shape, np.nan)
     # As in fit_additive_proportional: H relative to a power of two near its largest value,
     # so that the weights 1/var^2 (fourth powers of |H|) stay within float64; exact scaling.
-    scale = _power_of_two_near(float(np.max(np.abs(np.where(valid, H, 0.0)))))
+    scale = power_of_two_near(float(np.max(np.abs(np.where(valid, H, 0.0)))))
     H = H / scale
     diff, ok, c = _differences(H, valid, order)
     window = range(order + 1)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-__all__ = ["solve_ls", "solve_tls", "column_scale"]
+__all__ = ["solve_ls", "solve_tls", "column_scale", "power_of_two_near"]
 
 
 def column_scale(A: np.ndarray) -> np.ndarray:
@@ -19,6 +19,18 @@ def column_scale(A: np.ndarray) -> np.ndarray:
     s = np.linalg.norm(A, axis=0)
     s[s == 0] = 1.0
     return s
+
+
+def power_of_two_near(x: float) -> float:
+    """The power of two nearest ``x`` in log scale (1 for 0 or a non-finite ``x``).
+
+    Data divided by it stay clear of float64's ends when squared twice (weights ``1/var^2``,
+    FRAC's fourth powers of |H|), and the division is exact: results on data that did not
+    overflow are bit for bit those of the unscaled computation.
+    """
+    if not (np.isfinite(x) and x > 0):
+        return 1.0
+    return float(2.0 ** np.round(np.log2(x)))
 
 
 def solve_ls(A: np.ndarray, B: np.ndarray) -> np.ndarray:

@@ -54,6 +54,7 @@ from .tam import (
     normal_modes,
     reduce_to_tam,
     require_elastic_modes,
+    require_stable_stiffness,
 )
 
 __all__ = ["ANALYSIS_BAND_FACTOR", "CorrelationStudy", "correlate_models", "correlate_with_frf"]
@@ -90,10 +91,9 @@ def _modes(model: Model, who: str) -> tuple[np.ndarray, np.ndarray]:
         lam, phi = normal_modes(model.M, model.K)
     except np.linalg.LinAlgError:
         raise InputError(f"{who} model: M is not positive definite, it has no normal modes") from None
+    if who == "analysis":
+        require_stable_stiffness(lam, "analysis model")
     unstable = n_unstable_modes(lam)
-    if unstable and who == "analysis":
-        raise InputError(f"analysis model: K is not positive semi-definite (mode 1 has omega^2 = "
-                         f"{lam[0]:.4g} (rad/s)^2): not the stiffness of a stable structure")
     if unstable:
         warnings.warn(f"{who} model: {unstable} mode(s) with omega^2 < 0 (K not positive "
                       "semi-definite), shown with negative frequencies", stacklevel=2)

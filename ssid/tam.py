@@ -45,6 +45,7 @@ __all__ = [
     "normal_modes",
     "n_unstable_modes",
     "require_elastic_modes",
+    "require_stable_stiffness",
     "omitted_indices",
     "reduce_by_transform",
     "reduce_to_tam",
@@ -147,6 +148,21 @@ def n_unstable_modes(lam: np.ndarray) -> int:
     (:data:`RIGID_ROUNDOFF_RTOL`)."""
     lam = np.asarray(lam, dtype=float)
     return int(np.sum(lam < -RIGID_ROUNDOFF_RTOL * np.max(np.abs(lam)))) if lam.size else 0
+
+
+def require_stable_stiffness(lam: np.ndarray, source: str) -> None:
+    """Refuse a model with a clearly negative ``omega^2`` (:func:`n_unstable_modes`; ``lam``
+    from :func:`normal_modes`): K is not the stiffness of a stable structure, and its modes
+    would be read as 0 Hz or as negative frequencies.
+
+    Raises
+    ------
+    InputError
+        Naming ``source`` (the model's file, or "analysis model") and the lowest ``omega^2``.
+    """
+    if n_unstable_modes(lam):
+        raise InputError(f"{source}: K is not positive semi-definite (mode 1 has omega^2 = "
+                         f"{lam[0]:.4g} (rad/s)^2): not the stiffness of a stable structure")
 
 
 def require_elastic_modes(K: np.ndarray, source: str, needed_for: str) -> None:

@@ -175,7 +175,7 @@ def fe_normal_modes(path: str) -> tuple[Any, np.ndarray, np.ndarray]:
     is zero is bad input too (:func:`ssid.tam.require_elastic_modes`): the sensors placed for
     its modes, or the target modes picked from them, would be an arbitrary basis's."""
     from ssid.matrix_io import read_analysis_model
-    from ssid.tam import n_unstable_modes, normal_modes, require_elastic_modes
+    from ssid.tam import normal_modes, require_elastic_modes, require_stable_stiffness
 
     model = read_analysis_model(path)
     try:
@@ -183,8 +183,6 @@ def fe_normal_modes(path: str) -> tuple[Any, np.ndarray, np.ndarray]:
     except np.linalg.LinAlgError:
         raise InputError(f"{path}: M is not positive definite (massless DOFs?); reduce them "
                          "out first, e.g. by Guyan reduction") from None
-    if n_unstable_modes(lam):
-        raise InputError(f"{path}: K is not positive semi-definite (mode 1 has omega^2 = "
-                         f"{lam[0]:.4g} (rad/s)^2): not the stiffness of a stable structure")
+    require_stable_stiffness(lam, path)
     require_elastic_modes(model.K, path, "what is computed from its modes")
     return model, np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi), phi

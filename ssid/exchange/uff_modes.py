@@ -185,17 +185,14 @@ def modes_from_model(M: np.ndarray, C: np.ndarray | None, K: np.ndarray,
         refused as ``ssidlab place`` and ``correlate`` refuse them where they compute modes.
     """
     from ssid.modal import complex_modes, root_frequency_damping, unit_max_shapes
-    from ssid.tam import n_unstable_modes, normal_modes
+    from ssid.tam import normal_modes, require_elastic_modes, require_stable_stiffness
 
     M, K = np.asarray(M, dtype=float), np.asarray(K, dtype=float)
     labels_to_node_dirs(source, list(dofs), "dofs", "UFF dataset 55")
     _require_mass_matrix(source, M)
     lam, phi_real = normal_modes(M, K)  # M is positive definite: no LinAlgError
-    if n_unstable_modes(lam):
-        raise InputError(f"{source}: K is not positive semi-definite (mode 1 has omega^2 = "
-                         f"{lam[0]:.4g} (rad/s)^2): not the stiffness of a stable structure")
-    if not np.any(K):
-        raise InputError(f"{source}: K is zero: the model has no elastic modes to write")
+    require_stable_stiffness(lam, source)
+    require_elastic_modes(K, source, "the modes written to UFF dataset 55")
     if C is None:
         # Round-off on rigid-body modes (within n_unstable_modes' tolerance) is 0 Hz.
         wn = np.sqrt(np.clip(lam, 0.0, None))

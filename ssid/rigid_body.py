@@ -35,8 +35,13 @@ Through their eigenvectors Eq. 3.26 then loses M (7 times off from the maximum-l
 1e9 times from total least squares). So the same shapes also enter step 2 as one block with the
 stiffness and damping step 1 gives them (:class:`ssid.step2.StateSpaceModes`,
 ``near_rigid_kc``), and of the two assemblies, through the eigenvectors or through the block,
-the one whose written M, C, K reproduce the data better is kept: the eigenvectors where they
-are well conditioned (a suspension mode the lines resolve), the block where they are not.
+a physical one (M positive definite, K positive semi-definite) is kept first, then the one whose
+written M, C, K reproduce the data better: the eigenvectors where they are well conditioned (a
+suspension mode the lines resolve), the block where they are not. Physical first, because the
+block's mass is fitted to lines far above the roots it stands for: seen from 20 Hz, a
+payload's 1.3-6 Hz suspension modes are a mass line, and a reduced-order fit can give that mass
+line a negative mass on one shape to stand for the modes above the band (the free test of
+docs/guide.md, section 7: M indefinite, where the eigenvectors write a physical model).
 """
 
 from __future__ import annotations
@@ -52,7 +57,7 @@ from .step1_refine import output_error_cost
 from .step2 import ScaleFactors, StateSpaceModes, assemble_mck, fit_scale_factors
 
 __all__ = ["RIGID_BODY_SIGNIFICANCE", "rigid_body_clusters", "with_rigid_body_modes", "near_rigid_modes",
-           "written_output_error", "choose_rigid_body_modes"]
+           "choose_rigid_body_modes"]
 
 #: Significance level of the likelihood-ratio test: roots below the band are kept as they are
 #: (K not singular there) only when the data contradict rigid-body modes at this level.
@@ -138,16 +143,21 @@ def near_rigid_modes(rigid: StateSpaceModes, C_hat: np.ndarray, K_hat: np.ndarra
                            near_rigid_kc=(phi0.T @ K_hat @ phi0, phi0.T @ C_hat @ phi0))
 
 
-def written_output_error(d: Step1Data, modes: StateSpaceModes, fit: ScaleFactors) -> float:
-    """Weighted output error ``sum w^2 |H - H_model|^2`` of the M, C, K that Eq. 3.26 writes from
-    ``modes`` and ``fit`` (inf when they cannot be written or M is singular)."""
+def _written_assembly_score(d: Step1Data, modes: StateSpaceModes, fit: ScaleFactors) -> tuple[int, float]:
+    """``(problems, output error)`` of the M, C, K that Eq. 3.26 writes from ``modes`` and ``fit``:
+    how many of (M not positive definite, K not positive semi-definite) hold, and the weighted
+    output error ``sum w^2 |H - H_model|^2`` (``(2, inf)`` when they cannot be written or M is
+    singular). Ordered as tuples, a physical assembly ranks first."""
     try:
         M, C, K, _ = assemble_mck(modes, fit.u, fit.rigid_inv_mass)
         M_inv = np.linalg.inv(M)
     except (IdentificationError, np.linalg.LinAlgError):
-        return np.inf
+        return 2, np.inf
+    ev_m, ev_k = np.linalg.eigvalsh(M), np.linalg.eigvalsh(K)
+    problems = int(ev_m.min() <= 0) + int(ev_k.min() < -1e-9 * np.abs(ev_k).max())
     # The step-1 form of the written model: M^-1 C, M^-1 K and the forces' M^-1 D_f, M^-1 D_r.
-    return output_error_cost(d, Step1Estimate(M_inv @ C, M_inv @ K, M_inv[:, d.in_idx], M_inv[:, d.r_idx]))
+    cost = output_error_cost(d, Step1Estimate(M_inv @ C, M_inv @ K, M_inv[:, d.in_idx], M_inv[:, d.r_idx]))
+    return problems, cost
 
 
 def choose_rigid_body_modes(
@@ -215,18 +225,20 @@ def choose_rigid_body_modes(
         chosen = (modes, fit_scale_factors(d, modes))
         if fits:
             # Not rigid: through the eigenvectors, or as one near-rigid block on the shapes of
-            # every root below the lowest line (the largest cluster), whichever writes the
-            # M, C, K closer to the data (module docstring).
+            # every root below the lowest line (the largest cluster), a physical one first,
+            # then whichever writes the M, C, K closer to the data (module docstring).
             near = near_rigid_modes(fits[-1][1], C_hat, K_hat)
             try:
                 near_fit = fit_scale_factors(d, near)
             except IdentificationError:
                 near_fit = None
             if near_fit is not None:
-                errors = {"eigenvectors": written_output_error(d, modes, chosen[1]),
-                          "near_rigid_block": written_output_error(d, near, near_fit)}
-                used = min(errors, key=errors.get)
-                info["near_rigid"] = {"n_shapes": near.n_block, "weighted_output_error": errors, "used": used}
+                scores = {"eigenvectors": _written_assembly_score(d, modes, chosen[1]),
+                          "near_rigid_block": _written_assembly_score(d, near, near_fit)}
+                used = min(scores, key=scores.get)
+                info["near_rigid"] = {"n_shapes": near.n_block, "used": used,
+                                      "weighted_output_error": {k: v[1] for k, v in scores.items()},
+                                      "problems": {k: v[0] for k, v in scores.items()}}
                 if used == "near_rigid_block":
                     chosen = (near, near_fit)
     return chosen[0], chosen[1], info

@@ -19,6 +19,7 @@ import functools
 import logging
 import platform
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -372,7 +373,9 @@ def _export_uff(frf, uff: Path, summary: dict, echo) -> None:
         # The measurement is safe in the HDF5 file; a label UFF cannot carry must not
         # turn a finished run into a failure.
         summary["uff_error"] = str(exc)
-        echo(f"warning: UFF export skipped: {exc}")
+        # Not through echo: that is the progress printout on stdout, which --quiet drops,
+        # and a warning goes to stderr whatever the printout (docs/formats.md).
+        print(f"warning: UFF export skipped: {exc}", file=sys.stderr, flush=True)
     else:
         summary["uff"] = str(uff)
         echo(f"exported {frf.n_out * frf.n_in} FRFs to {uff} (UFF 58)")

@@ -80,6 +80,11 @@ def _run(argv: Sequence[str] | None) -> int:
         return EXIT_INTERRUPTED
     try:
         args, extras = parser.parse_known_args(argv)
+        if args.command is None:
+            # COMMAND is checked here, not by argparse (which would say only that it is
+            # missing): "ssidlab --bogus" must name the option it does not know.
+            parser.error(f"unrecognized arguments: {' '.join(extras)}" if extras
+                         else "the following arguments are required: COMMAND")
         if extras:
             # Report stray options against the subcommand they were given to, so the message
             # reads "ssidlab identify: error: ..." rather than the bare program name.
@@ -155,7 +160,7 @@ def _build_parser() -> tuple[_Parser, dict[str, _Parser]]:
         allow_abbrev=False,  # abbreviations would silently change meaning as options are added
     )
     parser.add_argument("--version", action="version", version=f"ssidlab {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")  # required: checked in _run
     for add in _SUBCOMMANDS:
         add(sub)
     return parser, dict(sub.choices)

@@ -15,6 +15,7 @@ import argparse
 import json
 import os
 import re
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -145,6 +146,9 @@ def run_correlate(args: argparse.Namespace) -> int:
     summary = {"test_source": test_source, "analysis_source": analysis_source, **study.summary}
     summary["plots"] = _write_plots(study, args.plots) if args.plots is not None else []
     Path(args.json).write_text(json.dumps(jsonable(summary), indent=1) + "\n", encoding="utf-8")
+    # On stderr and also with --quiet (docs/formats.md), not in the table --quiet leaves out.
+    for w in summary.get("warnings", []):
+        print(f"warning: {w}", file=sys.stderr)
     if not args.quiet:
         print(pair_table(summary))
     return 0
@@ -243,7 +247,6 @@ def pair_table(summary: dict) -> str:
                      f"{summary['frf_gap']:.4g}, {summary['frf_gap_db']:.3g} dB rms")
     if summary.get("reactions", {}).get("text"):
         lines.append(summary["reactions"]["text"])
-    lines.extend(f"warning: {w}" for w in summary.get("warnings", []))
     return "\n".join(lines)
 
 

@@ -19,6 +19,7 @@ import argparse
 import json
 import math
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -134,6 +135,10 @@ def run_discrepancy(args: argparse.Namespace) -> int:
 
         data["plots"] = write_chart(args.plots, lambda path: write_plots(result, path), "the plots")
     Path(args.json).write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    # On stderr and also with --quiet (docs/formats.md): a warning such as "check the
+    # transducers' calibration" must not be lost with the summary.
+    for w in data.get("warnings", []):
+        print(f"warning: {w}", file=sys.stderr)
     if not args.quiet:
         print(summary_text(data))
     return 0
@@ -151,5 +156,4 @@ def summary_text(data: dict) -> str:
     for c in data["candidates"][:6]:
         cp = ", ".join(f"{k} = {v:.4g}" for k, v in c["parameters"].items())
         lines.append(f"  {c['delta_criterion']:>10.1f}  {c['effect']:<20} {' - '.join(c['dofs']):<14} {cp}")
-    lines.extend(f"warning: {w}" for w in data.get("warnings", []))
     return "\n".join(x for x in lines if x)

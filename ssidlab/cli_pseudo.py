@@ -153,8 +153,14 @@ def run_pseudo(args: argparse.Namespace) -> int:
         try:
             mck = pseudo_dof_mck(frf, model, n_keep=None if args.all_modes else frf.n_out)
         except IdentificationError as exc:
+            # The roots exist even when no model can be made of them: their JSON and plot are
+            # what the user needs to see why, so both are written before the refusal.
             write_json(args.json, out)
-            raise InputError(f"{args.frf}: no model ({exc}); the roots are in {args.json}") from None
+            where = args.json
+            if args.plot is not None:
+                write_chart(args.plot, lambda path: plot_partition_scan(path, res))
+                where += f" and {args.plot}"
+            raise InputError(f"{args.frf}: no model ({exc}); the roots are in {where}") from None
         n = frf.n_out
         dofs = list(frf.outputs) + [f"q{i}" for i in range(1, mck.M.shape[0] - n + 1)]
         write_model(args.out, Model(M=mck.M, K=mck.K, C=mck.C, dofs=dofs))

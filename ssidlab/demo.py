@@ -43,7 +43,7 @@ def run_demo(out_dir: str, echo=print) -> dict:
     """Run the demo, write its files to ``out_dir`` and return the JSON summary."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    echo("[1/4] simulated lab not built yet: synthesising the bundled example "
+    echo("[1/4] synthesising the bundled example instead of running the simulated lab "
          "(14 DOF, 3 shakers, 1024 lines, report noise model)")
     frf, M, C, K, dofs = example_frf()
     write_frf(str(out / "frf.h5"), frf)

@@ -184,11 +184,17 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
         "discrepancy_substructure": {k: sub[k] for k in ("effect", "dofs", "parameters", "gap_before",
                                                          "gap_after", "gap_metric", "reactions")},
         "runtime_s": time.monotonic() - t0,
-        "files": sorted(p.name for p in out.iterdir()),
+        "files": _files_written(out),
     }
     (out / "summary.json").write_text(json.dumps(jsonable(summary), indent=2) + "\n", encoding="utf-8")
     echo(f"done in {summary['runtime_s']:.0f} s: {out}/ " + ", ".join(summary["files"]))
     return summary
+
+
+def _files_written(out: Path) -> list[str]:
+    """The names in ``out`` once the demo is done, ``summary.json`` among them though the
+    list is made before it is written (it goes into that file)."""
+    return sorted({p.name for p in out.iterdir()} | {"summary.json"})
 
 
 def _plot_sweep(frf_path: Path, png: Path) -> None:

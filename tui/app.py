@@ -49,16 +49,19 @@ from daq.safety import resume_remedy
 from .results import RunResults, analyse_run, export_results
 from .results_pane import ResultsPane
 from .session import (
+    NO_INSTRUMENTS,
+    NO_LINE,
     Acquisition,
     LiveRun,
     ProgressParser,
     RunOutcome,
+    error_text,
     one_line,
     parse_event,
     run_file_choice,
     run_file_state,
 )
-from .setup_tab import SetupTabActions
+from .setup_tab import CHECK_PROMPT, SetupTabActions, typed_path
 from .setup_view import instruments_in_use_rows
 from .widgets import FrfPlot
 
@@ -99,6 +102,7 @@ class LabApp(SetupTabActions, App):
         self._initial = {"setup": setup_path or "", "out": out or "", "model": model or ""}
         self._initial_sim = sim
         self.setup = None  # daq.setup.TestSetup once loaded
+        self.model_error: str | None = None  # why the model file cannot serve the loaded setup
         self.acquisition: Acquisition | None = None
         self.outcome: RunOutcome | None = None
         self.live: LiveRun | None = None
@@ -122,10 +126,12 @@ class LabApp(SetupTabActions, App):
                 with Horizontal(classes="row"):
                     yield Label("Simulated lab")
                     yield Switch(self._initial_sim, id="sim")
-                    yield Static(self._sim_text(self._initial_sim), id="sim-state")
-                yield Static("", id="setup-error")
-                yield Static("no setup loaded", id="excitation")
-                yield Static("instruments (F4 checks the connections):", id="check-status")
+                    yield Static(self._sim_text(self._initial_sim), id="sim-state", markup=False)
+                # markup=False wherever text from outside is shown (paths, errors, setup names,
+                # run states): "[stepped_sine]" in an error is words, and "x[/].toml" no crash.
+                yield Static("", id="setup-error", markup=False)
+                yield Static("no setup loaded", id="excitation", markup=False)
+                yield Static(CHECK_PROMPT, id="check-status", markup=False)
                 yield DataTable(id="instruments", cursor_type="row", zebra_stripes=True)
                 yield DataTable(id="channels", cursor_type="row", zebra_stripes=True)
             with TabPane("Run F2", id="run"):
@@ -134,14 +140,14 @@ class LabApp(SetupTabActions, App):
                     yield Button("Pause F6", id="pause", disabled=True)
                     yield Button("Resume F7", id="resume", disabled=True)
                     yield Button("Abort F8", id="abort", variant="error", disabled=True)
-                yield Static("idle", id="run-status")
+                yield Static("idle", id="run-status", markup=False)
                 yield ProgressBar(total=1.0, show_eta=True, id="progress")
                 with Horizontal(id="live"):
                     yield FrfPlot(id="live-plot")
                     with Vertical(id="side"):
                         yield Select([], prompt="channel", id="channel", allow_blank=True)
-                        yield Static("no line measured yet", id="line-status")
-                        yield Static("instruments: waiting for the run", id="inst-status")
+                        yield Static(NO_LINE, id="line-status", markup=False)
+                        yield Static(NO_INSTRUMENTS, id="inst-status", markup=False)
                 yield RichLog(id="log", max_lines=5000, wrap=False, markup=False)
             with TabPane("Results F3", id="results"):
                 yield ResultsPane(id="results-scroll")
@@ -242,11 +248,12 @@ class LabApp(SetupTabActions, App):
             self.notify("a run is already in progress", severity="warning")
             return
         self.action_load()  # the file may have changed on disk since it was shown
-        if self.setup is None:
+        if self.setup is None or self.model_error:
             self.action_show_tab("setup")
-            self.notify("load a valid setup first", severity="error")
+            self.notify("load a valid setup first" if self.setup is None else "fix or clear the model file first",
+                        severity="error")
             return
-        out = self.query_one("#out-path", Input).value.strip() or self.setup.output_file
+        out = typed_path(self.query_one("#out-path", Input).value) or self.setup.output_file
         refusal, resume = run_file_choice(out)
         if refusal is not None:
             self.query_one("#setup-error", Static).update(f"error: {refusal}")
@@ -262,6 +269,9 @@ class LabApp(SetupTabActions, App):
         self.results_message = ""
         self.pause_pending = False
         self.live = LiveRun(self.setup.outputs, self.setup.inputs)
+        # The side panels said what the last run's last line and instruments did.
+        self.query_one("#line-status", Static).update(NO_LINE)
+        self.query_one("#inst-status", Static).update(NO_INSTRUMENTS)
         self.query_one(ResultsPane).clear("run in progress...")
         self.query_one("#log", RichLog).clear()
         self.query_one("#progress", ProgressBar).update(total=1.0, progress=0.0)
@@ -271,7 +281,7 @@ class LabApp(SetupTabActions, App):
         self._status(f"{'resuming' if resume else 'running'}: {out} ({'simulated lab' if sim else 'lab hardware'})")
         self._log(f"$ ssidlab acquire {self.setup.source} {'--resume' if resume else '--out'} {out}"
                   f"{' --sim' if sim else ''}{' --new-instruments' if new_instruments else ''}")
-        self._watch(self.acquisition, parser, self.setup, sim, self.query_one("#model-path", Input).value.strip())
+        self._watch(self.acquisition, parser, self.setup, sim, typed_path(self.query_one("#model-path", Input).value))
         self.action_show_tab("run")
         self._refresh_controls()
 
@@ -329,21 +339,24 @@ class LabApp(SetupTabActions, App):
     def _watch(self, acq: Acquisition, parser: ProgressParser, setup, sim: bool, model_path: str) -> None:
         """Worker thread: owns the acquisition subprocess until it has ended."""
         try:
-            acq.start()
+            if not acq.start():  # the app is closing: nothing started, nothing to stop
+                return
         except OSError as exc:
             self._from_worker(self._finished, RunOutcome(-1, False, acq.out, None), one_line(exc))
             return
+        error = None
         for line in acq.lines():
             ev = parse_event(line)
             if ev is not None:
                 self._from_worker(self._event, ev)
                 continue
             self._from_worker(self._log, line)
+            error = error_text(line) or error
             frac = parser.feed(line)
             if frac is not None:
                 self._from_worker(self._progress, frac)
         code = acq.wait()
-        outcome = RunOutcome(code, acq.abort_requested, acq.out, run_file_state(acq.out))
+        outcome = RunOutcome(code, acq.abort_requested, acq.out, run_file_state(acq.out), error)
         self._from_worker(self._finished, outcome, None)
         if outcome.complete:
             self._from_worker(self._results_status, "identifying M, C, K (SSID), correlating, "
@@ -364,7 +377,7 @@ class LabApp(SetupTabActions, App):
         if outcome.complete:
             self._progress(1.0)
         else:
-            resumable = outcome.state and outcome.state != "complete"
+            resumable = outcome.resumable
             how = "F5 resumes the run file"
             # F5 re-reads the setup file, and a resume may change the channels' range_volt and
             # the instruments' addresses (daq.resume): the same setup would meet the same fault.

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .session import one_line
+from .session import one_line, printable
 
-__all__ = ["ModeRow", "RunResults", "analyse_run", "export_results"]
+__all__ = ["ModeRow", "RunResults", "analyse_run", "export_results", "model_refusal"]
 
 
 @dataclass
@@ -54,8 +54,8 @@ class RunResults:
     def discrepancy_text(self) -> str:
         d = self.discrepancy
         if d is None:
-            return "discrepancy workflow: " + ("; ".join(n for n in self.notes if "discrepancy" in n)
-                                               or "no analysis model")
+            # The workflow's notes carry their own "discrepancy workflow: " already.
+            return "; ".join(n for n in self.notes if "discrepancy" in n) or "discrepancy workflow: no analysis model"
         if d["effect"] == "none":
             # The workflow's own words: "agrees within noise" only when the gap is at the noise.
             return (f"discrepancy workflow ({self.model_source}): no effect named: {d['residual']['text']} "
@@ -63,6 +63,38 @@ class RunResults:
         params = ", ".join(f"{k} {v:.4g}" for k, v in d["parameters"].items())
         return (f"discrepancy workflow ({self.model_source}): {d['effect']} at {', '.join(d['dofs'])} "
                 f"({params}); gap {d['gap_before']:.3g} -> {d['gap_after']:.3g} (noise-normalised RMS)")
+
+
+def model_refusal(model_path: str, setup) -> str | None:
+    """Why the model file cannot serve a run of ``setup``, as one line naming the file, or None.
+
+    Read as the Results tab will read it (``ssid.matrix_io.read_analysis_model``), so that a
+    file which is no model, or a model without the setup's response DOFs (MAC and the
+    discrepancy workflow both need every one), is refused before the run, not after it.
+
+    Parameters
+    ----------
+    model_path : str
+        The model file (model HDF5, MAT, OP4); "" for none, which is always fine.
+    setup : daq.setup.TestSetup
+        The loaded setup; its ``outputs`` are the response DOFs of the run's FRFs.
+    """
+    if not model_path:
+        return None
+    from ssid.matrix_io import read_analysis_model
+
+    try:
+        model = read_analysis_model(model_path)
+    except Exception as exc:  # noqa: BLE001 -- whatever the reader says is the one line
+        why = one_line(exc)
+        return why if model_path in str(exc) else f"{printable(model_path)}: {why}"
+    missing = [d for d in setup.outputs if d not in set(model.dofs)]
+    if not missing:
+        return None
+    n = len(setup.outputs)
+    which = f"has none of the setup's {n}" if len(missing) == n else f"lacks {len(missing)} of the setup's {n}"
+    return (f"{printable(model_path)}: the model {which} response DOFs ({missing[0]!r} first); "
+            f"MAC and the discrepancy workflow need them all")
 
 
 def _models(setup, sim: bool, model_path: str | None):

@@ -27,18 +27,19 @@ class ResultsPane(VerticalScroll):
     with the other tabs' (tui/app.tcss)."""
 
     def compose(self) -> ComposeResult:
-        yield Static("no results yet: run a test first", id="results-status")
+        # markup=False: run states, errors, paths and the discrepancy finding are shown as written
+        yield Static("no results yet: run a test first", id="results-status", markup=False)
         with Horizontal(id="tables"):
             yield DataTable(id="modes", cursor_type="row", zebra_stripes=True)
             yield DataTable(id="mac", cursor_type="row", zebra_stripes=True)
-        yield Static("", id="discrepancy")
+        yield Static("", id="discrepancy", markup=False)
         yield Select([], prompt="channel", id="result-channel", allow_blank=True)
         yield FrfPlot(id="overlay")
         with Horizontal(id="export-buttons"):
             yield Button("HDF5 h", id="export-hdf5", disabled=True)
             yield Button("UFF u", id="export-uff", disabled=True)
             yield Button("PNG p", id="export-png", disabled=True)
-        yield Static("", id="export-status")
+        yield Static("", id="export-status", markup=False)
 
     def on_mount(self) -> None:
         self.query_one("#modes", DataTable).add_columns("mode", "f [Hz]", "zeta %", "MPC")

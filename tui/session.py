@@ -24,22 +24,45 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from daq.control import parse_event_line as parse_event  # the run's event lines (ssidlab acquire --events)
 
-__all__ = ["Acquisition", "LiveRun", "ProgressParser", "RunOutcome", "one_line",
-           "parse_event", "run_file_choice", "run_file_state"]
+__all__ = ["EXIT_BAD_INPUT", "NO_INSTRUMENTS", "NO_LINE", "Acquisition", "LiveRun", "ProgressParser", "RunOutcome",
+           "error_text", "one_line", "parse_event", "printable", "run_file_choice", "run_file_state"]
+
+#: ``ssidlab acquire`` refused its input (setup, run file, options) before measuring anything.
+EXIT_BAD_INPUT = 2
 
 #: Exit statuses of ``ssidlab acquire`` (docs/acquisition.md).
-EXIT_TEXT = {0: "complete", 2: "bad input", 3: "stopped safely by a fault", 130: "interrupted (safe)"}
+EXIT_TEXT = {0: "complete", EXIT_BAD_INPUT: "refused (bad input)", 3: "stopped safely by a fault",
+             130: "interrupted (safe)"}
+
+#: The Run tab's side panels before a run's first line, and before its first instrument state.
+NO_LINE = "no line measured yet"
+NO_INSTRUMENTS = "instruments: waiting for the run"
+
+# The one line a refused or failed command writes (ssidlab/cli.py): "ssidlab acquire: error: ..."
+_ERROR_LINE = re.compile(r"^ssidlab\b[^:]*: ((?:internal )?error: .*\S)\s*$")
+
+
+def error_text(line: str) -> str | None:
+    """The ``error: ...`` (or ``internal error: ...``) part of a command's error line, else None."""
+    m = _ERROR_LINE.match(line)
+    return m.group(1) if m else None
+
+
+def printable(text: str) -> str:
+    """``text`` with each control character (a NUL in a typed path, a tab) written as its escape."""
+    return "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)
 
 
 def one_line(exc: BaseException) -> str:
     """An error as one line of a status field (its lines joined; its type if it says nothing)."""
-    return " ".join(str(exc).splitlines()) or type(exc).__name__
+    return printable(" ".join(str(exc).splitlines())) or type(exc).__name__
 
 
 class Acquisition:
@@ -55,6 +78,10 @@ class Acquisition:
         self.new_instruments = new_instruments and resume  # take on a replaced instrument
         self.proc: subprocess.Popen[str] | None = None
         self.abort_requested = False
+        # A quit may come between the run's creation and its worker's start: once shutdown
+        # has begun, start must not spawn a run that nothing would stop (checked under the lock).
+        self._lock = threading.Lock()
+        self._closing = False
 
     @property
     def argv(self) -> list[str]:
@@ -66,12 +93,17 @@ class Acquisition:
             argv.append("--new-instruments")
         return argv
 
-    def start(self) -> None:
+    def start(self) -> bool:
+        """Start the subprocess; False (nothing started) once :meth:`shutdown` has begun."""
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        # Own session: a Ctrl-C typed into the terminal reaches the TUI only; the TUI decides.
-        self.proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.PIPE, text=True, bufsize=1, env=env,
-                                     start_new_session=True)
+        with self._lock:
+            if self._closing:
+                return False
+            # Own session: a Ctrl-C typed into the terminal reaches the TUI only; the TUI decides.
+            self.proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                         stdin=subprocess.PIPE, text=True, bufsize=1, env=env,
+                                         start_new_session=True)
+        return True
 
     def _send(self, command: str) -> bool:
         if not self.running or self.proc is None or self.proc.stdin is None:
@@ -117,7 +149,10 @@ class Acquisition:
         return True
 
     def shutdown(self, grace_s: float = 15.0) -> None:
-        """Stop and reap the subprocess: SIGINT (safe stop), then SIGKILL after ``grace_s``."""
+        """Stop and reap the subprocess: SIGINT (safe stop), then SIGKILL after ``grace_s``.
+        A subprocess not started yet never starts."""
+        with self._lock:
+            self._closing = True
         if self.proc is None:
             return
         if self.proc.poll() is None:
@@ -190,10 +225,18 @@ class RunOutcome:
     aborted: bool
     file: str
     state: str | None  # the run file's /acq state, when readable
+    error: str | None = None  # the run's last "error: ..." line (error_text), the why of a refusal
 
     @property
     def complete(self) -> bool:
         return self.returncode == 0
+
+    @property
+    def resumable(self) -> bool:
+        """Whether F5 (a resume) is the way on: an unfinished run file, and a run that got as
+        far as measuring. A refused run (bad input) would be refused again until its cause
+        (the setup file, the switch) has changed: its error says which."""
+        return bool(self.state) and self.state != "complete" and self.returncode != EXIT_BAD_INPUT
 
     def summary(self) -> str:
         what = EXIT_TEXT.get(self.returncode, f"failed (exit status {self.returncode})")
@@ -201,8 +244,9 @@ class RunOutcome:
             what = "stopped, SAFE STATE NOT CONFIRMED: check the generators and amplifiers"
         if self.aborted and self.returncode != 0:
             what = f"aborted: {what}"
+        why = f": {self.error}" if self.error and self.returncode != 0 else ""
         tail = f"; run file state {self.state!r}" if self.state else ""
-        return f"run {what}{tail}"
+        return f"run {what}{why}{tail}"
 
 
 def run_file_state(path: str | Path) -> str | None:
@@ -301,7 +345,7 @@ class LiveRun:
         """The current line for the status panel: level, drive, distortion, limit use."""
         ev = self.last_line
         if not ev:
-            return "no line measured yet"
+            return NO_LINE
         if ev["event"] == "spectrum":
             head = f"average {ev['n_avg']}/{ev['averages']}"
         else:
@@ -330,4 +374,4 @@ class LiveRun:
                 parts.append(f"{name} INTERLOCK OPEN")
             else:
                 parts.append(f"{name} {'on' if st.get('enabled') else 'off'}, interlock ok")
-        return "; ".join(x for x in [head, ", ".join(parts)] if x) or "instruments: waiting for the run"
+        return "; ".join(x for x in [head, ", ".join(parts)] if x) or NO_INSTRUMENTS

@@ -3,19 +3,23 @@ setup file (Ctrl+L, Enter in a path field), create one from the simulated lab's 
 (Ctrl+N), check the instruments (F4), and the simulated-lab switch.
 
 Kept apart from the run and the results so that ``tui/app.py`` stays the screen's wiring. The
-methods use the app's widgets (by id) and its state: ``setup``, ``channel`` and ``running``.
+methods use the app's widgets (by id) and its state: ``setup``, ``model_error``, ``channel``
+and ``running``.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
+import os
 
+from rich.markup import escape
+from rich.text import Text
 from textual import work
 from textual.widgets import DataTable, Input, Select, Static, Switch
 
 from daq.check import check_lab
 
-from .session import one_line
+from .results import model_refusal
+from .session import one_line, printable
 from .setup_view import (
     channel_options,
     channel_rows,
@@ -24,7 +28,43 @@ from .setup_view import (
     describe_setup,
 )
 
-__all__ = ["SetupTabActions"]
+__all__ = ["CHECK_PROMPT", "SetupTabActions", "typed_path"]
+
+#: The instrument check's line before a check (F4) of the setup as loaded.
+CHECK_PROMPT = "instruments (F4 checks the connections):"
+
+
+def typed_path(value: str) -> str:
+    """A path as typed in a field: stripped, a leading ``~`` expanded; "" for an empty field."""
+    text = value.strip()
+    return os.path.expanduser(text) if text else ""
+
+
+def plain_cells(row: tuple[str, ...]) -> tuple[str, ...]:
+    """A table row shown as written: DataTable parses its string cells as markup, and the
+    cells come from the setup file and the instruments' replies."""
+    return tuple(escape(str(cell)) for cell in row)
+
+
+def _naming(path: str, exc: BaseException) -> str:
+    """An error on ``path`` as one line that names the file (some, as a NUL byte's, do not)."""
+    if isinstance(exc, OSError) and exc.strerror:  # "[Errno 2] ...: 'path'" said once, plainly
+        return f"{printable(path)}: {exc.strerror}"
+    why = one_line(exc)
+    return why if path in str(exc) else f"{printable(path)}: {why}"
+
+
+def _new_file_refusal(path: str) -> str | None:
+    """Why Ctrl+N must not write ``path``, or None. Only a path where nothing is, not even a
+    symbolic link to a missing file (writing through it would create a file elsewhere)."""
+    if not path:
+        return "enter a path for the new setup file (Ctrl+N writes the example setup there)"
+    shown = printable(path)
+    if os.path.islink(path) and not os.path.exists(path):
+        return f"{shown} is a symbolic link to a missing file: not written through"
+    if os.path.lexists(path):
+        return f"{shown} exists: not overwritten (Ctrl+L loads it)"
+    return None
 
 
 class SetupTabActions:
@@ -39,67 +79,95 @@ class SetupTabActions:
             self.query_one("#sim-state", Static).update(self._sim_text(event.value))
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
-        if event.input.id in ("setup-path", "out-path", "model-path"):
-            self.action_load()
+        if event.input.id not in ("setup-path", "out-path", "model-path"):
+            return
+        if self.running:  # the screen shows the run's setup and instruments until it ends
+            self.notify("a run is in progress: Enter loads the setup once it has ended", severity="warning")
+            return
+        self.action_load()
 
     def action_load(self) -> None:
+        """Load the setup file in the path field and check the model file against it."""
         from daq.setup import load_setup
         from ssid.errors import InputError
 
-        path = self.query_one("#setup-path", Input).value.strip()
-        err = self.query_one("#setup-error", Static)
-        table = self.query_one("#channels", DataTable)
-        table.clear()
-        self.setup = None
+        path = typed_path(self.query_one("#setup-path", Input).value)
         if not path:
-            err.update("error: enter a setup file path")
-            self.query_one("#excitation", Static).update("no setup loaded")
+            self._show_no_setup("error: enter a setup file path")
             return
         try:
             setup = load_setup(path)
         except (InputError, OSError, ValueError) as exc:
-            err.update(f"error: {one_line(exc)}")
-            self.query_one("#excitation", Static).update("no setup loaded")
+            self._show_no_setup(f"error: {_naming(path, exc)}")
             return
+        self._show_setup(setup)
+
+    def _show_no_setup(self, error: str) -> None:
+        """No setup on the screen, ``error`` saying why: nothing shown is from another file."""
+        self.setup = None
+        self.model_error = None
+        self.query_one("#setup-error", Static).update(error)
+        self.query_one("#excitation", Static).update("no setup loaded")
+        self.query_one("#channels", DataTable).clear()
+        self._fill_instruments([])
+        self.query_one("#check-status", Static).update(CHECK_PROMPT)
+
+    def _show_setup(self, setup) -> None:
         self.setup = setup
-        err.update("")
-        table.add_rows(channel_rows(setup))
+        table = self.query_one("#channels", DataTable)
+        table.clear()
+        table.add_rows([plain_cells(r) for r in channel_rows(setup)])
         self.query_one("#excitation", Static).update(describe_setup(setup))
         out = self.query_one("#out-path", Input)
         if not out.value.strip():
             out.value = setup.output_file
+        # The instruments as the file gives them: an earlier check's verdict is not theirs.
         self._fill_instruments(configured_instrument_rows(setup))
-        options = channel_options(setup)
+        self.query_one("#check-status", Static).update(CHECK_PROMPT)
+        self._set_channels(channel_options(setup), setup)
+        self.model_error = model_refusal(typed_path(self.query_one("#model-path", Input).value), setup)
+        self.query_one("#setup-error", Static).update(f"error: {self.model_error}" if self.model_error else "")
+
+    def _set_channels(self, options: list[tuple[str, tuple[int, int]]], setup) -> None:
         if self.channel not in {v for _, v in options}:  # keep the engineer's choice across reloads
             self.channel = (setup.outputs.index(setup.inputs[0]), 0) if setup.inputs[0] in setup.outputs else (0, 0)
         for sel_id in ("#channel", "#result-channel"):
             sel = self.query_one(sel_id, Select)
-            sel.set_options(options)
+            sel.set_options([(Text(label), value) for label, value in options])  # DOF names, not markup
             sel.value = self.channel
 
     def action_new(self) -> None:
         """Create the setup file in the path field from the simulated lab's example, then load it."""
         from daq.simlab import example_setup_text
 
-        path = Path(self.query_one("#setup-path", Input).value.strip() or "setup.toml")
-        err = self.query_one("#setup-error", Static)
-        if path.exists():
-            err.update(f"error: {path} exists: not overwritten (Ctrl+L loads it)")
+        path = typed_path(self.query_one("#setup-path", Input).value)
+        refusal = _new_file_refusal(path)
+        if refusal is None:
+            try:
+                # "x": never over a file, whatever appeared since the check above
+                with open(path, "x", encoding="utf-8") as f:
+                    f.write(example_setup_text())
+            except (OSError, ValueError) as exc:
+                refusal = _naming(path, exc)
+        if refusal is not None:
+            self._new_refused(path, f"error: {refusal}")
             return
-        try:
-            path.write_text(example_setup_text(), encoding="utf-8")
-        except OSError as exc:
-            err.update(f"error: {path}: {one_line(exc)}")
-            return
-        self.query_one("#setup-path", Input).value = str(path)
         self.action_load()
-        self.notify(f"created {path} from the example setup: edit it for your lab, Ctrl+L reloads")
+        self.notify(f"created {printable(path)} from the example setup: edit it for your lab, Ctrl+L reloads",
+                    markup=False)
+
+    def _new_refused(self, path: str, error: str) -> None:
+        """Say why Ctrl+N wrote nothing; a setup shown stays only if it is the field's file."""
+        if self.setup is not None and self.setup.source == path:
+            self.query_one("#setup-error", Static).update(error)
+        else:
+            self._show_no_setup(error)
 
     def _fill_instruments(self, rows: list[tuple[str, str, str, str, str]]) -> None:
         t = self.query_one("#instruments", DataTable)
         t.clear()
         for r in rows:
-            t.add_row(*r)
+            t.add_row(*plain_cells(r))
 
     def action_check(self, reset_faults: bool = False) -> None:
         """F4: check the instruments; Ctrl+F: reset the amplifiers' latched faults first (the
@@ -113,7 +181,8 @@ class SetupTabActions:
             return
         self.action_show_tab("setup")
         self.query_one("#check-status", Static).update(
-            "resetting latched amplifier faults, checking instruments..." if reset_faults else "checking instruments...")
+            "resetting latched amplifier faults, checking instruments..." if reset_faults
+            else "checking instruments...")
         self._check(self.setup, self.query_one("#sim", Switch).value, reset_faults)
 
     @work(thread=True, exclusive=True, group="check")

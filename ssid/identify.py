@@ -31,6 +31,7 @@ from .modal import (
 from .noise import data_noise_weights, frf_noise_weights
 from .reciprocity import reciprocity_check
 from .rigid_body import choose_rigid_body_modes
+from .solvers import power_of_two_near
 from .step1 import Step1Data, Step1Estimate, estimate_equation_error, reaction_transfer, step1_data
 from .step1_ml import step1_maximum_likelihood
 from .step1_refine import output_error_cost
@@ -289,11 +290,25 @@ def _hard_problems(modes, M: np.ndarray, K: np.ndarray) -> int:
     )
 
 
+# Largest |H| (valid values) inside which step 1 works on the data as they are. Outside, it works
+# on H divided by the power of two nearest that largest value and scales M^-1 D back: the
+# equation-error starts (the report's TLS) are not invariant to the scale of H beside the unit
+# columns of D, and the starts' output errors (squared weighted residuals) left float64 at
+# |H| ~ 1e-90, where band processing then found 14 of the 15 modes it finds at |H| ~ 1. Inside
+# (1e-12 to 1e12: accelerances in any unit a lab uses) nothing is scaled, and results stay bit for
+# bit what they were.
+_STEP1_UNSCALED_LARGEST_H = (2.0**-40, 2.0**40)
+
+
 def identify_step1(
     frf: FRFData, solver: str = "ml", candidates: dict | None = None, restart_real_roots: bool = True,
     low_line_starts: bool = True, search_above_band: bool = True, model_error_levels: bool = True,
 ) -> tuple[Step1Estimate, Step1Data, dict]:
     """Step 1 of SSID on all lines of ``frf``: ``M^-1 C, M^-1 K, M^-1 D`` (Eqs. 3.6-3.9).
+
+    Data whose largest |H| lies far from 1 (outside 2^-40 to 2^40) are fitted divided by a power
+    of two near it, exactly, and the estimates, the arranged data and the starts come back in
+    the data's own scale (``_STEP1_UNSCALED_LARGEST_H``).
 
     Returns the estimate, the arranged data with the noise weights the solver used (step 2
     and band processing reuse them), and ``info`` (with a ``warnings`` list). With ``ml``,
@@ -318,6 +333,33 @@ def identify_step1(
     """
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
+    valid = frf.valid_mask()
+    largest = float(np.max(np.abs(np.where(valid, np.nan_to_num(frf.H), 0.0)), initial=0.0))
+    lo, hi = _STEP1_UNSCALED_LARGEST_H
+    unit = power_of_two_near(largest)
+    options = (restart_real_roots, low_line_starts, search_above_band, model_error_levels)
+    if largest == 0.0 or lo <= largest <= hi or unit == 1.0:
+        return _identify_step1(frf, solver, candidates, *options)
+    scaled = replace(frf, H=frf.H / unit, H_var=None if frf.H_var is None else frf.H_var / unit**2)
+    starts: dict | None = None if candidates is None else {}
+    est, d, info = _identify_step1(scaled, solver, starts, *options)
+    if candidates is not None:
+        candidates.update({name: _step1_in_scale(e, unit) for name, e in starts.items()})
+    # Weights are 1/sigma up to a common factor shared with the reactions' (not scaled).
+    return _step1_in_scale(est, unit), replace(d, H=d.H * unit, weight=d.weight / unit), info
+
+
+def _step1_in_scale(est: Step1Estimate, unit: float) -> Step1Estimate:
+    """A step-1 estimate of H / ``unit`` for H itself: ``M^-1 C``, ``M^-1 K`` do not depend on the
+    scale of H; ``M^-1 D_f``, ``M^-1 D_r`` scale with it (the accelerance is ``M^-1`` times forces)."""
+    return Step1Estimate(est.C_hat, est.K_hat, est.Df_hat * unit, est.Dr_hat * unit)
+
+
+def _identify_step1(
+    frf: FRFData, solver: str, candidates: dict | None, restart_real_roots: bool, low_line_starts: bool,
+    search_above_band: bool, model_error_levels: bool,
+) -> tuple[Step1Estimate, Step1Data, dict]:
+    """:func:`identify_step1` on data of any scale (the arguments are its own)."""
     valid = frf.valid_mask()
     weights = frf_noise_weights(frf)
     info: dict = {"n_lines": frf.n_freq, "n_values_blanked": int(np.count_nonzero(~valid))}

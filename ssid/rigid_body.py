@@ -57,7 +57,7 @@ from .step1_refine import output_error_cost
 from .step2 import ScaleFactors, StateSpaceModes, assemble_mck, fit_scale_factors
 
 __all__ = ["RIGID_BODY_SIGNIFICANCE", "rigid_body_clusters", "with_rigid_body_modes", "near_rigid_modes",
-           "choose_rigid_body_modes"]
+           "definiteness_problems", "choose_rigid_body_modes"]
 
 #: Significance level of the likelihood-ratio test: roots below the band are kept as they are
 #: (K not singular there) only when the data contradict rigid-body modes at this level.
@@ -143,6 +143,13 @@ def near_rigid_modes(rigid: StateSpaceModes, C_hat: np.ndarray, K_hat: np.ndarra
                            near_rigid_kc=(phi0.T @ K_hat @ phi0, phi0.T @ C_hat @ phi0))
 
 
+def definiteness_problems(M: np.ndarray, K: np.ndarray) -> int:
+    """How many of (M not positive definite, K not positive semi-definite) hold: 0, 1 or 2.
+    K's eigenvalues down to -1e-9 of its largest are round-off on rigid-body modes."""
+    ev_m, ev_k = np.linalg.eigvalsh(M), np.linalg.eigvalsh(K)
+    return int(ev_m.min() <= 0) + int(ev_k.min() < -1e-9 * np.abs(ev_k).max())
+
+
 def _written_assembly_score(d: Step1Data, modes: StateSpaceModes, fit: ScaleFactors) -> tuple[int, float]:
     """``(problems, output error)`` of the M, C, K that Eq. 3.26 writes from ``modes`` and ``fit``:
     how many of (M not positive definite, K not positive semi-definite) hold, and the weighted
@@ -153,8 +160,7 @@ def _written_assembly_score(d: Step1Data, modes: StateSpaceModes, fit: ScaleFact
         M_inv = np.linalg.inv(M)
     except (IdentificationError, np.linalg.LinAlgError):
         return 2, np.inf
-    ev_m, ev_k = np.linalg.eigvalsh(M), np.linalg.eigvalsh(K)
-    problems = int(ev_m.min() <= 0) + int(ev_k.min() < -1e-9 * np.abs(ev_k).max())
+    problems = definiteness_problems(M, K)
     # The step-1 form of the written model: M^-1 C, M^-1 K and the forces' M^-1 D_f, M^-1 D_r.
     cost = output_error_cost(d, Step1Estimate(M_inv @ C, M_inv @ K, M_inv[:, d.in_idx], M_inv[:, d.r_idx]))
     return problems, cost

@@ -144,7 +144,8 @@ _CONSTANT_RTOL = 1e-12
 
 
 def require_response(frf: FRFData, source: str = "FRF data") -> None:
-    """Refuse FRFs that no analysis can use: nothing valid, no response, a dead channel or load cell.
+    """Refuse FRFs that no analysis can use: not the FRF layout (:func:`ssid.io.validate_frf`),
+    nothing valid, no response, a dead channel or load cell.
 
     An output DOF whose every valid value is zero (over all inputs and lines) is an
     accelerometer that measured nothing: unwired, dead, or a wrong channel map. An identified
@@ -167,6 +168,11 @@ def require_response(frf: FRFData, source: str = "FRF data") -> None:
     InputError
         The first problem found, as one line starting with ``source``.
     """
+    # The layout first: FRFData built in Python never went through the file reader, and an input
+    # not among the outputs or a NaN not marked invalid would end in an internal error.
+    from ssid.io.frf_file import validate_frf  # here: ssid.io imports this module
+
+    validate_frf(frf, source)
     valid = frf.valid_mask()
     if not valid.any():
         raise InputError(f"{source}: every H value is marked invalid: nothing to analyse")

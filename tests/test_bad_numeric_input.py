@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
 import numpy as np
 import pytest
@@ -25,7 +26,7 @@ from conftest import DOFS, chain_frf, chain_model, one_error_line
 
 from ssid.correlate import check_orthogonality
 from ssid.errors import IdentificationError, InputError
-from ssid.frf import FRFData, require_frequency_dependence, require_response
+from ssid.frf import FRFData, accelerance_from_model, require_frequency_dependence, require_response
 from ssid.frf_compare import MIN_COMMON_LINES, compare_curves, compare_frfs
 from ssid.identify import identify_mck
 from ssid.io import Model, write_frf, write_model
@@ -301,3 +302,27 @@ def test_a_correlation_with_no_pair_says_so_and_writes_no_placeholders(tmp_path,
     assert xo["min_abs_diag"] is None and xo["max_abs_offdiag"] is None and xo["worst_offdiag"] is None, xo
     empty = check_orthogonality(np.zeros((0, 0)))
     assert not empty.passed and np.isnan(empty.min_diag) and empty.worst_offdiag is None
+
+
+@pytest.mark.parametrize("case, message", [
+    ("input not measured", "inputs label '1+Z' is not among outputs"),
+    ("NaN not blanked", "H holds NaN or Inf in 1 value(s)"),
+    ("descending lines", "freq_hz must be strictly increasing"),
+])
+def test_frf_data_built_in_python_gets_the_readers_checks(case, message):
+    """FRFData built in Python (not read from a file) reached the fits unchecked: an input DOF
+    not among the outputs raised "ValueError: '1+Z' is not in list", a NaN without a
+    ``valid`` mask scipy's "array must not contain infs or NaNs", and descending lines "no
+    frequency lines between 60 and 2 Hz"."""
+    a = chain_frf()
+    if case == "input not measured":
+        model = chain_model()
+        bad = accelerance_from_model(model.M, model.C, model.K, model.dofs, a.freq_hz, DOFS[1:], ["1+Z"])
+    elif case == "NaN not blanked":
+        H = a.H.copy()
+        H[10, 1, 0] = np.nan
+        bad = dataclasses.replace(a, H=H)
+    else:
+        bad = dataclasses.replace(a, freq_hz=a.freq_hz[::-1].copy(), H=a.H[::-1].copy())
+    with pytest.raises(InputError, match=re.escape(message)):
+        identify_mck(bad)

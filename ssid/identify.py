@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import IdentificationError
-from .fit_checks import misfit_warning, relative_noise_level, unresolved_damping_warning
+from .fit_checks import misfit_warning, modes_not_held_warning, relative_noise_level, unresolved_damping_warning
 from .frf import FRFData, accelerance_under_test_loads, require_frequency_dependence, require_response
 from .jsonutil import to_jsonable
 from .modal import (
@@ -278,6 +278,18 @@ def _real_roots_warning(real_roots: np.ndarray, m: int, n: int, n_rigid: int, ri
     return f"{said} (noise or too few modes in the band)"
 
 
+def _written_root_freq_hz(M: np.ndarray, C: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Natural frequencies ``|lambda| / 2 pi`` of the written M, C, K's oscillatory roots (Hz),
+    rigid-body modes (at 0) left out; empty when M is singular or the roots are not in pairs."""
+    try:
+        M_inv = np.linalg.inv(M)
+        modes = state_space_modes(M_inv @ C, M_inv @ K)
+    except (np.linalg.LinAlgError, IdentificationError):
+        return np.zeros(0)
+    wn, _ = root_frequency_damping(modes.lam[: modes.n_pairs])
+    return wn / (2 * np.pi)
+
+
 def _hard_problems(modes, M: np.ndarray, K: np.ndarray) -> int:
     """How many ways a model is not physical: real roots, negative damping, M not positive
     definite, K not positive semi-definite (each counts once)."""
@@ -507,7 +519,8 @@ def identify_mck(
     warnings.extend(chk_warn)
     noise = relative_noise_level(data, w)
     warnings.extend(said for said in (misfit_warning(checks["frf_relative_rms_error"], noise),
-                                      unresolved_damping_warning(data.freq_hz, wn / (2 * np.pi), zeta, noise))
+                                      unresolved_damping_warning(data.freq_hz, wn / (2 * np.pi), zeta, noise),
+                                      modes_not_held_warning(wn / (2 * np.pi), _written_root_freq_hz(M, C, K)))
                     if said)
     return SSIDResult(
         M=M,

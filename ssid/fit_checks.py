@@ -90,9 +90,9 @@ def modes_not_held_warning(root_freq_hz: np.ndarray, written_root_freq_hz: np.nd
     if rel[k] <= MODES_HELD_RTOL:
         return None
     return (f"the written M, C, K do not hold the identified modes: their mode {k + 1} is at "
-            f"{g[k]:.6g} Hz, the identified root at {f[k]:.6g} Hz ({100 * rel[k]:.3g} % off); the "
-            "roots are what the data determine, and the matrices are less certain than they (noise "
-            "on the modal scale factors of step 2): use the matrices with care")
+            f"{g[k]:.6g} Hz, the identified root at {f[k]:.6g} Hz ({100 * rel[k]:.3g} % off): the "
+            "roots are what the data determine, and the matrices, written from them with modal scale "
+            "factors fitted to the same noisy lines, are less certain: use them with care")
 
 
 #: Below this share of the response at the nearest line, a resonance's damping is taken as

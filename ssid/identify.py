@@ -520,6 +520,8 @@ def identify_mck(
     noise = relative_noise_level(data, w)
     warnings.extend(said for said in (misfit_warning(checks["frf_relative_rms_error"], noise),
                                       unresolved_damping_warning(data.freq_hz, wn / (2 * np.pi), zeta, noise),
+                                      # M not definite: the physical checks have said more already
+                                      None if phi is None else
                                       modes_not_held_warning(wn / (2 * np.pi), _written_root_freq_hz(M, C, K)))
                     if said)
     return SSIDResult(

@@ -46,6 +46,9 @@ DEBUG_ENV = "SSIDLAB_DEBUG"
 
 SOLVERS = ("ml", "ls", "tls", "stls")
 DAMPING_CHOICES = ("auto", "identified", "modal")  # ssid.identify.DAMPING_OPTIONS
+# What each written C is, for the summary line (docs/formats.md, identify's damping_matrix).
+_DAMPING_WORDS = {"identified": " (Eq. 3.15)", "modal": " (the roots' damping ratios on the real modes)",
+                  "step1": " (step 1's M^-1 C on the written M)"}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -260,8 +263,9 @@ def _run_identify(args: argparse.Namespace) -> int:
         print(_mode_table(summary))
         err = (summary.get("checks") or {}).get("frf_relative_rms_error")
         if err is not None:
-            print(f"written model: damping matrix {summary.get('damping_matrix')}; its FRFs differ from the "
-                  f"data by {_fmt(err, 100.0, '.3g')} % (relative RMS over the band)")
+            which = summary.get("damping_matrix")
+            print(f"written model: damping matrix {which}{_DAMPING_WORDS.get(which, '')}; its FRFs differ "
+                  f"from the data by {_fmt(err, 100.0, '.3g')} % (relative RMS over the band)")
     return EXIT_OK
 
 

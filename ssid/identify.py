@@ -232,7 +232,9 @@ def _choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, z
     non-proportional dampers, one input and noise (2-8 DOFs, the report's or 1 % Gaussian),
     step 2's scale factors carried noise into the other two (the one kept 1.2-55 % off the
     true C); on five records of six ``M C^`` predicted the data better than both, 0.4-14 % off,
-    and on the sixth (8 DOFs) the modal C stayed. When the identified model is not one
+    and on the sixth (8 DOFs) the modal C stayed. It is offered only when it is a damping
+    matrix (positive semi-definite): on one of the five (6 DOFs) it had a negative eigenvalue,
+    and the modal C, 30 % off, is written instead. When the identified model is not one
     second-order system (a reduced-order model whose scale factors cannot make the three
     copies of M in A_s agree, ``mass_copies_mismatch``), the partition's C does not carry
     the roots' damping: on the payload's 10-DOF models, noise-free, its own modes were 39-457 %
@@ -254,7 +256,12 @@ def _choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, z
     if damping in ("auto", "modal") and modal_possible:
         options["modal"] = modal_damping_matrix(M, K, zeta)
     if damping == "auto" and C_step1 is not None:
-        options["step1"] = (C_step1 + C_step1.T) / 2
+        C1 = (C_step1 + C_step1.T) / 2
+        ev = np.linalg.eigvalsh(C1)
+        # Offered only as a damping matrix (no motion gains energy): a new candidate must not
+        # bring a non-physical C that the other two would not have.
+        if ev.min() >= -1e-9 * np.abs(ev).max():
+            options["step1"] = C1
     if damping != "auto":
         options = {damping: options[damping]}
     cost, rel = {}, {}

@@ -416,6 +416,29 @@ def test_auto_damping_takes_step1_damping_where_step2_carries_noise_into_c():
     assert rel(identify_mck(report_noise_frf(frf, seed=1), damping="modal").C, C) > 0.3
 
 
+def test_auto_damping_does_not_offer_a_step1_damping_that_is_not_one():
+    """The same kind of chain with 6 DOFs (numpy seed 3), the report's noise (seed 1): step 1's
+    M C^ is 12 % off the true C and predicts the data better than the modal C, but one of its
+    eigenvalues is negative (-0.51 against a largest 16.7): a motion that gains energy. It is
+    not offered, and the modal C (30 % off, positive definite) is written."""
+    import scipy.linalg as sla
+
+    from ssid.models.lumped import chain_model
+
+    rng = np.random.default_rng(3)
+    m, kb = rng.uniform(0.5, 2.0, 6), rng.uniform(0.5, 1.5, 5) * 1e5
+    kg, cg = np.zeros(6), np.zeros(6)
+    kg[0], cg[-1] = 1e5, 5.0
+    M, C, K, dofs = chain_model(m, kb, kg, rng.uniform(0.2, 1.0, 5) * 6.0, cg)
+    f_n = np.sqrt(sla.eigh(K, M, eigvals_only=True)) / (2 * np.pi)
+    frf = accelerance_from_model(M, C, K, dofs, np.linspace(0.3 * f_n.min(), 1.5 * f_n.max(), 400), dofs, [dofs[0]])
+    r = identify_mck(report_noise_frf(frf, seed=1))
+    C1 = r.M @ r.step1[0].C_hat
+    assert np.linalg.eigvalsh((C1 + C1.T) / 2).min() < 0  # the candidate there would have been
+    assert "step1" not in r.info["damping_choice"]["weighted_output_error"]
+    assert r.damping == "modal" and np.linalg.eigvalsh(r.C).min() > 0
+
+
 def test_auto_damping_gives_reduced_order_model_the_identified_damping():
     # 5 of 14 DOFs measured, 1-66 Hz (five modes; the roots hold four of them, 9.8, 21.5,
     # 48.0 and 58.7 Hz, and one above the band), 2 % modal damping, noise-free. Those four

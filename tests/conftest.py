@@ -226,6 +226,16 @@ def ssidlab(capsys):
     return run
 
 
+def reap(proc) -> None:
+    """Kill ``proc`` (a subprocess.Popen with text pipes) if a failed test left it running, and
+    close its pipes."""
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait(timeout=5)
+    proc.stdout.close()
+    proc.stderr.close()
+
+
 def one_error_line(err: str, command: str) -> str:
     """The one line ``ssidlab <command>: error: ...`` that a refusal writes to stderr."""
     lines = err.strip().splitlines()

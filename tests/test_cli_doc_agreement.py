@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import DOFS, chain_model
+from conftest import DOFS, chain_model, reap
 from test_daq_helpers import sine_setup
 
 from ssid.frf import accelerance_from_model
@@ -44,11 +44,7 @@ def test_sim_lab_stopped_by_ctrl_c_ends_as_an_interrupted_command(tmp_path):
         assert proc.wait(timeout=30) == 130
         assert proc.stderr.read() == "ssidlab sim-lab: interrupted\n"
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=5)
-        proc.stdout.close()
-        proc.stderr.close()
+        reap(proc)
     # Its --duration run out is a success.
     p = _ssidlab("sim-lab", "--speed", "0", "--duration", "0.1", cwd=tmp_path)
     assert (p.returncode, p.stderr) == (0, "")

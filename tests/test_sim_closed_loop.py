@@ -12,6 +12,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import reap
 
 from drivers.amplifier import SyncShakerAmplifier
 from drivers.daq import CanFdDaq, DaqChannel
@@ -100,11 +101,7 @@ def test_standalone_sim_lab_process():
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=10) == 0
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=5)
-        proc.stdout.close()
-        proc.stderr.close()
+        reap(proc)
 
 
 def test_sim_lab_bad_options_exit_2():

@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip("textual")
 
 from textual.widgets import DataTable, Input, Static, Switch, TabbedContent
-from tui_helpers import EXAMPLE, SIZE, log_text, small_setup, wait_for
+from tui_helpers import EXAMPLE, SIZE, abort_after_first_line, log_text, small_setup, wait_for
 
 from ssid.io import read_frf
 from tui.app import LabApp
@@ -116,11 +116,7 @@ def test_abort_mid_run_stops_safely_and_keeps_the_file(tmp_path):
     async def go():
         app = LabApp(str(setup), out=str(out), sim=True)
         async with app.run_test(size=SIZE) as pilot:
-            await pilot.press("f5")
-            # Abort once the first line has been measured (deterministic: a file with data).
-            await wait_for(pilot, lambda: "sub-lines" in log_text(app), 30, "a first measured line")
-            await pilot.press("f8")
-            await wait_for(pilot, lambda: app.outcome is not None, 30, "the run to stop")
+            await abort_after_first_line(pilot, app)
             assert app.outcome.aborted and app.outcome.returncode == 130, log_text(app)
             assert app.outcome.state == "interrupted"
             status = str(app.query_one("#run-status", Static).render())

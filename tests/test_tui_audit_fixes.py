@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("textual")
 
 from textual.widgets import DataTable, Input, Select, Static, Switch, TabbedContent
-from tui_helpers import SIZE, log_text, small_setup, wait_for
+from tui_helpers import SIZE, abort_after_first_line, log_text, small_setup, wait_for
 
 from ssid.io import Model, write_model
 from tui.app import LabApp
@@ -52,10 +52,7 @@ def test_a_refused_resume_shows_the_runs_error_and_offers_no_f5(tmp_path):
     async def go():
         app = LabApp(str(setup), out=str(out), sim=True)
         async with app.run_test(size=SIZE) as pilot:
-            await pilot.press("f5")
-            await wait_for(pilot, lambda: "sub-lines" in log_text(app), 40, "a first measured line")
-            await pilot.press("f8")
-            await wait_for(pilot, lambda: app.outcome is not None, 30, "the abort")
+            await abort_after_first_line(pilot, app, timeout=40)
             assert "F5 resumes the run file" in shown(app, "#run-status")
             setup.write_text(good.replace("n_lines = 20", "n_lines = 21"), encoding="utf-8")
             status = await refused(pilot, app)

@@ -53,5 +53,14 @@ async def wait_for(pilot, cond, timeout: float, what: str) -> None:
         await pilot.pause(0.05)
 
 
+async def abort_after_first_line(pilot, app: LabApp, timeout: float = 30) -> None:
+    """F5, then F8 once the first line has been measured (deterministic: the file holds data),
+    and wait for the run to stop."""
+    await pilot.press("f5")
+    await wait_for(pilot, lambda: "sub-lines" in log_text(app), timeout, "a first measured line")
+    await pilot.press("f8")
+    await wait_for(pilot, lambda: app.outcome is not None, 30, "the run to stop")
+
+
 def log_text(app: LabApp) -> str:
     return "\n".join(strip.text for strip in app.query_one("#log").lines)

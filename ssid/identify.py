@@ -83,8 +83,8 @@ class SSIDResult:
         :func:`ssid.bands.plot_band_roots`, or another choice of modes with
         :func:`ssid.modal_model.modal_model_from_bands`). Not written to JSON.
     step1 : tuple (Step1Estimate, Step1Data) or None
-        Step 1's estimate (the refinement's, also when a start with fewer problems replaced
-        it in step 2) and the data it was fitted to, with the noise weights it ended with:
+        Step 1's estimate the written model holds (the refinement's, or the start with fewer
+        problems that replaced it in step 2) and the data, with the noise weights step 1 ended with:
         for diagnostics such as :func:`ssid.step1_refine.errors_in_variables_cost`. None for
         a band-processed model. Not written to JSON.
     """
@@ -449,9 +449,10 @@ def identify_mck(
     damping : {"auto", "identified", "modal"}
         ``identified``: C from the A_s partition (Eq. 3.15); ``modal``: C rebuilt from the
         identified damping ratios and the real modes of (K, M) (section 6.2.3); ``auto``
-        (default): of the two, the one whose model predicts the band's measurements better
-        (``info["damping_choice"]``; ``checks["frf_relative_rms_error"]`` is the delivered
-        model's relative RMS FRF error).
+        (default): of those two, and of step 1's ``M^-1 C`` on the written M (``step1``,
+        where the fit is one second-order system, :func:`_choose_damping`), the one whose
+        model predicts the band's measurements better (``info["damping_choice"]``;
+        ``checks["frf_relative_rms_error"]`` is the delivered model's relative RMS FRF error).
     search_above_band : bool
         With ``ml`` and no reactions: after the refinement, search along the frequencies of
         the roots above the band (:func:`ssid.step1_refine.refine_roots_above_band`).

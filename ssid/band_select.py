@@ -17,6 +17,7 @@ from .frf import FRFData, require_frequency_dependence
 from .identify import SSIDResult, identify_mck, model_accelerance, model_output_error
 from .modal_model import identify_mck_modal
 from .noise import data_noise_weights
+from .rigid_body import definiteness_problems
 
 __all__ = ["band_ladder", "default_band_width_hz", "identify_mck_band_select", "identify_mck_modal",
            "model_accelerance", "result_problems"]
@@ -25,10 +26,7 @@ __all__ = ["band_ladder", "default_band_width_hz", "identify_mck_band_select", "
 def result_problems(r: SSIDResult) -> int:
     """How many ways an identified model is not physical (see ``_hard_problems``): real
     roots, negative modal damping, M not positive definite, K not positive semi-definite."""
-    ev_m = np.linalg.eigvalsh(r.M)
-    ev_k = np.linalg.eigvalsh(r.K)
-    return (int(r.real_roots.size > 0) + int(np.any(r.damping_ratio < 0))
-            + int(ev_m.min() <= 0) + int(ev_k.min() < -1e-9 * np.abs(ev_k).max()))
+    return int(r.real_roots.size > 0) + int(np.any(r.damping_ratio < 0)) + definiteness_problems(r.M, r.K)
 
 
 def band_ladder(

@@ -30,7 +30,7 @@ from .modal import (
 )
 from .noise import data_noise_weights, frf_noise_weights
 from .reciprocity import reciprocity_check
-from .rigid_body import choose_rigid_body_modes, definiteness_problems
+from .rigid_body import choose_rigid_body_modes, definiteness_problems, semi_definite
 from .solvers import power_of_two_near
 from .step1 import Step1Data, Step1Estimate, estimate_equation_error, reaction_transfer, step1_data
 from .step1_ml import step1_maximum_likelihood
@@ -257,10 +257,9 @@ def _choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, z
         options["modal"] = modal_damping_matrix(M, K, zeta)
     if damping == "auto" and C_step1 is not None:
         C1 = (C_step1 + C_step1.T) / 2
-        ev = np.linalg.eigvalsh(C1)
         # Offered only as a damping matrix (no motion gains energy): a new candidate must not
         # bring a non-physical C that the other two would not have.
-        if ev.min() >= -1e-9 * np.abs(ev).max():
+        if semi_definite(C1):
             options["step1"] = C1
     if damping != "auto":
         options = {damping: options[damping]}

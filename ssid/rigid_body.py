@@ -57,7 +57,7 @@ from .step1_refine import output_error_cost
 from .step2 import ScaleFactors, StateSpaceModes, assemble_mck, fit_scale_factors
 
 __all__ = ["RIGID_BODY_SIGNIFICANCE", "rigid_body_clusters", "with_rigid_body_modes", "near_rigid_modes",
-           "definiteness_problems", "choose_rigid_body_modes"]
+           "semi_definite", "definiteness_problems", "choose_rigid_body_modes"]
 
 #: Significance level of the likelihood-ratio test: roots below the band are kept as they are
 #: (K not singular there) only when the data contradict rigid-body modes at this level.
@@ -143,11 +143,16 @@ def near_rigid_modes(rigid: StateSpaceModes, C_hat: np.ndarray, K_hat: np.ndarra
                            near_rigid_kc=(phi0.T @ K_hat @ phi0, phi0.T @ C_hat @ phi0))
 
 
+def semi_definite(A: np.ndarray) -> bool:
+    """Whether the symmetric ``A`` is positive semi-definite: eigenvalues down to -1e-9 of the
+    largest are round-off (on a K's rigid-body modes, a C's undamped motions)."""
+    ev = np.linalg.eigvalsh(A)
+    return bool(ev.min() >= -1e-9 * np.abs(ev).max())
+
+
 def definiteness_problems(M: np.ndarray, K: np.ndarray) -> int:
-    """How many of (M not positive definite, K not positive semi-definite) hold: 0, 1 or 2.
-    K's eigenvalues down to -1e-9 of its largest are round-off on rigid-body modes."""
-    ev_m, ev_k = np.linalg.eigvalsh(M), np.linalg.eigvalsh(K)
-    return int(ev_m.min() <= 0) + int(ev_k.min() < -1e-9 * np.abs(ev_k).max())
+    """How many of (M not positive definite, K not positive semi-definite) hold: 0, 1 or 2."""
+    return int(np.linalg.eigvalsh(M).min() <= 0) + int(not semi_definite(K))
 
 
 def _written_assembly_score(d: Step1Data, modes: StateSpaceModes, fit: ScaleFactors) -> tuple[int, float]:

@@ -21,6 +21,7 @@ from .fit_checks import misfit_warning, modes_not_held_warning, relative_noise_l
 from .frf import FRFData, accelerance_under_test_loads, require_frequency_dependence, require_response
 from .jsonutil import to_jsonable
 from .modal import (
+    complex_modes,
     modal_damping_matrix,
     modal_phase_collinearity,
     physical_checks,
@@ -301,15 +302,13 @@ def _real_roots_warning(real_roots: np.ndarray, m: int, n: int, n_rigid: int, ri
 
 
 def _written_root_freq_hz(M: np.ndarray, C: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Natural frequencies ``|lambda| / 2 pi`` of the written M, C, K's oscillatory roots (Hz),
-    rigid-body modes (at 0) left out; empty when M is singular or the roots are not in pairs."""
+    """Natural frequencies ``|lambda| / 2 pi`` of the written M, C, K's oscillatory roots (Hz,
+    :func:`ssid.modal.complex_modes`), rigid-body modes (at 0) left out; empty when M is singular."""
     try:
-        M_inv = np.linalg.inv(M)
-        modes = state_space_modes(M_inv @ C, M_inv @ K)
-    except (np.linalg.LinAlgError, IdentificationError):
+        lam, _ = complex_modes(M, C, K)
+    except np.linalg.LinAlgError:
         return np.zeros(0)
-    wn, _ = root_frequency_damping(modes.lam[: modes.n_pairs])
-    return wn / (2 * np.pi)
+    return np.abs(lam) / (2 * np.pi)
 
 
 def _hard_problems(modes, M: np.ndarray, K: np.ndarray) -> int:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .session import one_line, printable
+from .session import naming, one_line, printable
 
 __all__ = ["ModeRow", "RunResults", "analyse_run", "export_results", "model_refusal"]
 
@@ -86,8 +86,7 @@ def model_refusal(model_path: str, setup) -> str | None:
     try:
         model = read_analysis_model(model_path)
     except Exception as exc:  # noqa: BLE001 -- whatever the reader says is the one line
-        why = one_line(exc)
-        return why if model_path in str(exc) else f"{printable(model_path)}: {why}"
+        return naming(model_path, exc)
     missing = [d for d in setup.outputs if d not in set(model.dofs)]
     if not missing:
         return None

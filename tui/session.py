@@ -32,7 +32,7 @@ from pathlib import Path
 from daq.control import parse_event_line as parse_event  # the run's event lines (ssidlab acquire --events)
 
 __all__ = ["EXIT_BAD_INPUT", "NO_INSTRUMENTS", "NO_LINE", "Acquisition", "LiveRun", "ProgressParser", "RunOutcome",
-           "error_text", "one_line", "parse_event", "printable", "run_file_choice", "run_file_state"]
+           "error_text", "naming", "one_line", "parse_event", "printable", "run_file_choice", "run_file_state"]
 
 #: ``ssidlab acquire`` refused its input (setup, run file, options) before measuring anything.
 EXIT_BAD_INPUT = 2
@@ -63,6 +63,14 @@ def printable(text: str) -> str:
 def one_line(exc: BaseException) -> str:
     """An error as one line of a status field (its lines joined; its type if it says nothing)."""
     return printable(" ".join(str(exc).splitlines())) or type(exc).__name__
+
+
+def naming(path: str, exc: BaseException) -> str:
+    """An error on ``path`` as one line that names the file (some, as a NUL byte's, do not)."""
+    if isinstance(exc, OSError) and exc.strerror:  # "[Errno 2] ...: 'path'" said once, plainly
+        return f"{printable(path)}: {exc.strerror}"
+    why = one_line(exc)
+    return why if path in str(exc) else f"{printable(path)}: {why}"
 
 
 class Acquisition:

@@ -19,7 +19,7 @@ from textual.widgets import DataTable, Input, Select, Static, Switch
 from daq.check import check_lab
 
 from .results import model_refusal
-from .session import one_line, printable
+from .session import naming, one_line, printable
 from .setup_view import (
     channel_options,
     channel_rows,
@@ -44,14 +44,6 @@ def plain_cells(row: tuple[str, ...]) -> tuple[str, ...]:
     """A table row shown as written: DataTable parses its string cells as markup, and the
     cells come from the setup file and the instruments' replies."""
     return tuple(escape(str(cell)) for cell in row)
-
-
-def _naming(path: str, exc: BaseException) -> str:
-    """An error on ``path`` as one line that names the file (some, as a NUL byte's, do not)."""
-    if isinstance(exc, OSError) and exc.strerror:  # "[Errno 2] ...: 'path'" said once, plainly
-        return f"{printable(path)}: {exc.strerror}"
-    why = one_line(exc)
-    return why if path in str(exc) else f"{printable(path)}: {why}"
 
 
 def _new_file_refusal(path: str) -> str | None:
@@ -98,7 +90,7 @@ class SetupTabActions:
         try:
             setup = load_setup(path)
         except (InputError, OSError, ValueError) as exc:
-            self._show_no_setup(f"error: {_naming(path, exc)}")
+            self._show_no_setup(f"error: {naming(path, exc)}")
             return
         self._show_setup(setup)
 
@@ -148,7 +140,7 @@ class SetupTabActions:
                 with open(path, "x", encoding="utf-8") as f:
                     f.write(example_setup_text())
             except (OSError, ValueError) as exc:
-                refusal = _naming(path, exc)
+                refusal = naming(path, exc)
         if refusal is not None:
             self._new_refused(path, f"error: {refusal}")
             return

@@ -70,7 +70,8 @@ def misfit_warning(frf_relative_rms_error: float, noise: float) -> str | None:
 MODES_HELD_RTOL = 0.01
 
 
-def modes_not_held_warning(root_freq_hz: np.ndarray, written_root_freq_hz: np.ndarray) -> str | None:
+def modes_not_held_warning(root_freq_hz: np.ndarray, written_root_freq_hz: np.ndarray,
+                           band_hz: tuple[float, float] | None = None) -> str | None:
     """A warning when the written model's roots are not the identified ones.
 
     Parameters
@@ -80,19 +81,26 @@ def modes_not_held_warning(root_freq_hz: np.ndarray, written_root_freq_hz: np.nd
     written_root_freq_hz : (m',) Hz
         The same of the written M, C, K's own roots. Compared in ascending order when
         ``m' == m``; otherwise the real-root and definiteness checks speak for the model.
+    band_hz : (low, high), optional
+        Compare only where the identified root lies in this band. For a model fitted to the
+        data themselves (:mod:`ssid.step2_refine`): outside the band neither it nor step 1 is
+        held by the lines (on the free payload, 20-1500 Hz at 0.02 % noise, its lowest root was
+        0.19 % from the true one and step 1's 1.7 %).
     """
     f = np.sort(np.asarray(root_freq_hz, dtype=float))
     g = np.sort(np.asarray(written_root_freq_hz, dtype=float))
     if f.size == 0 or f.size != g.size or not np.all(np.isfinite(g)):
         return None
     rel = np.abs(g / f - 1)
+    if band_hz is not None:
+        rel = np.where((f >= band_hz[0]) & (f <= band_hz[1]), rel, 0.0)
     k = int(np.argmax(rel))
     if rel[k] <= MODES_HELD_RTOL:
         return None
     return (f"the written M, C, K do not hold the identified modes: their mode {k + 1} is at "
             f"{g[k]:.6g} Hz, the identified root at {f[k]:.6g} Hz ({100 * rel[k]:.3g} % off): the "
-            "roots are what the data determine, and the matrices, written from them with modal scale "
-            "factors fitted to the same noisy lines, are less certain: use them with care")
+            "roots are what the data determine best, and the matrices, fitted to the same noisy lines, "
+            "are less certain: use them with care")
 
 
 #: Below this share of the response at the nearest line, a resonance's damping is taken as

@@ -48,7 +48,8 @@ SOLVERS = ("ml", "ls", "tls", "stls")
 DAMPING_CHOICES = ("auto", "identified", "modal")  # ssid.identify.DAMPING_OPTIONS
 # What each written C is, for the summary line (docs/formats.md, identify's damping_matrix).
 _DAMPING_WORDS = {"identified": " (Eq. 3.15)", "modal": " (the roots' damping ratios on the real modes)",
-                  "step1": " (step 1's M^-1 C on the written M)"}
+                  "step1": " (step 1's M^-1 C on the written M)",
+                  "output_error": " (M, C, K refined together to the data by output error)"}
 
 
 # ----------------------------------------------------------------------------------------------

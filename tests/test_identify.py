@@ -420,7 +420,10 @@ def test_auto_damping_does_not_offer_a_step1_damping_that_is_not_one():
     """The same kind of chain with 6 DOFs (numpy seed 3), the report's noise (seed 1): step 1's
     M C^ is 12 % off the true C and predicts the data better than the modal C, but one of its
     eigenvalues is negative (-0.51 against a largest 16.7): a motion that gains energy. It is
-    not offered, and the modal C (30 % off, positive definite) is written."""
+    not offered, and the modal C (30 % off, positive definite) is the damping chosen. That
+    model misses the data by more than their noise (1.4 %), so it is then refined by output
+    error (ssid.step2_refine) to a C 6.4 % off the true one, still positive definite, with M
+    and K closer too (2.6 % and 3.8 %, from 4.6 % and 4.4 %)."""
     import scipy.linalg as sla
 
     from ssid.models.lumped import chain_model
@@ -436,7 +439,9 @@ def test_auto_damping_does_not_offer_a_step1_damping_that_is_not_one():
     C1 = r.M @ r.step1[0].C_hat
     assert np.linalg.eigvalsh((C1 + C1.T) / 2).min() < 0  # the candidate there would have been
     assert "step1" not in r.info["damping_choice"]["weighted_output_error"]
-    assert r.damping == "modal" and np.linalg.eigvalsh(r.C).min() > 0
+    assert r.info["damping_choice"]["chosen"] == "modal"
+    assert r.damping == "output_error" and np.linalg.eigvalsh(r.C).min() > 0
+    assert rel(r.C, C) < 0.09 and rel(r.M, M) < 0.035 and rel(r.K, K) < 0.044
 
 
 def test_auto_damping_gives_reduced_order_model_the_identified_damping():

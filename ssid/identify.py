@@ -95,6 +95,11 @@ class SSIDResult:
         Mass-normalised real modes of (K, M).
     real_roots : (q,)
         Real (non-oscillatory) state-space roots, rad/s; a clean identification has none.
+    solver : str
+        The step-1 solver (``bands`` for a band-processed modal model).
+    damping : str
+        Which C was written: ``identified``, ``modal``, ``step1`` (:func:`_choose_damping`),
+        or ``output_error`` when M, C and K were refined together to the data.
     n_rigid_body_modes : int
         Rigid-body modes of a free-free structure (:mod:`ssid.rigid_body`): K (and C) are
         singular in their directions by design, and the first ``n_rigid_body_modes`` values
@@ -105,8 +110,9 @@ class SSIDResult:
         :func:`ssid.bands.plot_band_roots`, or another choice of modes with
         :func:`ssid.modal_model.modal_model_from_bands`). Not written to JSON.
     step1 : tuple (Step1Estimate, Step1Data) or None
-        Step 1's estimate the written model holds (the refinement's, or the start with fewer
-        problems that replaced it in step 2) and the data, with the noise weights step 1 ended with:
+        Step 1's estimate the written model was assembled from (the refinement's, or the start
+        with fewer problems that replaced it in step 2; before any output-error refinement of
+        M, C, K) and the data, with the noise weights step 1 ended with:
         for diagnostics such as :func:`ssid.step1_refine.errors_in_variables_cost`. None for
         a band-processed model. Not written to JSON.
     """
@@ -346,12 +352,12 @@ def _refine_written_model(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndar
     """The written model refined by output error (:mod:`ssid.step2_refine`), where step 2 lost
     what step 1 held, and what came of it.
 
-    Tried where step 1's own model reproduces the data to their noise (``step1_errors``, its
-    weighted output error with ``w`` and relative FRF error, as ``written_errors`` are the
-    written model's; the latter within
-    :data:`ssid.fit_checks.MISFIT_NOISE_RATIO` times ``noise``: the model's order suffices)
-    and the written one does not: its relative error is above the noise and its weighted
-    output error more than :data:`REFINE_COST_RATIO` times step 1's. A reduced-order fit,
+    ``written_errors`` and ``step1_errors`` are (weighted output error with ``w``, relative FRF
+    error) of the written model and of step 1's own. Tried where step 1's model reproduces the
+    data to their noise (relative error within :data:`ssid.fit_checks.MISFIT_NOISE_RATIO` times
+    ``noise``: the model's order suffices) and the written one does not: its relative error is
+    above the noise and its weighted output error more than :data:`REFINE_COST_RATIO` times
+    step 1's. A reduced-order fit,
     whose step 1 cannot hold the band either, is left as it is: there the refinement bent its
     C to negative eigenvalues (5 of 14 DOFs, noise-free) and took minutes on the payload's
     16-DOF records. So is a model of more than :data:`REFINE_MAX_DOFS` DOFs. The refined model
@@ -530,6 +536,10 @@ def identify_mck(
         where the fit is one second-order system, :func:`_choose_damping`), the one whose
         model predicts the band's measurements better (``info["damping_choice"]``;
         ``checks["frf_relative_rms_error"]`` is the delivered model's relative RMS FRF error).
+        With ``auto`` and ``ml`` and no reactions, a written model that misses data step 1's
+        own model holds is then refined by output error, M, C and K together, and written when
+        physical (``damping`` ``"output_error"``, ``info["output_error_refinement"]``;
+        :func:`_refine_written_model`).
     search_above_band : bool
         With ``ml`` and no reactions: after the refinement, search along the frequencies of
         the roots above the band (:func:`ssid.step1_refine.refine_roots_above_band`).

@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 from conftest import DOFS, chain_model
 
-from ssid.fit_checks import misfit_warning, relative_noise_level, unresolved_damping_warning
+from ssid.fit_checks import misfit_warning, modes_not_held_warning, relative_noise_level, unresolved_damping_warning
 from ssid.frf import accelerance_from_model
 from ssid.identify import identify_mck
 from ssid.tam import normal_modes
@@ -111,3 +111,14 @@ def test_written_matrices_that_do_not_hold_the_identified_modes_are_named():
     # The same record noise-free: the written model holds its roots, and nothing is said.
     clean = identify_mck(frf)
     assert not any("do not hold the identified modes" in w for w in clean.warnings), clean.warnings
+
+
+def test_modes_held_check_in_a_band_compares_only_the_roots_in_it():
+    # A model refined to the data (ssid.step2_refine) is held to the roots only where the lines
+    # determine them: 2 % and 3 % off outside 20-1500 Hz is not said, 2 % inside is.
+    f = np.array([1.25, 80.0, 300.0, 2300.0])
+    g = f * np.array([1.02, 1.0001, 1.0, 1.03])
+    assert "mode 4 is at" in modes_not_held_warning(f, g)
+    assert modes_not_held_warning(f, g, band_hz=(20.0, 1500.0)) is None
+    g[2] = 1.02 * f[2]
+    assert "mode 3 is at 306" in modes_not_held_warning(f, g, band_hz=(20.0, 1500.0))

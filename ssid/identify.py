@@ -347,32 +347,35 @@ def _undamped_modes(M: np.ndarray, K: np.ndarray, n_rigid: int) -> tuple[np.ndar
 
 
 def _refine_written_model(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, w: np.ndarray, noise: float,
-                          written_errors: tuple[float, float],
-                          step1_errors: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict] | None:
+                          written_errors: tuple[float, float], d: Step1Data,
+                          est: Step1Estimate) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict] | None:
     """The written model refined by output error (:mod:`ssid.step2_refine`), where step 2 lost
     what step 1 held, and what came of it.
 
-    ``written_errors`` and ``step1_errors`` are (weighted output error with ``w``, relative FRF
-    error) of the written model and of step 1's own. Tried where step 1's model reproduces the
-    data to their noise (relative error within :data:`ssid.fit_checks.MISFIT_NOISE_RATIO` times
-    ``noise``: the model's order suffices) and the written one does not: its relative error is
-    above the noise and its weighted output error more than :data:`REFINE_COST_RATIO` times
-    step 1's. A reduced-order fit,
-    whose step 1 cannot hold the band either, is left as it is: there the refinement bent its
-    C to negative eigenvalues (5 of 14 DOFs, noise-free) and took minutes on the payload's
-    16-DOF records. So is a model of more than :data:`REFINE_MAX_DOFS` DOFs. The refined model
-    is taken (``info["accepted"]``) when its weighted output error is lower and it is physical
-    (M positive definite, K and C positive semi-definite), also where the written one was not:
-    on the free payload at 0.1 % noise the written K was not semi-definite (M 27 times off the
-    true one) and the refined model was physical, M and K within 6.3 % and 4.8 %. A refined
-    model that is not physical is not taken, however much closer to the data: from a written
-    model far off, it stays far off (the same payload at 0.26 % noise: 69 % FRF error refined
-    to 7.5 %, its M still 80 times off). Returns None when not tried, else ``(M, C, K, info)``.
+    ``written_errors`` is (weighted output error with ``w``, relative FRF error) of the written
+    model; ``d``, ``est`` are step 1's data and the estimate it was written from, whose own
+    model's errors are taken only where the cheaper conditions hold (identification runs this
+    on every ``ml`` fit, band selection on every candidate band). Tried where step 1's model
+    reproduces the data to their noise (relative error within
+    :data:`ssid.fit_checks.MISFIT_NOISE_RATIO` times ``noise``: the model's order suffices) and
+    the written one does not: its relative error is above the noise and its weighted output
+    error more than :data:`REFINE_COST_RATIO` times step 1's. A reduced-order fit, whose step 1
+    cannot hold the band either, is left as it is: there the refinement bent its C to negative
+    eigenvalues (5 of 14 DOFs, noise-free) and took minutes on the payload's 16-DOF records.
+    So is a model of more than :data:`REFINE_MAX_DOFS` DOFs. The refined model is taken
+    (``info["accepted"]``) when its weighted output error is lower and it is physical (M
+    positive definite, K and C positive semi-definite), also where the written one was not: on
+    the free payload at 0.1 % noise the written K was not semi-definite (M 27 times off the true
+    one) and the refined model was physical, M and K within 6.3 % and 4.8 %. A refined model
+    that is not physical is not taken, however much closer to the data: from a written model far
+    off, it stays far off (the same payload at 0.26 % noise: 69 % FRF error refined to 7.5 %,
+    its M still 80 times off). Returns None when not tried, else ``(M, C, K, info)``.
     """
     cost_start, frf_error = written_errors
-    cost_step1, error_step1 = step1_errors
-    if (M.shape[0] > REFINE_MAX_DOFS or error_step1 > MISFIT_NOISE_RATIO * noise or frf_error <= noise
-            or cost_start <= REFINE_COST_RATIO * cost_step1):
+    if M.shape[0] > REFINE_MAX_DOFS or frf_error <= noise:
+        return None
+    cost_step1, error_step1 = _prediction_errors(frf, predict_accelerance(d, est), w)
+    if error_step1 > MISFIT_NOISE_RATIO * noise or cost_start <= REFINE_COST_RATIO * cost_step1:
         return None
     try:
         Mx, Cx, Kx, info = refine_mck_output_error(frf, M, C, K, w)
@@ -636,7 +639,7 @@ def identify_mck(
     if requested == "auto" and solver == "ml" and not n_rigid and not data.n_react:
         refined = _refine_written_model(data, M, C, K, w, noise,
                                         (info["damping_choice"]["weighted_output_error"][damping], frf_error),
-                                        _prediction_errors(data, predict_accelerance(d, written_from), w))
+                                        d, written_from)
         if refined is not None:
             info["output_error_refinement"] = refined[3]
             if refined[3]["accepted"]:

@@ -14,9 +14,10 @@ import numpy as np
 from .bands import default_band_width_hz
 from .errors import IdentificationError
 from .frf import FRFData, require_frequency_dependence
-from .identify import SSIDResult, identify_mck, model_accelerance, model_output_error
+from .identify import identify_mck
 from .modal_model import identify_mck_modal
 from .noise import data_noise_weights
+from .result import SSIDResult, model_accelerance, model_output_error
 from .rigid_body import definiteness_problems
 
 __all__ = ["band_ladder", "default_band_width_hz", "identify_mck_band_select", "identify_mck_modal",
@@ -24,8 +25,9 @@ __all__ = ["band_ladder", "default_band_width_hz", "identify_mck_band_select", "
 
 
 def result_problems(r: SSIDResult) -> int:
-    """How many ways an identified model is not physical (see ``_hard_problems``): real
-    roots, negative modal damping, M not positive definite, K not positive semi-definite."""
+    """How many ways an identified model is not physical (see
+    :func:`ssid.written_model.hard_problems`): real roots, negative modal damping, M not positive
+    definite, K not positive semi-definite."""
     return int(r.real_roots.size > 0) + int(np.any(r.damping_ratio < 0)) + definiteness_problems(r.M, r.K)
 
 

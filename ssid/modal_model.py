@@ -30,10 +30,10 @@ from .bands import BandResult, band_layout, process_bands
 from .correlate import modal_assurance, pair_modes_by_mac_and_frequency
 from .errors import IdentificationError
 from .frf import FRFData
-from .identify import SSIDResult, model_frf_errors, model_output_error
 from .modal import modal_phase_collinearity, physical_checks, real_modes, unit_max_shapes
 from .noise import data_noise_weights
 from .real_modes import normal_mode_mck, normal_mode_shapes, real_mode_mck, shapes_independent
+from .result import SSIDResult, model_frf_errors, model_output_error
 
 __all__ = ["identify_mck_modal", "modal_model_from_bands"]
 

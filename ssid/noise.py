@@ -364,7 +364,7 @@ def data_noise_weights(frf: FRFData) -> np.ndarray:
 
     From the file's variances or coherence (:func:`ssid.noise.frf_noise_weights`), else from
     each FRF's roughness; 0 where a value is blanked. The scale on which delivered models are
-    compared with the measurements (:func:`ssid.identify.model_output_error`).
+    compared with the measurements (:func:`ssid.result.model_output_error`).
     """
     valid = frf.valid_mask()
     w = frf_noise_weights(frf)

@@ -40,7 +40,7 @@ class RunResults:
 
     path: Path
     frf: object  # ssid.frf.FRFData
-    result: object  # ssid.identify.SSIDResult
+    result: object  # ssid.result.SSIDResult
     modes: list[ModeRow]
     description: str
     model_source: str = ""  # which analysis model, in words ("" = none)

@@ -1,6 +1,6 @@
 """Mode shapes as UFF dataset 55 (one dataset per mode), through pyuff.
 
-Complex modes (e.g. an :class:`ssid.identify.SSIDResult`) are written as analysis type 3
+Complex modes (e.g. an :class:`ssid.result.SSIDResult`) are written as analysis type 3
 (complex eigenvalue, first order) with the root ``lambda = -zeta w_n + j w_n sqrt(1 - zeta^2)``
 in rad/s; real modes as analysis type 2 (normal mode) with the frequency in Hz and the viscous
 damping ratio. Values are per node in global X, Y, Z (and RX, RY, RZ for real modes): a label
@@ -61,7 +61,7 @@ class UFFModes:
 
 
 def modes_from_result(result: Any, *, source: str = "result") -> UFFModes:
-    """Modes of an :class:`ssid.identify.SSIDResult` or of its JSON dictionary.
+    """Modes of an :class:`ssid.result.SSIDResult` or of its JSON dictionary.
 
     Modes whose frequency or damping is undetermined (NaN, or null in JSON) are left out.
 

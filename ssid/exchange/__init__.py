@@ -1,6 +1,7 @@
 """Data exchange with other programs: UFF (universal files) and Nastran DMIG.
 
-* :mod:`ssid.exchange.uff` -- FRFs and coherence as UFF dataset 58 / 58b (pyuff);
+* :mod:`ssid.exchange.uff`, :mod:`ssid.exchange.uff_read` -- FRFs and coherence as UFF
+  dataset 58 / 58b (pyuff), written and read;
 * :mod:`ssid.exchange.uff_modes` -- mode shapes as dataset 55;
 * :mod:`ssid.exchange.uff_geometry` -- units (164) and nodes (2411, 15);
 * :mod:`ssid.exchange.uff_units` -- the units of dataset 58's axes (labels, exponents, 164);
@@ -12,7 +13,7 @@ described in ``docs/exchange.md``.
 """
 
 from .labels import DIRECTIONS, format_dof_label, parse_dof_label
-from .uff import UFFWarning, read_uff_frf, write_uff_frf
+from .uff import UFFWarning, write_uff_frf
 from .uff_geometry import read_uff_geometry, write_uff_geometry
 from .uff_modes import (
     UFFModes,
@@ -21,6 +22,7 @@ from .uff_modes import (
     read_uff_modes,
     write_uff_modes,
 )
+from .uff_read import read_uff_frf
 
 __all__ = [
     "DIRECTIONS",

@@ -8,6 +8,7 @@ import json
 import math
 import os
 import re
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -19,7 +20,8 @@ from ssid.errors import InputError
 from ssid.jsonutil import to_jsonable
 
 __all__ = ["check_output_paths", "fe_normal_modes", "frequency_hz", "label_list", "open_fraction",
-           "parse_mode_list", "percentage", "positive_number", "whole_number", "write_chart", "write_json"]
+           "parse_mode_list", "percentage", "positive_number", "say", "whole_number", "write_chart",
+           "write_json"]
 
 
 def frequency_hz(text: str) -> float:
@@ -159,6 +161,11 @@ def write_chart(path: str, draw: Callable[[str], Any], what: str = "the chart") 
         return draw(path)
     except OSError as exc:
         raise InputError(f"{path}: cannot write {what} ({exc.strerror or exc})") from None
+
+
+def say(message: str) -> None:
+    """Write one line to stderr, folding any embedded line breaks (a warning or an error)."""
+    print(" ".join(str(message).splitlines()), file=sys.stderr)
 
 
 def write_json(path: str, data: dict) -> None:

@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
-import math
 import os
 import signal
 import sys
@@ -29,12 +27,10 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ssid.errors import IdentificationError, InputError
-from ssid.io import read_measured_frf, write_model
+from ssid.io import write_model
 from ssidlab import __version__
-from ssidlab.argtypes import check_output_paths, frequency_hz
+from ssidlab.argtypes import check_output_paths, say
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -43,13 +39,6 @@ EXIT_INTERRUPTED = 130  # 128 + SIGINT
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a tool killed by it
 
 DEBUG_ENV = "SSIDLAB_DEBUG"
-
-SOLVERS = ("ml", "ls", "tls", "stls")
-DAMPING_CHOICES = ("auto", "identified", "modal")  # ssid.identify.DAMPING_OPTIONS
-# What each written C is, for the summary line (docs/formats.md, identify's damping_matrix).
-_DAMPING_WORDS = {"identified": " (Eq. 3.15)", "modal": " (the roots' damping ratios on the real modes)",
-                  "step1": " (step 1's M^-1 C on the written M)",
-                  "output_error": " (M, C, K refined together to the data by output error)"}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -80,7 +69,7 @@ def _run(argv: Sequence[str] | None) -> int:
         # an interrupt like any other, not a traceback from inside an import.
         parser, subcommands = _build_parser()
     except KeyboardInterrupt:
-        _say("ssidlab: interrupted")
+        say("ssidlab: interrupted")
         return EXIT_INTERRUPTED
     try:
         args, extras = parser.parse_known_args(argv)
@@ -95,7 +84,7 @@ def _run(argv: Sequence[str] | None) -> int:
             owner = subcommands.get(getattr(args, "command", None), parser)
             owner.error(f"unrecognized arguments: {' '.join(extras)}")
     except _UsageError as exc:
-        _say(f"{exc.prog}: error: {exc.message}")
+        say(f"{exc.prog}: error: {exc.message}")
         return EXIT_BAD_INPUT
     except SystemExit as exc:  # --help and --version print their text and exit 0
         return exc.code if isinstance(exc.code, int) else EXIT_OK
@@ -111,10 +100,10 @@ def _run(argv: Sequence[str] | None) -> int:
         with warnings.catch_warnings(record=True) as caught:
             status = args.run(args)
         for message in dict.fromkeys(str(w.message) for w in caught):
-            _say(f"warning: {message}")
+            say(f"warning: {message}")
         return status
     except (InputError, IdentificationError) as exc:
-        _say(f"{prog}: error: {exc}")
+        say(f"{prog}: error: {exc}")
         return EXIT_BAD_INPUT
     except BrokenPipeError:
         # The reader of stdout went away (``ssidlab ... | head``): its files are written, only
@@ -123,15 +112,15 @@ def _run(argv: Sequence[str] | None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_BROKEN_PIPE
     except OSError as exc:  # an output path that cannot be written
-        _say(f"{prog}: error: {exc}")
+        say(f"{prog}: error: {exc}")
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        _say(f"{prog}: interrupted")
+        say(f"{prog}: interrupted")
         return EXIT_INTERRUPTED
     except Exception as exc:
         if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
             raise
-        _say(f"{prog}: internal error: {type(exc).__name__}: {exc}")
+        say(f"{prog}: internal error: {type(exc).__name__}: {exc}")
         return EXIT_INTERNAL
 
 
@@ -179,133 +168,14 @@ def _add_subcommand(sub: Any, name: str, help_text: str) -> _Parser:
 
 
 # ----------------------------------------------------------------------------------------------
-# ssidlab identify
+# ssidlab demo
 # ----------------------------------------------------------------------------------------------
 
 
 def _add_identify(sub: Any) -> None:
-    p = _add_subcommand(sub, "identify", "Identify M, C, K from a measured FRF file (SSID).")
-    p.add_argument("frf", metavar="FRF.h5", help="measured FRFs (ssidlab-frf file)")
-    p.add_argument(
-        "--out", metavar="MODEL.h5", required=True,
-        help="identified model (ssidlab-model file) over the FRF file's output DOFs",
-    )
-    p.add_argument(
-        "--json", metavar="RESULT.json", required=True,
-        help="natural frequencies, damping ratios and fit details",
-    )
-    p.add_argument(
-        "--solver", choices=SOLVERS, default=None,
-        help="ml: maximum likelihood, weights each line by its noise (default); "
-        "ls: least squares; tls: total least squares; stls: scaled total least squares",
-    )
-    p.add_argument("--fmin", type=frequency_hz, metavar="HZ", help="lowest frequency line used")
-    p.add_argument("--fmax", type=frequency_hz, metavar="HZ", help="highest frequency line used")
-    p.add_argument(
-        "--damping", choices=DAMPING_CHOICES, default="auto",
-        help="identified: C from the identified state-space matrices; modal: C rebuilt from "
-        "the identified damping ratios on the real modes; auto (default): the one whose model "
-        "reproduces the measured FRFs better",
-    )
-    p.add_argument(
-        "--select-band", action="store_true",
-        help="reduced-order model (more modes in the band than sensors): choose the band and "
-        "solver from the data, the band-processed modal model when it is physical "
-        "(docs/algorithm.md); the solver is then chosen too",
-    )
-    p.add_argument("--quiet", action="store_true", help="do not print the mode table")
-    p.set_defaults(run=_run_identify)
+    from ssidlab.cli_identify import add_identify_subcommand
 
-
-def _run_identify(args: argparse.Namespace) -> int:
-    # Cheap checks first, so a typo does not cost an identification run.
-    if args.select_band and args.solver is not None:
-        raise InputError("--select-band chooses the solver from the data; leave out --solver")
-    if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
-        raise InputError(f"--fmin ({args.fmin:g} Hz) must be below --fmax ({args.fmax:g} Hz)")
-    check_output_paths([args.frf], [args.out, args.json])
-    frf = read_measured_frf(args.frf)
-    _check_band(args.frf, frf, args.fmin, args.fmax)
-
-    # Imported here: the solver stack is heavy, and input errors and --help must work even
-    # when it cannot be imported.
-    from ssid.identify import identify_mck
-
-    if args.select_band:
-        from ssid.band_select import identify_mck_band_select
-
-        lo = float(frf.freq_hz[0]) if args.fmin is None else args.fmin
-        hi = float(frf.freq_hz[-1]) if args.fmax is None else args.fmax
-        result = identify_mck_band_select(frf.band(lo, hi), damping=args.damping)
-    else:
-        result = identify_mck(
-            frf, solver=args.solver or "ml", f_min_hz=args.fmin, f_max_hz=args.fmax,
-            damping=args.damping,
-        )
-    if list(result.dofs) != frf.outputs:
-        raise RuntimeError(
-            f"identified model DOFs {list(result.dofs)!r} differ from the FRF outputs "
-            f"{frf.outputs!r}"
-        )
-    try:
-        write_model(args.out, result.to_model())
-    except InputError as exc:
-        # Our own result failing validation is a bug, not bad input: report it as internal.
-        raise RuntimeError(f"identified model failed validation: {exc}") from exc
-    summary = result.to_json_dict()
-    _write_json(args.json, summary)
-
-    for message in result.warnings:
-        _say(f"warning: {message}")
-    if not args.quiet:
-        choice = ((summary.get("info") or {}).get("band_select") or {}).get("choice")
-        if choice and choice not in result.warnings:
-            print(choice)
-        print(_mode_table(summary))
-        err = (summary.get("checks") or {}).get("frf_relative_rms_error")
-        if err is not None:
-            which = summary.get("damping_matrix")
-            print(f"written model: damping matrix {which}{_DAMPING_WORDS.get(which, '')}; its FRFs differ "
-                  f"from the data by {_fmt(err, 100.0, '.3g')} % (relative RMS over the band)")
-    return EXIT_OK
-
-
-def _check_band(source: str, frf, f_min: float | None, f_max: float | None) -> None:
-    lo = -math.inf if f_min is None else f_min
-    hi = math.inf if f_max is None else f_max
-    in_band = (frf.freq_hz >= lo) & (frf.freq_hz <= hi)
-    covers = f"the file covers {frf.freq_hz[0]:g} to {frf.freq_hz[-1]:g} Hz"
-    if not in_band.any():
-        raise InputError(f"{source}: no frequency lines between --fmin and --fmax ({covers})")
-    if not frf.valid_mask()[in_band].any():
-        raise InputError(f"{source}: every value in the selected band is marked invalid")
-
-
-def _mode_table(summary: dict) -> str:
-    """The roots (step 1) and, beside them, the undamped frequencies of the written M, K: the
-    two agree for a full-order fit and may not for a reduced-order one (a free test), whose
-    M, K are step 2's fit to those roots. Rigid-body modes (``R1``...) head the table."""
-    freqs = summary.get("natural_freq_hz", [])
-    zetas = summary.get("damping_ratio", [])
-    undamped = summary.get("undamped_freq_hz", [])
-    # A free-free model's rigid-body modes come first in eig(K, M) (at 0 Hz) and have no
-    # root among the modes: they get their own rows, and the modes pair with the rest.
-    n_rigid = int(summary.get("n_rigid_body_modes") or 0)
-    lines = [f"{'mode':>4}  {'f_n [Hz]':>12}  {'damping [%]':>11}  {'M,K f [Hz]':>12}"]
-    lines += [f"{f'R{k}':>4}  {'rigid body':>12}  {'-':>11}  {_fmt(0.0, 1.0, '.4f'):>12}"
-              for k in range(1, n_rigid + 1)]
-    for k, (f_n, zeta) in enumerate(zip(freqs, zetas), start=1):
-        f_mk = undamped[n_rigid + k - 1] if n_rigid + k <= len(undamped) else None
-        lines.append(f"{k:>4}  {_fmt(f_n, 1.0, '.4f'):>12}  {_fmt(zeta, 100.0, '.3f'):>11}  "
-                     f"{_fmt(f_mk, 1.0, '.4f'):>12}")
-    return "\n".join(lines)
-
-
-def _fmt(value: Any, scale: float, spec: str) -> str:
-    # Undetermined values arrive as None (JSON null) or NaN; show them as a dash.
-    if value is None or not math.isfinite(float(value)):
-        return "-"
-    return format(scale * float(value), spec)
+    add_identify_subcommand(sub)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -435,9 +305,7 @@ def _add_tui(sub: Any) -> None:
 
 
 # Each subcommand is an _add_<name>(sub) that builds its parser with _add_subcommand() (or
-# sub.add_parser) and sets `run=...`; errors follow the same rules through main().
-# Each gets an _add_<name>(sub) that builds its parser with _add_subcommand() and sets
-# `run=_run_<name>`; list it here. Errors follow the same rules through main().
+# sub.add_parser) and sets `run=...`; list it here. Errors follow the same rules through main().
 _SUBCOMMANDS = (
     _add_identify, _add_bands, _add_pseudo, _add_place, _add_demo, _add_correlate, _add_compare, _add_sim_lab,
     _add_convert, _add_export_model, _add_discrepancy, _add_check, _add_acquire, _add_tui, _add_sim_model,
@@ -487,22 +355,3 @@ def _terminated_as_interrupted() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
-def _say(message: str) -> None:
-    """Write one line to stderr, folding any embedded line breaks."""
-    print(" ".join(str(message).splitlines()), file=sys.stderr)
-
-
-def _write_json(path: str, data: dict) -> None:
-    text = json.dumps(data, indent=2, default=_json_default)
-    Path(path).write_text(text + "\n", encoding="utf-8")
-
-
-def _json_default(value: Any) -> Any:
-    # Results carry numpy arrays and scalars; JSON wants lists and Python numbers.
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"cannot write {type(value).__name__} to JSON")

@@ -321,7 +321,7 @@ def identify_mck(
     C_step1 = M @ written_from.C_hat if one_system and not n_rigid else None
     requested = damping
     C, damping, info["damping_choice"] = choose_damping(data, M, C, K, zeta_all, damping,
-                                                         phi is not None, w, C_step1)
+                                                        phi is not None, w, C_step1)
     frf_error = info["damping_choice"]["frf_relative_rms_error"][damping]
     noise = relative_noise_level(data, w)
     band = (float(data.freq_hz[0]), float(data.freq_hz[-1]))
@@ -330,8 +330,8 @@ def identify_mck(
     # the band went from 0.2 % to 2 % off the simulated truth, and in the band none came closer).
     if requested == "auto" and solver == "ml" and not n_rigid and not data.n_react:
         refined = refine_written_model(data, M, C, K, w, noise,
-                                        (info["damping_choice"]["weighted_output_error"][damping], frf_error),
-                                        d, written_from)
+                                       (info["damping_choice"]["weighted_output_error"][damping], frf_error),
+                                       d, written_from)
         if refined is not None:
             info["output_error_refinement"] = refined[3]
             if refined[3]["accepted"]:

@@ -17,7 +17,7 @@ from .modal import complex_modes, modal_damping_matrix, real_modes, root_frequen
 from .result import model_frf_errors, prediction_errors
 from .rigid_body import choose_rigid_body_modes, definiteness_problems, semi_definite
 from .step1 import Step1Data, Step1Estimate, predict_accelerance, reaction_transfer
-from .step2 import assemble_mck, state_space_modes
+from .step2 import StateSpaceModes, assemble_mck, state_space_modes
 from .step2_refine import refine_mck_output_error
 
 __all__ = ["choose_damping", "refine_written_model", "step2_mck", "undamped_modes",
@@ -50,7 +50,8 @@ def _step2_weights(d: Step1Data, est: Step1Estimate) -> np.ndarray:
     return np.where(np.isfinite(var), 1.0 / np.sqrt(var), 0.0)
 
 
-def step2_mck(d: Step1Data, est: Step1Estimate, solver: str):
+def step2_mck(d: Step1Data, est: Step1Estimate,
+              solver: str) -> tuple[StateSpaceModes, np.ndarray, np.ndarray, np.ndarray, dict, dict]:
     """Eq. 3.12, the scale factors (Eq. 3.23) and M, C, K for one step-1 estimate.
 
     Roots below the lowest line that the data cannot tell from rigid-body modes become
@@ -67,8 +68,8 @@ def step2_mck(d: Step1Data, est: Step1Estimate, solver: str):
 
 
 def choose_damping(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, zeta: np.ndarray,
-                    damping: str, modal_possible: bool, w: np.ndarray,
-                    C_step1: np.ndarray | None = None) -> tuple[np.ndarray, str, dict]:
+                   damping: str, modal_possible: bool, w: np.ndarray,
+                   C_step1: np.ndarray | None = None) -> tuple[np.ndarray, str, dict]:
     """The damping matrix the delivered model carries, and how it compares with the data.
 
     ``identified`` is the A_s partition of Eq. 3.15; ``modal`` the identified damping ratios
@@ -134,8 +135,8 @@ def undamped_modes(M: np.ndarray, K: np.ndarray, n_rigid: int) -> tuple[np.ndarr
 
 
 def refine_written_model(frf: FRFData, M: np.ndarray, C: np.ndarray, K: np.ndarray, w: np.ndarray, noise: float,
-                          written_errors: tuple[float, float], d: Step1Data,
-                          est: Step1Estimate) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict] | None:
+                         written_errors: tuple[float, float], d: Step1Data,
+                         est: Step1Estimate) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict] | None:
     """The written model refined by output error (:mod:`ssid.step2_refine`), where step 2 lost
     what step 1 held, and what came of it.
 
@@ -186,7 +187,7 @@ def written_root_freq_hz(M: np.ndarray, C: np.ndarray, K: np.ndarray) -> np.ndar
     return np.abs(lam) / (2 * np.pi)
 
 
-def hard_problems(modes, M: np.ndarray, K: np.ndarray) -> int:
+def hard_problems(modes: StateSpaceModes, M: np.ndarray, K: np.ndarray) -> int:
     """How many ways a model is not physical: real roots, negative damping, M not positive
     definite, K not positive semi-definite (each counts once)."""
     m = modes.n_pairs

@@ -161,8 +161,8 @@ def _hdf5_kind(path: str) -> str:
     try:
         with h5py.File(path, "r") as f:
             kind = f.attrs.get("format", "")
-    except OSError as exc:
-        raise InputError(f"{path}: damaged HDF5 file ({exc})") from None
+    except (OSError, RuntimeError, UnicodeDecodeError) as exc:  # h5py's only: damage (ssid.io's reader)
+        raise InputError(f"{path}: damaged HDF5 file ({type(exc).__name__}: {exc})") from None
     kind = kind.decode() if isinstance(kind, bytes) else str(kind)
     if kind == "ssidlab-frf":
         return "frf"

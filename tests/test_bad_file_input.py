@@ -288,3 +288,42 @@ def test_discrepancy_refuses_reactions_apply_without_reactions(tmp_path, ssidlab
     line = one_error_line(err, "discrepancy")
     assert status == 2 and f"{tmp_path / 'f.h5'}: --reactions apply" in line and "has none" in line
     assert not (tmp_path / "d.json").exists()
+
+
+# ----------------------------------------------------------------------------------------------
+# 9. HDF5 files damaged inside their metadata
+# ----------------------------------------------------------------------------------------------
+
+
+def _damaged_copy(src, dst, at: bytes, offset: int, new: bytes):
+    """``src`` with ``new`` written ``offset`` bytes after the first ``at`` in it."""
+    data = bytearray(src.read_bytes())
+    i = data.find(at)
+    assert i >= 0, f"no {at!r} in {src}"
+    data[i + offset:i + offset + len(new)] = new
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+@pytest.mark.parametrize("command, kind, at, offset, new", [
+    # a group's B-tree signature overwritten: h5py raises RuntimeError ("wrong B-tree signature")
+    ("identify", "frf", b"TREE", 0, b"XXXX"),
+    ("convert", "frf", b"TREE", 0, b"XXXX"),
+    # the byte before the root attribute's name: "ran off end of input buffer", a RuntimeError
+    ("export-model", "model", b"format", -3, b"\xa2"),
+])
+def test_damaged_hdf5_metadata_is_a_one_line_error(tmp_path, ssidlab, command, kind, at, offset, new):
+    """Was an internal error (exit 1): RuntimeError from h5py, which only OSError was turned
+    into "damaged HDF5 file" for."""
+    good = tmp_path / "good.h5"
+    if kind == "frf":
+        write_frf(good, chain_frf())
+    else:
+        write_model(good, chain_model())
+    bad = _damaged_copy(good, tmp_path / "bad.h5", at, offset, new)
+    args = {"identify": ("identify", bad, "--out", tmp_path / "m.h5", "--json", tmp_path / "r.json"),
+            "convert": ("convert", bad, tmp_path / "x.uff"),
+            "export-model": ("export-model", bad, tmp_path / "x.mat")}[command]
+    status, _, err = ssidlab(*args)
+    line = one_error_line(err, command)
+    assert status == 2 and f"{bad}: damaged HDF5 file" in line, line

@@ -191,6 +191,21 @@ def _open_h5(path: PathLike, src: str) -> Iterator[h5py.File]:
             yield f
     except OSError as exc:
         raise _error(src, f"damaged HDF5 file, cannot read its content ({exc})") from exc
+    except (RuntimeError, UnicodeDecodeError) as exc:
+        # HDF5 reports damage inside a file's metadata (a bad B-tree signature, an attribute
+        # that runs off its buffer) as RuntimeError, and a mangled type name as a decode error;
+        # only those raised inside h5py are the file's, any other is a bug of ours.
+        if not _raised_in_h5py(exc):
+            raise
+        raise _error(src, f"damaged HDF5 file, cannot read its content ({type(exc).__name__}: {exc})") from exc
+
+
+def _raised_in_h5py(exc: BaseException) -> bool:
+    """Whether the innermost frame of ``exc``'s traceback is h5py's (its Cython modules too)."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb is not None and f"h5py{os.sep}" in tb.tb_frame.f_code.co_filename
 
 
 @contextmanager

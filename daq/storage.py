@@ -12,8 +12,17 @@ Crash safety without SWMR: SWMR leaves a file that only SWMR readers can open af
 the default HDF5 format and flushed after every line instead. The contract datasets are
 pre-created at full size, so writing a line changes no metadata there; the record datasets
 are chunked and resizable and grow by one row per line. A line is written in this order:
-record row, contract rows, then the commit counter ``/acq/n_done``, then ``flush()``. After
-a crash, rows beyond ``n_done`` are ignored (and trimmed on resume).
+record row and contract rows, ``flush()``, then the commit counter ``/acq/n_done``, then
+``flush()`` again. HDF5 writes what one flush holds in an order of its own (``n_done``'s 8
+bytes went out before the records' new extent: a ``kill -9`` inside that flush left a counter
+past the records, and the file could not be resumed), so the counter gets a flush of its own
+after everything it counts is on disk. After a crash, rows beyond ``n_done`` are ignored (and
+trimmed on resume). Raw time samples are stored without compression: a compressed chunk is
+rewritten whole, at a new place in the file, when a line appends to it, and a kill inside
+that write lost the samples of lines committed before (HDF5 "filter returned failure during
+read"); an uncompressed chunk is rewritten in place with the same bytes where it holds them.
+This holds against a killed process (what it wrote is in the operating system's cache); it
+does not order writes against a power cut, for which nothing here calls ``fsync``.
 
 When the run ends, :meth:`RunFile.finalize` writes the compact FRF file (only measured
 lines) with :func:`ssid.io.write_frf` under a temporary name, copies ``/acq`` into it and
@@ -88,7 +97,12 @@ class RunFile:
         if path.exists():
             raise InputError(f"{path}: exists already (use --resume to continue it, or another name)")
         try:
-            f = h5py.File(path, "w")
+            # "x", not "w": another run creating the same file between the check above and
+            # here must fail, not truncate the file that run is writing (HDF5 truncates before
+            # it takes its lock).
+            f = h5py.File(path, "x")
+        except FileExistsError:
+            raise InputError(f"{path}: exists already (use --resume to continue it, or another name)") from None
         except OSError as exc:
             raise OSError(f"{path}: cannot create the run file ({exc})") from exc
         try:
@@ -336,8 +350,8 @@ class RunFile:
         g = self.acq.require_group("raw")
         nch, n = data.shape
         if "samples" not in g:
-            g.create_dataset("samples", shape=(0, nch), maxshape=(None, nch), chunks=(4096, nch),
-                             dtype="f4", compression="gzip", compression_opts=1)
+            # Not compressed: see the module's docstring (crash safety of committed lines).
+            g.create_dataset("samples", shape=(0, nch), maxshape=(None, nch), chunks=(4096, nch), dtype="f4")
             g.create_dataset("offset", shape=(0,), maxshape=(None,), chunks=(256,), dtype="i8")
         s, o = g["samples"], g["offset"]
         k = self.n_done
@@ -347,7 +361,9 @@ class RunFile:
         s[-n:] = data.T
 
     def commit(self, n_done: int) -> None:
-        """Mark everything written so far as complete and push it to disk."""
+        """Mark everything written so far as complete and push it to disk: what is counted
+        first, then the counter (see the module's docstring)."""
+        self.f.flush()
         self.acq["n_done"][0] = n_done
         self.f.flush()
 

@@ -5,6 +5,7 @@ and a Ctrl-C before the command has finished importing."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -13,11 +14,11 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from test_daq_helpers import cli, ctrl_c_at_line, run_on_sim, sine_setup
 
 from daq.setup import parse_setup
+from ssid.errors import InputError
 from ssid.io import read_frf
-
-from test_daq_helpers import cli, ctrl_c_at_line, run_on_sim, sine_setup
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -192,3 +193,66 @@ def test_a_run_that_kept_nothing_is_not_a_success(tmp_path, capsys):
     assert (f"ssidlab acquire: error: {tmp_path / 'run.h5'}: the run is complete but measured nothing usable: "
             "every FRF value is blanked (every sub-line aborted by a limit)") in err, err
     assert _state(tmp_path / "run.h5") == "complete"  # what was measured is kept, as always
+
+
+def _setup_with_uff(tmp_path: Path, uff: str) -> Path:
+    setup = tmp_path / "s.toml"
+    setup.write_text(sine_setup(n_lines=3, refine=2).replace('file = "run.h5"', f'file = "run.h5"\nuff = "{uff}"'))
+    return setup
+
+
+@pytest.mark.parametrize("uff, argv, what", [
+    (None, ["--out", "{d}/run.h5", "--json", "{d}/run.h5"], "{d}/run.h5: given for two different outputs"),
+    ("run.h5", [], "run.h5: given for two different outputs"),
+    ("x.uff", ["--out", "{d}/clash.uff"], "{d}/clash.uff: given for two different outputs"),
+    ("{d}/s.toml", [], "{d}/s.toml: output would overwrite the input file"),
+])
+def test_an_output_that_would_overwrite_the_run_file_or_the_setup_is_refused_before_the_run(
+        tmp_path, monkeypatch, uff, argv, what):
+    """The summary (--json) or the UFF export named like the run file replaced the
+    measurement with a JSON or UFF copy at the run's end (exit 0, "/acq" gone), and an export
+    named like the setup overwrote the setup; only --resume's file was checked."""
+    monkeypatch.chdir(tmp_path)
+    setup = _setup_with_uff(tmp_path, (uff or "x.uff").format(d=tmp_path))
+    text = setup.read_text()
+    status, err = cli([str(setup), "--sim", "--quiet", *(a.format(d=tmp_path) for a in argv)])
+    assert status == 2 and err == what.format(d=tmp_path), err
+    assert not list(tmp_path.glob("*.h5")) and not list(tmp_path.glob("*.uff"))  # nothing driven
+    assert setup.read_text() == text
+
+
+def test_a_run_file_created_by_another_run_meanwhile_is_not_truncated(tmp_path, monkeypatch):
+    """Two runs into one file: the second passed the "exists already" check before the first
+    created the file, then opened it with mode "w", which truncated the first run's file before
+    HDF5's lock refused it (the first run's records became zeros, its setup text empty)."""
+    from daq.storage import RunFile
+
+    out = tmp_path / "run.h5"
+    out.write_bytes(b"the other run's file")
+    monkeypatch.setattr(Path, "exists", lambda self: False if self == out else os.path.exists(self))
+    with pytest.raises(InputError, match="exists already"):
+        RunFile.create(out, kind="stepped_sine", setup_text="", setup_sha256="", freq_hz=np.ones(2),
+                       outputs=["1+Z"], inputs=["1+Z"], reactions=[], channel_names=["a"], meta={}, attrs={})
+    assert out.read_bytes() == b"the other run's file"
+
+
+@pytest.mark.skipif(shutil.which("strace") is None, reason="needs strace to kill the run inside a write")
+@pytest.mark.parametrize("nth_write", [100, 200, 300])
+def test_a_run_killed_inside_a_lines_flush_can_be_resumed(tmp_path, nth_write):
+    """kill -9 at the nth write to the run file (strace fault injection), then resume. HDF5
+    wrote a line's commit counter to disk before the records' new extent within one flush:
+    killed between the two, the file held a counter past its records and the resume refused
+    it as damaged (on this setup at every 20th write from the 80th, one per line)."""
+    setup = tmp_path / "s.toml"
+    setup.write_text(sine_setup(two=True))
+    run = tmp_path / "run.h5"
+    killed = subprocess.run(
+        ["strace", "-f", "-o", "/dev/null", "-P", str(run), "-e", "trace=pwrite64", "-e",
+         f"inject=pwrite64:signal=KILL:when={nth_write}", sys.executable, "-m", "ssidlab", "acquire", str(setup),
+         "--sim", "--out", str(run), "--quiet"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert killed.returncode != 0 and run.exists(), killed.stderr
+    assert _state(run) == "running"  # killed mid-run, not after it
+    status, err = cli(["--resume", str(run), "--sim", "--quiet"])
+    assert status == 0, err
+    assert _state(run) == "complete" and read_frf(run).valid_mask().all()

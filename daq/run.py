@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+import os
 import platform
 import signal
 import sys
@@ -31,12 +32,12 @@ from drivers.errors import InstrumentError
 from ssid.errors import InputError
 
 from .control import RunControl, RunEvents, clear_interrupts, latching_interrupt_handler
+from .resume import instruments_not_the_same, range_changes, setup_changes_on_resume, setup_in_effect
 from .rig import InstrumentRig, Rig
 from .safety import NOT_THE_SAME_INSTRUMENTS, RunStopped, describe_fault
-from .resume import instruments_not_the_same, range_changes, setup_changes_on_resume, setup_in_effect
 from .setup import TestSetup
-from .thread_stacks import thread_stacks, write_to_stderr
 from .storage import RunFile
+from .thread_stacks import thread_stacks, write_to_stderr
 
 __all__ = ["run_test"]
 
@@ -193,6 +194,11 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         Ctrl-C / SIGTERM (instruments safe, file resumable).
     """
     path = Path(out or setup.output_file)
+    uff = uff_export_path(setup, path, out)
+    if uff is not None and os.path.realpath(uff) == os.path.realpath(path):
+        # The export, written at the end, would replace the measurement with its UFF copy.
+        raise InputError(f"{uff}: the UFF export ([output] uff) would overwrite the run file; "
+                         "give one of them another name")
     world = None
     if sim:
         from .simlab import build_world
@@ -219,7 +225,7 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
             rf.close()
             echo(f"{path}: the run is complete; nothing to resume")
             summary = {"state": "complete", "file": str(path), "resumed": False}
-            uff = _uff_path(setup, path, out)
+            uff = uff_export_path(setup, path, out)
             if uff is not None and not uff.exists():
                 # A run stopped after its file was complete (a Ctrl-C at the very end)
                 # had its export cut: write it now from the file.
@@ -343,7 +349,7 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
             # command says so, and a resume of the complete file does those steps.
             raise KeyboardInterrupt
     summary.update({"state": state, "file": str(path), "resumed": bool(resume)})
-    uff = _uff_path(setup, path, out)
+    uff = uff_export_path(setup, path, out)
     if uff is not None:
         _export_uff(frf, uff, summary, echo)
     summary["test_time_s"] = float(summary.get("test_time_s", np.nan))
@@ -351,8 +357,9 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
     return summary
 
 
-def _uff_path(setup: TestSetup, path: Path, out: str | None) -> Path | None:
-    """Where the run's UFF export goes (None: the setup asks for none)."""
+def uff_export_path(setup: TestSetup, path: Path, out: str | None) -> Path | None:
+    """Where the UFF export of a run into ``path`` goes (None: the setup asks for none);
+    ``out`` is the run file named on the command line, if one was."""
     if not setup.uff_file:
         return None
     uff = Path(setup.uff_file)

@@ -178,7 +178,7 @@ class _Terminated(KeyboardInterrupt):
 def run_acquire(args: argparse.Namespace) -> int:
     from daq.control import RunControl, latching_interrupt_handler
     from daq.resume import load_resume_setup
-    from daq.run import run_test
+    from daq.run import run_test, uff_export_path
     from daq.safety import RunStopped
     from daq.setup import load_setup
     from drivers.amplifier import modbus_log_held_back
@@ -188,7 +188,8 @@ def run_acquire(args: argparse.Namespace) -> int:
         raise InputError("--out and --resume exclude each other (the resumed file is written in place)")
     if args.new_instruments and not args.resume:
         raise InputError("--new-instruments goes with --resume (a new run has no instruments to compare)")
-    check_output_paths([p for p in (args.setup, args.resume) if p], [args.json])
+    inputs = [p for p in (args.setup, args.resume) if p]
+    check_output_paths(inputs, [args.json])
     if args.resume:
         setup = load_resume_setup(args.resume, args.setup)
         out = args.resume
@@ -197,6 +198,12 @@ def run_acquire(args: argparse.Namespace) -> int:
             raise InputError("a setup file is required (or --resume RUN.h5)")
         setup = load_setup(args.setup)
         out = args.out
+    # Every file the run writes, against its inputs and each other: the summary or the UFF
+    # export written over the run file (or the setup) would lose the measurement.
+    run_file = Path(out or setup.output_file)
+    uff = uff_export_path(setup, run_file, out)
+    check_output_paths(inputs, [args.json, None if args.resume else str(run_file),
+                                None if uff is None else str(uff)])
     echo = (lambda m: None) if args.quiet else (lambda m: print(m, flush=True))
     previous = signal.signal(signal.SIGTERM, latching_interrupt_handler(_Terminated))
     # A process started in the background by a non-interactive shell (or by a CI runner)

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import errno
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = ["written_atomically"]
+
+# Errors of a write that ran out of room: raised by the write to the temporary file (an
+# ordinary write's OSError carries no file name), so they are the target's.
+_NO_ROOM = {errno.ENOSPC, errno.EFBIG, errno.EDQUOT}
 
 
 @contextmanager
@@ -32,7 +37,7 @@ def written_atomically(path: str | os.PathLike) -> Iterator[Path]:
         os.replace(tmp, target)
     except OSError as exc:
         _remove(tmp)
-        about_tmp = exc.filename is not None and Path(exc.filename) == tmp
+        about_tmp = (exc.filename is not None and Path(exc.filename) == tmp) or exc.errno in _NO_ROOM
         if about_tmp or os.fspath(tmp) in str(exc):  # h5py names the file in its message only
             why = os.strerror(exc.errno) if exc.errno else (exc.strerror or str(exc))
             raise OSError(f"{target}: cannot write ({why})") from exc

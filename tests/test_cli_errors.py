@@ -361,3 +361,51 @@ def test_an_ignored_sigint_is_taken_from_the_first_line():
             assert signal.getsignal(signal.SIGINT) is own
     finally:
         signal.signal(signal.SIGINT, before)
+
+
+# ----------------------------------------------------------------------------------------------
+# a disk that takes no more (a file-size limit stands in for a full disk)
+# ----------------------------------------------------------------------------------------------
+
+
+def _with_file_size_limit(limit_bytes: int):
+    """preexec_fn: writes past ``limit_bytes`` fail with EFBIG (SIGXFSZ ignored), as on a full disk."""
+    import resource
+    import signal
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+    return limit
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="preexec_fn needs fork")
+def test_a_model_file_the_disk_cannot_take_is_one_line_and_no_file(tmp_path, good_file):
+    """HDF5 reported the failed write while closing the file, where h5py only printed it: a
+    half-written model was renamed into place (unreadable), tracebacks were printed, and the
+    interpreter crashed at exit (exit 139)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+    env.pop("SSIDLAB_DEBUG", None)
+    proc = subprocess.run(
+        [sys.executable, "-m", "ssidlab", "identify", str(good_file), "--out", "m.h5", "--json", "r.json",
+         "--quiet"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
+        preexec_fn=_with_file_size_limit(4096))
+    assert_one_line_error(proc, "ssidlab identify: error: m.h5: cannot write (File too large)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frf.h5"]  # no model, no temporary, no JSON
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="preexec_fn needs fork")
+def test_a_json_summary_the_disk_cannot_take_leaves_the_old_one_whole(tmp_path):
+    """The JSON summaries were written straight onto their names: a full disk left a
+    truncated, unreadable summary in place of the good one."""
+    old = tmp_path / "r.json"
+    old.write_text('{"good": true}\n')
+    code = ("import sys; from ssidlab.argtypes import write_json\n"
+            "try:\n    write_json(sys.argv[1], {'x': list(range(5000))})\n"
+            "except OSError as exc:\n    print(exc)\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(old)], cwd=tmp_path, capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(REPO_ROOT)), timeout=60,
+                          preexec_fn=_with_file_size_limit(4096))
+    assert proc.stdout.strip() == f"{old}: cannot write (File too large)", proc.stderr
+    assert json.loads(old.read_text()) == {"good": True}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -210,9 +211,20 @@ def _raised_in_h5py(exc: BaseException) -> bool:
 
 @contextmanager
 def _create_h5(path: PathLike) -> Iterator[h5py.File]:
-    """Create ``path`` via a temporary file in the same directory and an atomic rename."""
-    with written_atomically(path) as tmp, h5py.File(tmp, "w") as f:
+    """Create ``path``: the file is built in memory, then its bytes are written to a temporary
+    file in the same directory and renamed onto ``path``.
+
+    Not HDF5 writing to the disk itself: on a full disk (or past a file-size limit) HDF5
+    reports the failed write while the file is closed, where h5py only prints it, so a
+    half-written file was renamed into place, and the library's state then crashed the
+    interpreter at exit (exit 139). Written from memory, the failure is an ordinary write's
+    OSError, which names the file. The files are small (matrices, FRFs: megabytes).
+    """
+    image = io.BytesIO()
+    with h5py.File(image, "w") as f:
         yield f
+    with written_atomically(path) as tmp:
+        tmp.write_bytes(image.getbuffer())
 
 
 def _check_kind(src: str, f: h5py.File, expected: str) -> None:

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ssid.errors import InputError
+from ssid.files import written_atomically
 from ssid.jsonutil import to_jsonable
 
 __all__ = ["check_output_paths", "fe_normal_modes", "frequency_hz", "label_list", "open_fraction",
@@ -168,9 +169,13 @@ def say(message: str) -> None:
     print(" ".join(str(message).splitlines()), file=sys.stderr)
 
 
-def write_json(path: str, data: dict) -> None:
-    """Write ``data`` as strict, indented JSON (numpy types as Python ones, NaN as null)."""
-    Path(path).write_text(json.dumps(to_jsonable(data), indent=1) + "\n", encoding="utf-8")
+def write_json(path: str | os.PathLike, data: dict) -> None:
+    """Write ``data`` as strict, indented JSON (numpy types as Python ones, NaN as null),
+    whole or not at all (:func:`ssid.files.written_atomically`): a full disk must not leave a
+    truncated summary, nor replace a good one."""
+    text = json.dumps(to_jsonable(data), indent=1) + "\n"
+    with written_atomically(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
 
 
 def fe_normal_modes(path: str) -> tuple[Any, np.ndarray, np.ndarray]:

@@ -12,7 +12,6 @@ prints it as one line and exits with status 2.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import sys
@@ -25,13 +24,7 @@ from ssid.errors import InputError
 from ssid.jsonutil import to_jsonable
 from ssid.reaction_loads import REACTION_CHOICES
 from ssid.tam import TAM_METHODS
-from ssidlab.argtypes import (
-    check_output_paths,
-    frequency_hz,
-    label_list,
-    open_fraction,
-    parse_mode_list,
-)
+from ssidlab.argtypes import check_output_paths, frequency_hz, label_list, open_fraction, parse_mode_list, write_json
 
 __all__ = ["add_correlate_subcommand", "jsonable", "parse_mode_list", "run_correlate"]
 
@@ -145,7 +138,7 @@ def run_correlate(args: argparse.Namespace) -> int:
                                      targets=args.targets)
     summary = {"test_source": test_source, "analysis_source": analysis_source, **study.summary}
     summary["plots"] = _write_plots(study, args.plots) if args.plots is not None else []
-    Path(args.json).write_text(json.dumps(jsonable(summary), indent=1) + "\n", encoding="utf-8")
+    write_json(args.json, summary)
     # On stderr and also with --quiet (docs/formats.md), not in the table --quiet leaves out.
     for w in summary.get("warnings", []):
         print(f"warning: {w}", file=sys.stderr)

@@ -16,15 +16,13 @@ with status 2.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
-from pathlib import Path
 from typing import Any
 
 from ssid.errors import InputError
-from ssidlab.argtypes import check_output_paths, frequency_hz, percentage, write_chart
+from ssidlab.argtypes import check_output_paths, frequency_hz, percentage, write_chart, write_json
 
 __all__ = ["add_discrepancy_subcommand", "run_discrepancy", "summary_text"]
 
@@ -134,7 +132,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
         from ssid.discrepancy.plots import write_plots
 
         data["plots"] = write_chart(args.plots, lambda path: write_plots(result, path), "the plots")
-    Path(args.json).write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    write_json(args.json, data)
     # On stderr and also with --quiet (docs/formats.md): a warning such as "check the
     # transducers' calibration" must not be lost with the summary.
     for w in data.get("warnings", []):

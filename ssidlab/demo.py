@@ -10,7 +10,6 @@ and the result is compared with the truth.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +21,7 @@ from ssid.modal import complex_modes, root_frequency_damping
 from ssid.models import example_system
 from ssid.noise import report_noise_frf
 from ssid.plots_correlation import plot_frf_overlay
+from ssidlab.argtypes import write_json
 
 __all__ = ["example_frf", "run_demo"]
 
@@ -82,7 +82,7 @@ def run_demo(out_dir: str, echo=print) -> dict:
         "M_rel_error": m_err,
         "K_rel_error": k_err,
     }
-    (out / "result.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    write_json(out / "result.json", summary)
     i = 0
     H_id = accelerance(result.M, result.C, result.K, frf.omega,
                        selection_matrix(result.dofs, frf.inputs[:1]))[:, i, 0]

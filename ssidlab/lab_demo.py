@@ -24,7 +24,6 @@ The test setup is :func:`demo_setup_text` (also ``examples/setup_sim.toml``).
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -64,6 +63,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
     from ssid.io import Model, read_frf, write_model
     from ssid.modal import complex_modes, root_frequency_damping
     from ssid.plots_correlation import plot_frequency_errors, plot_frf_overlay, plot_mac_matrix
+    from ssidlab.argtypes import write_json
     from ssidlab.cli_correlate import jsonable
 
     t0 = time.monotonic()
@@ -88,7 +88,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
     res = identify_mck(frf)
     ident = res.to_model()
     write_model(out / "model.h5", ident)
-    (out / "result.json").write_text(json.dumps(res.to_json_dict(), indent=2) + "\n", encoding="utf-8")
+    write_json(out / "result.json", res.to_json_dict())
 
     echo("[3/5] correlating with the FE model (nominal payload model) and with the simulated truth")
     M, C, K, dofs = payload_substructure(0.02)
@@ -117,7 +117,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
         echo(f"      {k + 1:>4} {f_id[k]:>9.2f} {100 * res.damping_ratio[k]:>6.2f} {f_true[k]:>9.2f} "
              f"{err_true[k]:>9.3f} {fe_cells}")
     in_band = (f_true[:n] >= frf.freq_hz[0]) & (f_true[:n] <= frf.freq_hz[-1])
-    (out / "correlation.json").write_text(json.dumps(corr, indent=2) + "\n", encoding="utf-8")
+    write_json(out / "correlation.json", corr)
     shifted = [p for p in pairs if abs(p["freq_error_percent"]) > 1.0]
     echo(f"      identified vs truth: max |error| {np.max(np.abs(err_true[in_band])):.3f} % over the "
          f"{int(in_band.sum())} modes in the band {frf.freq_hz[0]:g}-{frf.freq_hz[-1]:g} Hz, "
@@ -135,7 +135,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
     measured = dataclasses.replace(frf, H_reaction=None, H_reaction_var=None, reactions=None)
     disc = find_discrepancy(nominal, measured)
     dj = disc.to_json_dict()
-    (out / "discrepancy.json").write_text(json.dumps(jsonable(dj), indent=2) + "\n", encoding="utf-8")
+    write_json(out / "discrepancy.json", dj)
     write_model(out / "updated_model.h5", disc.updated_model)
     (out / "discrepancy").mkdir(exist_ok=True)
     write_plots(disc, out / "discrepancy")
@@ -145,8 +145,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
     # No stand model: the payload model alone, loaded by the measured reactions (the data
     # decide whether to apply them; the line says which way it went).
     sub = find_discrepancy(fe, frf).to_json_dict()
-    (out / "discrepancy_substructure.json").write_text(json.dumps(jsonable(sub), indent=2) + "\n",
-                                                       encoding="utf-8")
+    write_json(out / "discrepancy_substructure.json", sub)
     params = ", ".join(f"{k} {v:.4g}" for k, v in sub["parameters"].items())
     how = "loaded by the measured reactions" if sub["reactions"]["applied"] else "the reactions not applied"
     echo(f"      the FE payload alone, {how}: {sub['effect']} at {', '.join(sub['dofs'])} ({params}); "
@@ -186,7 +185,7 @@ def run_lab_demo(out_dir: str, echo=print) -> dict:
         "runtime_s": time.monotonic() - t0,
         "files": _files_written(out),
     }
-    (out / "summary.json").write_text(json.dumps(jsonable(summary), indent=2) + "\n", encoding="utf-8")
+    write_json(out / "summary.json", summary)
     echo(f"done in {summary['runtime_s']:.0f} s: {out}/ " + ", ".join(summary["files"]))
     return summary
 

@@ -218,6 +218,23 @@ def test_blanked_values_and_noise_weights_are_respected():
     assert res.parameters["mass_kg"] == pytest.approx(0.08, rel=0.05)
 
 
+def test_a_file_whose_variances_are_all_zero_is_weighted_from_its_roughness():
+    """H_var of zeros (no variance estimated) became a variance of 1 (m/s^2/N)^2 everywhere:
+    the gaps, said in units of the noise, came out 40 times too small, without a word. Noise
+    model: circular complex Gaussian, 2 % of |H|, on the 8-DOF chain's accelerances."""
+    M, C, K, dofs = example_system(8, seed=3)
+    frf = accelerance_from_model(M, C, K, dofs, np.geomspace(10.0, 700.0, 400), dofs, [dofs[1]])
+    frf.H = _noisy(frf.H, seed=5)
+    true_var = (0.02 * np.abs(frf.H)) ** 2
+    frf.H_var = np.zeros(frf.H.shape)
+    valid = np.ones(frf.H.shape, bool)
+    W, info = noise_weights(frf, valid)
+    assert info["source"].startswith("H_var holds no positive variance, not used; ")
+    # the roughness estimate's level, not one arbitrary level: the typical line within the
+    # two-level estimate's bounds of the next test (0.97 here)
+    assert 0.75 < np.median(1.0 / (W**2 * true_var)) < 1.25
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_relative_noise_and_floor_are_read_from_roughness_not_from_the_frfs_curvature(seed):
     """Noise model: circular complex Gaussian, variance (1 % of |H|)^2 plus (1e-4 of the FRF's

@@ -245,12 +245,18 @@ def noise_weights(frf: FRFData, valid: np.ndarray) -> tuple[np.ndarray, dict]:
         weighted data: about 1 when the weights' level is right).
     """
     H = np.where(valid, frf.H, 0)
+    s2, unusable = None, ""
     if frf.H_var is not None:
         s2 = np.where(valid, np.asarray(frf.H_var, dtype=float), np.nan)
         s2 = np.where(np.isfinite(s2) & (s2 > 0), s2, np.nan)
         source, needs_level = "H_var", False
-    else:
+        if not np.isfinite(s2).any():
+            # All zero (or NaN): no variance was estimated. Filled, they would set every
+            # weight to one arbitrary level (1 (m/s^2/N)^2) and the gaps in no unit at all.
+            s2, unusable = None, "H_var holds no positive variance, not used; "
+    if s2 is None:
         s2, source, needs_level = _variance_shape(frf.coherence, H, valid)
+        source = unusable + source
     s2 = _filled(s2)
     kappa = np.ones(H.shape[1:])
     if needs_level:

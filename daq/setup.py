@@ -269,7 +269,9 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
         amplifiers.append(AmplifierSpec(
             name=t.str("name", required=True), host=t.str("host", "127.0.0.1"),
             port=t.int("port", 502, lo=0, hi=65535),
-            gain_v_per_v=t.num("gain_v_per_v", 1.0, lo=0.0, hi=50.0),
+            # 0 passes no drive: the level control would run the generator to its limit on
+            # every line for a force of nothing.
+            gain_v_per_v=t.num("gain_v_per_v", 1.0, lo=0.0, lo_open=True, hi=50.0),
             device_id=t.int("device_id", 1, lo=0, hi=247)))
         t.done()
     channels = []
@@ -322,6 +324,19 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
         output_file=output_file, uff_file=uff_file, raw_time=raw_time, daq=daq,
         generators=generators, amplifiers=amplifiers, shakers=shakers, channels=channels,
         excitation=excitation, sine=sine, random=rnd, limits=limits, min_coherence=min_coh, sim=sim)
+    if excitation == "stepped_sine":
+        # Both would stop or spoil every run of this setup: a first drive above the limit is
+        # cut to it and can overshoot the force limit on the first line; a force target at
+        # or above the force limit cannot be held.
+        for p, sh in enumerate(shakers):
+            if sine.initial_vpp > setup.drive_limit_vpp(p):
+                raise InputError(
+                    f"{src}: [stepped_sine] initial_vpp: {sine.initial_vpp:g} Vpp is more than shaker {sh.dof!r} "
+                    f"may get, {setup.drive_limit_vpp(p):g} Vpp ([limits] max_drive_vpp, or the max_vpp of "
+                    f"generator {sh.generator!r})")
+        if sine.control == "force" and sine.force_n >= limits.max_force_n:
+            raise InputError(f"{src}: [stepped_sine] force_n: {sine.force_n:g} N is not below [limits] max_force_n "
+                             f"({limits.max_force_n:g} N): the level control could not hold it")
     if excitation == "random":
         # The random level is fixed: one the generator refuses would stop every run of
         # this setup at its start, as an instrument error.
@@ -424,6 +439,8 @@ def _parse_sine(src: str, doc: dict, channels: list[ChannelSpec], daq: DaqSpec) 
         damping_guess=t.num("damping_guess", 0.01, lo=1e-5, hi=0.5))
     if control != "force" and spec.control_target <= 0:
         raise t.error("control_target", "must be > 0 (m/s^2) when control is an accelerometer")
+    if spec.max_dwell_s < spec.min_dwell_s:
+        raise t.error("max_dwell_s", f"must be at least min_dwell_s ({spec.min_dwell_s:g} s)")
     t.done()
     return spec
 

@@ -113,6 +113,29 @@ def test_a_random_level_beyond_a_drive_limit_is_refused(tmp_path):
     assert load_setup(p).random.drive_vpp == 4.0
 
 
+@pytest.mark.parametrize("extra, limits, gain, said", [
+    ("initial_vpp = 6.0", "", "2.0", "[stepped_sine] initial_vpp: 6 Vpp is more than shaker '1+Z' may get, 4 Vpp"),
+    ("", "max_force_n = 1.0", "2.0", "[stepped_sine] force_n: 1 N is not below [limits] max_force_n (1 N)"),
+    ("min_dwell_s = 0.5\nmax_dwell_s = 0.1", "", "2.0", "[stepped_sine] max_dwell_s: must be at least min_dwell_s"),
+    ("", "", "0.0", "[[amplifiers]] #1 gain_v_per_v"),
+])
+def test_a_sine_setup_that_cannot_do_what_it_asks_is_refused(tmp_path, extra, limits, gain, said):
+    """Each was taken and driven (QA): a first drive above the generator's 4 Vpp, cut to the
+    limit, overshot the force limit and aborted the first line; a force target at the force
+    limit held 13 sub-lines below it; the dwell bounds crossed; an amplifier gain of 0 ran its
+    shaker at full drive for no force on every line."""
+    p = tmp_path / "s.toml"
+    text = sine_setup(extra=extra, limits=limits)
+    assert text.count("gain_v_per_v = 2.0") == 1
+    p.write_text(text.replace("gain_v_per_v = 2.0", f"gain_v_per_v = {gain}"))
+    with pytest.raises(InputError) as e:
+        load_setup(p)
+    assert said in str(e.value) and str(p) in str(e.value), str(e.value)
+    p.write_text(sine_setup(extra="initial_vpp = 4.0\nmin_dwell_s = 0.1\nmax_dwell_s = 0.1",
+                            limits="max_force_n = 1.01"))
+    load_setup(p)  # at the bounds: taken
+
+
 def test_the_steady_state_check_is_refused_for_continuous_random(tmp_path):
     """``accuracy`` and ``max_settle_s`` set the steady-state check of periodic and burst
     random; set for continuous random they would do nothing, so they are refused, not

@@ -65,7 +65,7 @@ def peek_run_file(path: str | Path) -> tuple[str | None, int] | None:
     ``state`` None and ``n_done`` 0 where ``/acq`` lacks them; None when there is no readable
     HDF5 file with ``/acq`` at ``path``."""
     try:
-        with h5py.File(path, "r") as f:
+        with h5py.File(path, "r", locking=False) as f:  # a running acquisition holds the lock
             acq = f.get("acq")
             if not isinstance(acq, h5py.Group):
                 return None

@@ -327,3 +327,27 @@ def test_damaged_hdf5_metadata_is_a_one_line_error(tmp_path, ssidlab, command, k
     status, _, err = ssidlab(*args)
     line = one_error_line(err, command)
     assert status == 2 and f"{bad}: damaged HDF5 file" in line, line
+
+
+def test_a_file_another_process_writes_is_read_not_called_damaged(tmp_path):
+    """A running acquisition holds its run file for writing, and HDF5's lock refused every
+    reader: `read_frf`, `convert`, `compare` said "damaged HDF5 file (unable to lock file)",
+    of a good file that docs/acquisition.md says is readable during the run."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "frf.h5"
+    write_frf(path, chain_frf())
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, h5py; f = h5py.File(sys.argv[1], 'r+'); print('open', flush=True); "
+         "sys.stdin.read()", str(path)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "open"
+        with pytest.raises(OSError, match="unable to lock file"):  # what a reader meets
+            h5py.File(path, "r")
+        from ssid.io import read_frf
+
+        assert np.array_equal(read_frf(path).H, chain_frf().H)
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=30)

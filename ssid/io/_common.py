@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import io
 import os
 from collections.abc import Callable, Iterator
@@ -185,8 +186,17 @@ def _open_h5(path: PathLike, src: str) -> Iterator[h5py.File]:
         raise _error(src, "not an HDF5 file" + _uff_hint(path))
     try:
         f = h5py.File(path, "r")
-    except OSError as exc:  # an HDF5 signature but a truncated or corrupt body
-        raise _error(src, f"damaged HDF5 file ({exc})") from exc
+    except OSError as exc:
+        if not _locked_by_a_writer(exc):  # an HDF5 signature but a truncated or corrupt body
+            raise _error(src, f"damaged HDF5 file ({exc})") from exc
+        # A running acquisition holds its run file for writing, and the file is meant to be
+        # read meanwhile (flushed after every line, docs/acquisition.md); HDF5's lock would
+        # refuse any reader. Read-only, nothing is lost by not taking the lock.
+        try:
+            f = h5py.File(path, "r", locking=False)
+        except OSError as exc2:
+            raise _error(src, "in use by another process (a running acquisition?) and not readable at "
+                              f"this moment; try again ({exc2})") from exc2
     try:
         with f:
             yield f
@@ -199,6 +209,11 @@ def _open_h5(path: PathLike, src: str) -> Iterator[h5py.File]:
         if not _raised_in_h5py(exc):
             raise
         raise _error(src, f"damaged HDF5 file, cannot read its content ({type(exc).__name__}: {exc})") from exc
+
+
+def _locked_by_a_writer(exc: OSError) -> bool:
+    """Whether h5py's ``exc`` is HDF5's file lock refusing a reader (another process writes)."""
+    return exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK) or "unable to lock file" in str(exc)
 
 
 def _raised_in_h5py(exc: BaseException) -> bool:

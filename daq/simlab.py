@@ -139,7 +139,12 @@ def build_world(setup: TestSetup):
                      sample_rate_hz=setup.daq.sample_rate_hz, noise=noise, seed=seed, oversample=oversample,
                      antialias_passband=setup.daq.passband_fraction)
     except (WorldError, ValueError) as exc:
-        raise InputError(f"{src}: [sim]: {exc}") from None
+        # Without a [sim] table every key is its default (the 14-DOF example structure): a
+        # setup for the payload then fails on a DOF, which would not say why.
+        hint = "" if setup.sim else (
+            " (the setup has no [sim] table, so the simulated structure is the default 'example', "
+            "DOFs 1+Z to 14+Z; the payload's needs structure = \"payload\")")
+        raise InputError(f"{src}: [sim]: {exc}{hint}") from None
 
 
 def _sensitivity_errors(setup: TestSetup, raw) -> dict[str, float]:

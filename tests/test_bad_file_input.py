@@ -268,6 +268,19 @@ def test_sim_model_validates_the_sim_tables(tmp_path, ssidlab, old, new, match):
     assert not (tmp_path / "model.h5").exists()
 
 
+def test_sim_model_of_a_setup_without_a_sim_table_says_it_has_none(tmp_path, ssidlab):
+    """Said only "[sim]: shaker at unknown DOF '16+Z'" (QA): the defaults' 14-DOF example
+    structure was not named."""
+    from daq.simlab import example_setup_text
+
+    text = example_setup_text()
+    setup = tmp_path / "setup.toml"
+    setup.write_text(text[:text.index("[sim]")])
+    status, _, err = ssidlab("sim-model", setup, "--out", tmp_path / "model.h5")
+    line = one_error_line(err, "sim-model")
+    assert status == 2 and "the setup has no [sim] table" in line and "structure = \"payload\"" in line, line
+
+
 # ----------------------------------------------------------------------------------------------
 # 8. discrepancy: options that would be ignored
 # ----------------------------------------------------------------------------------------------

@@ -59,6 +59,16 @@ def run_compare(args: argparse.Namespace) -> int:
         print(f"warning: {cmp.n_unmatched} lines of the band both files cover have no line in the "
               f"other file (different line grids?); compared over the {f.size} that match",
               file=sys.stderr)
+    only = {f"{kind} only in {src}": [x for x in mine if x not in theirs]
+            for kind, src, mine, theirs in (("outputs", args.a, a.outputs, b.outputs),
+                                            ("outputs", args.b, b.outputs, a.outputs),
+                                            ("inputs", args.a, a.inputs, b.inputs),
+                                            ("inputs", args.b, b.inputs, a.inputs))}
+    only = {what: labels for what, labels in only.items() if labels}
+    for what, labels in only.items():
+        # Not compared, so not in the verdict: "all agree" must not cover a channel that one
+        # file lacks (renamed, or dropped from one test).
+        print(f"warning: {what}, not compared: {', '.join(labels)}", file=sys.stderr)
     skipped = len(cmp.outputs) * len(cmp.inputs) - n
     if skipped:
         # Not in the verdict's count: "all 30 agree" of 32 would read as all of them.
@@ -76,6 +86,7 @@ def run_compare(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, {
             "a": args.a, "b": args.b, "n_lines": int(f.size), "n_unmatched": cmp.n_unmatched,
+            "not_compared": only,
             "n_compared": n, "n_differ": len(bad), "agree": not bad, "verdict": verdict,
             "frfs": [{"output": o, "input": i, **c.to_json_dict()}
                      for o, row in zip(cmp.outputs, cmp.curves) for i, c in zip(cmp.inputs, row) if c is not None]})

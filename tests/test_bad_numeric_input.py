@@ -175,6 +175,26 @@ def test_compare_says_which_frfs_it_left_out(tmp_path, ssidlab):
                    "not compared\n"), err
 
 
+def test_compare_names_the_channels_one_file_lacks(tmp_path, ssidlab):
+    """An output renamed in one file was left out of the comparison without a word: "all 4
+    FRFs agree" of the 6 the first file holds (QA)."""
+    a = chain_frf()
+    b = dataclasses.replace(a, outputs=["1+Z", "2+Zx", "3+Z"])
+    src_a, src_b = _write(tmp_path, a, "a.h5"), _write(tmp_path, b, "b.h5")
+    status, out, err = ssidlab("compare", src_a, src_b, "--quiet", "--json", tmp_path / "c.json")
+    assert status == 0 and out.startswith("all 4 FRFs agree"), out
+    assert err == (f"warning: outputs only in {src_a}, not compared: 2+Z\n"
+                   f"warning: outputs only in {src_b}, not compared: 2+Zx\n"), err
+    assert json.loads((tmp_path / "c.json").read_text())["not_compared"] == {
+        f"outputs only in {src_a}": ["2+Z"], f"outputs only in {src_b}": ["2+Zx"]}
+
+
+def test_an_empty_dof_label_is_refused(tmp_path):
+    """A blank label was read as a DOF (QA: compare matched the others and said nothing)."""
+    with pytest.raises(InputError, match=re.escape("outputs[1] is an empty label")):
+        write_frf(tmp_path / "f.h5", dataclasses.replace(chain_frf(), outputs=["1+Z", " ", "3+Z"]))
+
+
 def test_compare_matches_lines_stored_in_float32(tmp_path, ssidlab):
     """freq_hz written as float32 in one file: only the lines float32 holds exactly matched a
     1e-9 relative tolerance (25 of 1024 on the demo record), with "agree" and no warning."""

@@ -126,7 +126,9 @@ def _labels(src: str, name: str, labels: Any) -> list[str]:
     if not items:
         raise _error(src, f"{name} is empty")
     seen: set[str] = set()
-    for item in items:
+    for k, item in enumerate(items):
+        if not item.strip():  # no DOF: FRFs would be matched (or not) by a blank
+            raise _error(src, f"{name}[{k}] is an empty label")
         if item in seen:
             raise _error(src, f"duplicate label {item!r} in {name}")
         seen.add(item)

@@ -46,6 +46,7 @@ from .errors import InputError
 from .frf import FRFData, require_response
 from .io import Model
 from .reaction_loads import choose_reactions, model_frf_under_loads
+from .rigid_body import semi_definite
 from .tam import (
     TAM_METHODS,
     dof_indices,
@@ -306,6 +307,10 @@ def correlate_with_frf(
     else:
         C = analysis.C
         damping_source = "model C"
+        if not semi_definite(C):
+            warnings.append(f"the analysis model's C has the eigenvalue {np.linalg.eigvalsh(C)[0]:.3g}: it is not a "
+                            "damping matrix (some motions would gain energy), and the FRFs FRAC and the gap "
+                            "compare with are those of a model that is not passive")
     choice = choose_reactions(analysis.M, C, analysis.K, analysis.dofs, test, reactions)
     model = FRFData(test.freq_hz, model_frf_under_loads(analysis.M, C, analysis.K, analysis.dofs, test, choice.loads),
                     list(test.outputs), list(test.inputs))

@@ -22,6 +22,7 @@ from ssid.discrepancy.cases import make_case
 from ssid.discrepancy.damping import peak_damping_ratios
 from ssid.discrepancy.search import NEGLIGIBLE_CHANGE, candidate_frf, search_round
 from ssid.discrepancy.weights import neighbour_power, noise_weights, two_level_variance
+from ssid.discrepancy.workflow import check_model
 from ssid.errors import InputError
 from ssid.frf import FRFData, accelerance_from_model
 from ssid.io import Model, read_model, write_model
@@ -322,6 +323,10 @@ def test_bad_input_raises_input_error():
         find_discrepancy(Model(M=negative, K=K, C=C, dofs=dofs), frf)
     with pytest.raises(InputError, match="the model's K has the eigenvalue.*unstable"):
         find_discrepancy(Model(M=M, K=-K, C=C, dofs=dofs), frf)
+    # a C that feeds energy in was taken (QA); an undamped model's C of zeros still is
+    with pytest.raises(InputError, match="the model's C has the eigenvalue .*gain energy"):
+        find_discrepancy(Model(M=M, K=K, C=-C, dofs=dofs), frf)
+    check_model(Model(M=M, K=K, C=0 * C, dofs=dofs))
 
 
 def test_52_dof_model_16_outputs_1000_lines_names_the_mass():

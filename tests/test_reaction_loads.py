@@ -137,6 +137,10 @@ def test_correlation_with_frfs_on_a_stand_compares_the_substructure_model_under_
     slipped = correlate_with_frf(_with_load_cell_gain(frf, 1, 1000.0), Model(M=M, C=C, K=K, dofs=dofs)).summary
     assert slipped["reactions"]["load_cell_factor"] == {"13": 1000.0}
     assert slipped["reactions"]["text"] in slipped["warnings"] and slipped["frf_gap"] < 1e-9
+    # A C that feeds energy in was taken without a word (QA).
+    unstable = correlate_with_frf(frf, Model(M=M, C=-C, K=K, dofs=dofs)).summary
+    assert any(w.startswith("the analysis model's C has the eigenvalue") for w in unstable["warnings"])
+    assert not any("C has the eigenvalue" in w for w in s["warnings"])
 
 
 def test_the_tui_results_load_an_engineers_payload_model_with_the_runs_reactions(tmp_path):

@@ -217,6 +217,8 @@ def load_setup(path: str | Path) -> TestSetup:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         raise InputError(f"{src}: not UTF-8 text") from None
+    if not text.strip():  # TOML takes it, and its first complaint would be a missing [output]
+        raise InputError(f"{src}: empty file (a setup file, SETUP.toml, was expected)")
     return parse_setup(text, src)
 
 

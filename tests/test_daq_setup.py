@@ -82,6 +82,14 @@ def test_bad_setup_names_the_key(tmp_path, edit, key):
     assert key in msg and str(p) in msg and "\n" not in msg
 
 
+def test_an_empty_setup_file_is_called_empty(tmp_path):
+    """Was "[output] file: missing (required)" (QA: `ssidlab check run.h5` on an empty file)."""
+    p = tmp_path / "run.h5"
+    p.write_text("\n")
+    with pytest.raises(InputError, match=re.escape(f"{p}: empty file (a setup file, SETUP.toml, was expected)")):
+        load_setup(p)
+
+
 def test_band_beyond_the_daq_passband_is_refused(tmp_path):
     """At 4096 S/s the front end's filter passes up to 0.45 fs = 1843.2 Hz: a stepped sine
     or random band past it is refused, naming the limit and the way out; a band up to it is

@@ -259,6 +259,8 @@ def labels_from_grid_components(pairs: np.ndarray) -> list[str]:
         raise ValueError("grid/component pairs must be whole numbers")
     out = []
     for grid, comp in a.astype(int):
+        if grid < 1:  # Nastran grid IDs run from 1; "-1+Z" would be refused by every export later
+            raise ValueError(f"grid {int(grid)} is not a Nastran grid ID (1 or more)")
         if int(comp) not in _COMPONENTS:
             raise ValueError(f"component {int(comp)} of grid {int(grid)} is not 0-6")
         out.append(f"{int(grid)}{_COMPONENTS[int(comp)]}")

@@ -88,6 +88,9 @@ def test_grid_component_labels():
     assert labels_from_grid_components(np.array([[17, 4], [9, 0], [3, 6]])) == ["17+RX", "9", "3+RZ"]
     with pytest.raises(ValueError, match="0-6"):
         labels_from_grid_components(np.array([[1, 7]]))
+    # gave "-1+Z", which place and correlate took and every export refused later (QA)
+    with pytest.raises(ValueError, match="grid -1 is not a Nastran grid ID"):
+        labels_from_grid_components(np.array([[2, 3], [-1, 3]]))
 
 
 @pytest.mark.parametrize(

@@ -409,3 +409,15 @@ def test_a_json_summary_the_disk_cannot_take_leaves_the_old_one_whole(tmp_path):
     assert proc.stdout.strip() == f"{old}: cannot write (File too large)", proc.stderr
     assert json.loads(old.read_text()) == {"good": True}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="preexec_fn needs fork")
+def test_a_uff_export_the_disk_cannot_take_is_one_line(tmp_path, good_file):
+    """pyuff wraps a failed write in a bare Exception, which came out as an internal error
+    ("pyuff could not write dataset 2 (type 58)", exit 1)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+    env.pop("SSIDLAB_DEBUG", None)
+    proc = subprocess.run([sys.executable, "-m", "ssidlab", "convert", str(good_file), "x.uff"], cwd=tmp_path,
+                          env=env, capture_output=True, text=True, timeout=120, preexec_fn=_with_file_size_limit(4096))
+    assert_one_line_error(proc, "ssidlab convert: error: x.uff: cannot write (File too large)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frf.h5"]

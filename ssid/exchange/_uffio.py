@@ -197,6 +197,17 @@ def _fix_58b_byte_count(chunk: bytes) -> bytes:
     return b"\n".join([lines[0], fixed, rest])
 
 
+def _os_error_within(exc: BaseException) -> OSError | None:
+    """The OSError an exception was raised in handling of (its ``__context__`` chain), if any."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, OSError):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
 def write_datasets(path: str | os.PathLike, datasets: list[dict]) -> None:
     """Write pyuff dataset dictionaries to a new UFF file (replacing any file at ``path``).
 
@@ -205,7 +216,7 @@ def write_datasets(path: str | os.PathLike, datasets: list[dict]) -> None:
     InputError
         pyuff is missing.
     OSError
-        The file cannot be created.
+        The file cannot be created or written (a full disk, also when pyuff meets it).
     RuntimeError
         pyuff refuses a dataset (a bug in the caller: inputs are validated before).
     """
@@ -223,6 +234,9 @@ def write_datasets(path: str | os.PathLike, datasets: list[dict]) -> None:
                     warnings.simplefilter("ignore", ResourceWarning)
                     pyuff.UFF(scratch).write_sets(dict(dset), mode="add")
             except Exception as exc:
+                disk = _os_error_within(exc)
+                if disk is not None:  # pyuff wraps a failed write (a full disk) in a bare Exception
+                    raise disk from exc
                 raise RuntimeError(
                     f"pyuff could not write dataset {k + 1} (type {dset.get('type')}): {exc}"
                 ) from exc

@@ -130,6 +130,10 @@ def check_output_paths(inputs: list[str], outputs: list[str | None]) -> None:
         seen.add(real)
         if os.path.isdir(path):
             raise InputError(f"{path}: is a directory, expected a file name")
+        if os.path.exists(path) and not os.path.isfile(path):
+            # Said at the write too (ssid.files.written_atomically), but after the work.
+            raise InputError(f"{path}: cannot write (it exists and is not a regular file: a device, a pipe "
+                             "or a socket; give the name of a file)")
         parent = Path(path).parent
         if not parent.is_dir():
             raise InputError(f"{path}: cannot write, directory {str(parent)!r} does not exist")

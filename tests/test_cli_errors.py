@@ -234,14 +234,20 @@ def test_identify_writes_model_json_and_table(tmp_path, good_file, fake_identify
 def test_an_output_that_is_a_pipe_is_refused_not_replaced(tmp_path, good_file, fake_identify, capsys):
     """Files are written under a temporary name and renamed onto the name given: onto a
     device or a pipe that replaced it with a regular file (as root, ``--out /dev/null``
-    replaced the system's /dev/null). A named pipe stands in for the device here."""
-    out = tmp_path / "m.h5"
-    os.mkfifo(out)
-    rc = main(["identify", str(good_file), "--out", str(out), "--json", str(tmp_path / "r.json")])
-    err = capsys.readouterr().err
-    assert rc == 2 and err.startswith(f"ssidlab identify: error: {out}: cannot write (it exists and is not a "
-                                      "regular file"), err
-    assert out.is_fifo()
+    replaced the system's /dev/null). A named pipe stands in for the device here. It is said
+    before the identification (QA: --json /dev/full was said only after it)."""
+    for name in ("m.h5", "r.json"):
+        out = tmp_path / name
+        os.mkfifo(out)
+        other = {"m.h5": tmp_path / "ok.json", "r.json": tmp_path / "ok.h5"}[name]
+        args = ["--out", str(out), "--json", str(other)] if name == "m.h5" else ["--out", str(other), "--json", str(out)]
+        rc = main(["identify", str(good_file), *args])
+        err = capsys.readouterr().err
+        assert rc == 2 and err.startswith(f"ssidlab identify: error: {out}: cannot write (it exists and is not a "
+                                          "regular file"), err
+        assert out.is_fifo() and not other.exists()
+        out.unlink()
+    assert fake_identify.calls == []
 
 
 def test_identify_defaults_and_quiet(tmp_path, good_file, fake_identify, capsys):

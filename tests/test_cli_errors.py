@@ -240,8 +240,8 @@ def test_an_output_that_is_a_pipe_is_refused_not_replaced(tmp_path, good_file, f
         out = tmp_path / name
         os.mkfifo(out)
         other = {"m.h5": tmp_path / "ok.json", "r.json": tmp_path / "ok.h5"}[name]
-        args = ["--out", str(out), "--json", str(other)] if name == "m.h5" else ["--out", str(other), "--json", str(out)]
-        rc = main(["identify", str(good_file), *args])
+        h5, js = (out, other) if name == "m.h5" else (other, out)
+        rc = main(["identify", str(good_file), "--out", str(h5), "--json", str(js)])
         err = capsys.readouterr().err
         assert rc == 2 and err.startswith(f"ssidlab identify: error: {out}: cannot write (it exists and is not a "
                                           "regular file"), err

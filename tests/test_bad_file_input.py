@@ -324,6 +324,11 @@ def _damaged_copy(src, dst, at: bytes, offset: int, new: bytes):
     ("convert", "frf", b"TREE", 0, b"XXXX"),
     # the byte before the root attribute's name: "ran off end of input buffer", a RuntimeError
     ("export-model", "model", b"format", -3, b"\xa2"),
+    # the root group's index damaged: h5py's get() said the datasets were absent ("missing
+    # dataset /M"), which reads as a file of the wrong kind
+    ("export-model", "model", b"TREE", 0, b"XXXX"),
+    ("export-model", "model", b"HEAP", 0, b"XXXX"),
+    ("export-model", "model", b"SNOD", 0, b"XXXX"),
 ])
 def test_damaged_hdf5_metadata_is_a_one_line_error(tmp_path, ssidlab, command, kind, at, offset, new):
     """Was an internal error (exit 1): RuntimeError from h5py, which only OSError was turned

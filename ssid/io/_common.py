@@ -286,6 +286,9 @@ def _dataset(src: str, f: h5py.File, name: str, required: bool) -> h5py.Dataset 
     obj = f.get(name)
     if obj is None:
         if required:
+            # h5py's get() says "absent" also when the group's index is damaged; listing the
+            # group then raises, in h5py (_open_h5 calls that damage).
+            list(f.keys())
             raise _error(src, f"missing dataset /{name}")
         return None
     if not isinstance(obj, h5py.Dataset):

@@ -17,6 +17,7 @@ user interface (``ssidlab acquire --events``).
 from __future__ import annotations
 
 import json
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -82,7 +83,25 @@ def latching_interrupt_handler(exc_type: type[BaseException] = KeyboardInterrupt
         if not hold_interrupt(exc_type):
             raise exc_type()
 
+    _quiet_about_latched_interrupts()
     return handler
+
+
+def _quiet_about_latched_interrupts() -> None:
+    """Install a ``sys.unraisablehook`` that keeps quiet about an interrupt the handler raised
+    inside a finalizer: Python printed it as "Exception ignored in: ..." with a traceback, on
+    the command's one-line stderr, although the interrupt is latched and raised again
+    (:func:`raise_if_interrupted`). Anything else goes to the hook that was there before."""
+    previous = sys.unraisablehook
+    if getattr(previous, "quiet_about_latched_interrupts", False):
+        return
+
+    def hook(unraisable) -> None:
+        if unraisable.exc_type not in _latched:
+            previous(unraisable)
+
+    hook.quiet_about_latched_interrupts = True
+    sys.unraisablehook = hook
 
 
 def raise_if_interrupted() -> None:

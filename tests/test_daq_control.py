@@ -154,6 +154,38 @@ def test_the_latch_raises_the_interrupt_type_it_caught():
     raise_if_interrupted()  # raised once, then forgotten
 
 
+def test_an_interrupt_swallowed_by_a_finalizer_prints_no_traceback():
+    """Python printed the dropped interrupt as "Exception ignored in: ..." with a traceback on
+    the command's stderr (QA: once in 100 interrupted resumes), though the latch raises it
+    again. A real SIGINT, delivered inside a finalizer, in a process of its own."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = """
+import os, signal
+from daq.control import latching_interrupt_handler, raise_if_interrupted
+signal.signal(signal.SIGINT, latching_interrupt_handler(KeyboardInterrupt))
+
+class Dies:
+    def __del__(self):
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(1000):  # the handler runs between these bytecodes, inside the finalizer
+            pass
+
+Dies()
+try:
+    raise_if_interrupted()
+except KeyboardInterrupt:
+    print("raised again")
+"""
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "PYTHONPATH": str(root)})
+    assert proc.stdout == "raised again\n" and proc.stderr == "", proc.stderr
+
+
 def test_a_run_latches_ctrl_c_while_it_runs_and_restores_the_handler(tmp_path):
     """Called with Python's default SIGINT handler (the demo, a script), the run puts the
     latching one in place for its duration and restores the default after."""

@@ -42,7 +42,7 @@ import numpy as np
 
 from ssid.errors import InputError
 from ssid.frf import FRFData
-from ssid.io import write_frf
+from ssid.io import read_frf, write_frf
 
 __all__ = ["RunFile", "STATUS_ABORTED", "STATUS_OK", "SINE_FIELDS", "peek_run_file"]
 
@@ -73,6 +73,21 @@ def peek_run_file(path: str | Path) -> tuple[str | None, int] | None:
             return (None if state is None else str(state)), (0 if n_done is None else int(n_done[0]))
     except Exception:  # noqa: BLE001 -- no file, not HDF5, a broken /acq: nothing to report
         return None
+
+
+def _check_compact(path: Path, frf: FRFData, run_path: Path) -> None:
+    """Read the compact file ``path`` back before it replaces the run file ``run_path``: what
+    HDF5 failed to write while closing it is only printed, not raised, and the run file is
+    the measurement."""
+    try:
+        back = read_frf(path)
+        with h5py.File(path, "r") as g:
+            int(g["acq/n_done"][0])
+        if back.n_freq != frf.n_freq:
+            raise InputError(f"{back.n_freq} of {frf.n_freq} lines")
+    except (InputError, OSError, RuntimeError, KeyError) as exc:
+        raise OSError(f"{run_path}: the finished file did not read back whole ({exc}); the run file is kept, "
+                      f"and `ssidlab acquire --resume {run_path}` finishes it (a full disk?)") from exc
 
 
 class _Inconsistent(ValueError):
@@ -393,6 +408,10 @@ class RunFile:
                 self.f.copy(self.acq, g, name="acq")
                 g["acq"].attrs["state"] = state
                 g["acq"].attrs["finished_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+                # A write that fails (a full disk) raises here; at the close below HDF5 would
+                # only print it, and the broken copy would replace the run file.
+                g.flush()
+            _check_compact(tmp, frf, self.path)
             self.f.close()
             os.replace(tmp, self.path)
         except BaseException:

@@ -59,6 +59,34 @@ def test_kill_9_while_the_file_is_finished_leaves_a_run_that_resume_finishes(tmp
     assert resumed.valid_mask().all()
 
 
+def test_a_finished_file_that_does_not_read_back_does_not_replace_the_run_file(tmp_path, monkeypatch):
+    """On a full disk HDF5 reports the compact file's failed writes at its close, where h5py
+    only prints them: the broken copy replaced the run file, and the measurement was lost.
+    Here the compact FRF is written short (its H cut to one line) as such a write would leave
+    it; the run stops with the run file kept, and a resume finishes it."""
+    import daq.storage as st
+    from ssid.io import write_frf
+
+    def written_short(path, frf):
+        write_frf(path, frf)
+        with h5py.File(path, "r+") as f:  # what a failed write leaves: a dataset cut short
+            H = f["H"][:1]
+            del f["H"]
+            f["H"] = H
+
+    monkeypatch.setattr(st, "write_frf", written_short)
+    text = sine_setup(n_lines=3, refine=2)
+    (tmp_path / "s.toml").write_text(text)
+    run = tmp_path / "run.h5"
+    with pytest.raises(OSError, match=f"{run}: the finished file did not read back whole .*the run file is kept"):
+        cli([str(tmp_path / "s.toml"), "--sim", "--out", str(run), "--quiet"])  # exit 2 in ssidlab.cli.main
+    assert _state(run) == "running" and not list(tmp_path.glob(".run.h5.*.final"))
+    monkeypatch.undo()
+    status, err = cli(["--resume", str(run), "--sim", "--quiet"])
+    assert status == 0 and _state(run) == "complete", err
+    assert read_frf(run).valid_mask().all()
+
+
 def test_a_ctrl_c_while_the_finished_run_reaches_its_safe_state_is_not_lost(tmp_path, monkeypatch):
     """Held back while the file is finished (it must not cut the safe state or the file),
     the Ctrl-C is raised once the file is complete: the steps after it (the UFF export) are

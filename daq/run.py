@@ -195,10 +195,11 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
     """
     path = Path(out or setup.output_file)
     uff = uff_export_path(setup, path, out)
-    if uff is not None and os.path.realpath(uff) == os.path.realpath(path):
-        # The export, written at the end, would replace the measurement with its UFF copy.
-        raise InputError(f"{uff}: the UFF export ([output] uff) would overwrite the run file; "
-                         "give one of them another name")
+    for other, what in ((path, "the run file"), (Path(setup.source), "the setup file")):
+        # Written at the end, the export would replace the measurement (or its setup).
+        if uff is not None and os.path.realpath(uff) == os.path.realpath(other):
+            raise InputError(f"{uff}: the UFF export ([output] uff) would overwrite {what}; "
+                             "give one of them another name")
     world = None
     if sim:
         from .simlab import build_world

@@ -178,7 +178,7 @@ class _Terminated(KeyboardInterrupt):
 def run_acquire(args: argparse.Namespace) -> int:
     from daq.control import RunControl, latching_interrupt_handler
     from daq.resume import load_resume_setup
-    from daq.run import run_test, uff_export_path
+    from daq.run import run_test
     from daq.safety import RunStopped
     from daq.setup import load_setup
     from drivers.amplifier import modbus_log_held_back
@@ -198,12 +198,10 @@ def run_acquire(args: argparse.Namespace) -> int:
             raise InputError("a setup file is required (or --resume RUN.h5)")
         setup = load_setup(args.setup)
         out = args.out
-    # Every file the run writes, against its inputs and each other: the summary or the UFF
-    # export written over the run file (or the setup) would lose the measurement.
-    run_file = Path(out or setup.output_file)
-    uff = uff_export_path(setup, run_file, out)
-    check_output_paths(inputs, [args.json, None if args.resume else str(run_file),
-                                None if uff is None else str(uff)])
+    # The summary written over the run file would lose the measurement (the UFF export's
+    # path is run_test's to check).
+    if not args.resume:
+        check_output_paths(inputs, [args.json, str(Path(out or setup.output_file))])
     echo = (lambda m: None) if args.quiet else (lambda m: print(m, flush=True))
     previous = signal.signal(signal.SIGTERM, latching_interrupt_handler(_Terminated))
     # A process started in the background by a non-interactive shell (or by a CI runner)

@@ -231,9 +231,12 @@ def _setup_with_uff(tmp_path: Path, uff: str) -> Path:
 
 @pytest.mark.parametrize("uff, argv, what", [
     (None, ["--out", "{d}/run.h5", "--json", "{d}/run.h5"], "{d}/run.h5: given for two different outputs"),
-    ("run.h5", [], "run.h5: given for two different outputs"),
-    ("x.uff", ["--out", "{d}/clash.uff"], "{d}/clash.uff: given for two different outputs"),
-    ("{d}/s.toml", [], "{d}/s.toml: output would overwrite the input file"),
+    ("run.h5", [], "run.h5: the UFF export ([output] uff) would overwrite the run file; give one of them "
+                   "another name"),
+    ("x.uff", ["--out", "{d}/clash.uff"], "{d}/clash.uff: the UFF export ([output] uff) would overwrite the run "
+                                          "file; give one of them another name"),
+    ("{d}/s.toml", [], "{d}/s.toml: the UFF export ([output] uff) would overwrite the setup file; give one of them "
+                       "another name"),
 ])
 def test_an_output_that_would_overwrite_the_run_file_or_the_setup_is_refused_before_the_run(
         tmp_path, monkeypatch, uff, argv, what):

@@ -330,25 +330,25 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
         # Both would stop or spoil every run of this setup: a first drive above the limit is
         # cut to it and can overshoot the force limit on the first line; a force target at
         # or above the force limit cannot be held.
-        for p, sh in enumerate(shakers):
-            if sine.initial_vpp > setup.drive_limit_vpp(p):
-                raise InputError(
-                    f"{src}: [stepped_sine] initial_vpp: {sine.initial_vpp:g} Vpp is more than shaker {sh.dof!r} "
-                    f"may get, {setup.drive_limit_vpp(p):g} Vpp ([limits] max_drive_vpp, or the max_vpp of "
-                    f"generator {sh.generator!r})")
+        _refuse_drive_above_limit(setup, "[stepped_sine] initial_vpp", sine.initial_vpp)
         if sine.control == "force" and sine.force_n >= limits.max_force_n:
             raise InputError(f"{src}: [stepped_sine] force_n: {sine.force_n:g} N is not below [limits] max_force_n "
                              f"({limits.max_force_n:g} N): the level control could not hold it")
     if excitation == "random":
         # The random level is fixed: one the generator refuses would stop every run of
         # this setup at its start, as an instrument error.
-        for p, sh in enumerate(shakers):
-            if rnd.drive_vpp > setup.drive_limit_vpp(p):
-                raise InputError(
-                    f"{src}: [random] drive_vpp: {rnd.drive_vpp:g} Vpp is more than shaker {sh.dof!r} may get, "
-                    f"{setup.drive_limit_vpp(p):g} Vpp ([limits] max_drive_vpp, or the max_vpp of generator "
-                    f"{sh.generator!r})")
+        _refuse_drive_above_limit(setup, "[random] drive_vpp", rnd.drive_vpp)
     return setup
+
+
+def _refuse_drive_above_limit(setup: TestSetup, key: str, vpp: float) -> None:
+    """Refuse a drive level ``vpp`` (the setup's ``key``) above what a shaker may get."""
+    for p, sh in enumerate(setup.shakers):
+        if vpp > setup.drive_limit_vpp(p):
+            raise InputError(
+                f"{setup.source}: {key}: {vpp:g} Vpp is more than shaker {sh.dof!r} may get, "
+                f"{setup.drive_limit_vpp(p):g} Vpp ([limits] max_drive_vpp, or the max_vpp of generator "
+                f"{sh.generator!r})")
 
 
 def _unique(src: str, table: str, key: str, values: list) -> None:

@@ -162,6 +162,8 @@ def _hdf5_kind(path: str) -> str:
         # Without HDF5's lock: a run file is read while its acquisition writes it (ssid.io).
         with h5py.File(path, "r", locking=False) as f:
             kind = f.attrs.get("format", "")
+            if not kind:  # get() says "absent" also when the attributes are damaged; listing raises
+                list(f.attrs.keys())
     except (OSError, RuntimeError, UnicodeDecodeError) as exc:  # h5py's only: damage (ssid.io's reader)
         raise InputError(f"{path}: damaged HDF5 file ({type(exc).__name__}: {exc})") from None
     kind = kind.decode() if isinstance(kind, bytes) else str(kind)

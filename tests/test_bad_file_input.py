@@ -324,6 +324,7 @@ def _damaged_copy(src, dst, at: bytes, offset: int, new: bytes):
     ("convert", "frf", b"TREE", 0, b"XXXX"),
     # the byte before the root attribute's name: "ran off end of input buffer", a RuntimeError
     ("export-model", "model", b"format", -3, b"\xa2"),
+    ("convert", "model", b"format", -3, b"\xa2"),  # said "HDF5 file of format ''"
     # the root group's index damaged: h5py's get() said the datasets were absent ("missing
     # dataset /M"), which reads as a file of the wrong kind
     ("export-model", "model", b"TREE", 0, b"XXXX"),

@@ -75,6 +75,23 @@ def peek_run_file(path: str | Path) -> tuple[str | None, int] | None:
         return None
 
 
+def _finishing(final: Path) -> bool:
+    """Whether the process named in a compact file's name ``.RUN.h5.<pid>.final`` still runs:
+    between closing the run file (its lock gone) and renaming its compact file over it, a run
+    is still finishing, and a resume that opened the run file then must not delete its copy
+    (the run then failed on its rename)."""
+    pid = final.name.rsplit(".", 2)[-2]
+    if not pid.isdigit() or int(pid) == os.getpid():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process: alive
+        return True
+    return True
+
+
 def _check_compact(path: Path, frf: FRFData, run_path: Path) -> None:
     """Read the compact file ``path`` back before it replaces the run file ``run_path``: what
     HDF5 failed to write while closing it is only printed, not raised, and the run file is
@@ -196,10 +213,11 @@ class RunFile:
             f.close()
             raise InputError(f"{path}: the run file is damaged and cannot be resumed "
                              f"({type(exc).__name__}: {exc})") from None
-        # A compact file a finalize that was killed left half-written: we hold the run file
-        # now (HDF5's lock), so no other process is finishing it.
+        # A compact file a finalize that was killed left half-written. One whose process
+        # still runs is that process's, renamed over the run file after it closed it.
         for stale in path.parent.glob(f".{glob.escape(path.name)}.*.final"):
-            stale.unlink(missing_ok=True)
+            if not _finishing(stale):
+                stale.unlink(missing_ok=True)
         return rf
 
     def _read_everything_resume_needs(self) -> None:

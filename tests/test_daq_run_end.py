@@ -147,6 +147,28 @@ def test_a_damaged_run_file_is_refused_before_any_instrument_is_touched(tmp_path
     assert out.read_bytes() == bytes(data)  # not written to
 
 
+def test_a_resume_leaves_the_compact_file_of_a_run_still_finishing(tmp_path):
+    """A resume opened the run file in the moment between another run's closing it and
+    renaming its compact file over it, and deleted that file as a killed finalize's leftover:
+    the finishing run then failed ("No such file or directory", QA). Only the leftovers of
+    processes that are gone are deleted."""
+    out = _interrupted_run(tmp_path)
+    alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True, check=True)
+    try:
+        finishing = tmp_path / f".run.h5.{alive.pid}.final"
+        leftover = tmp_path / f".run.h5.{int(gone.stdout)}.final"
+        finishing.write_bytes(b"being renamed")
+        leftover.write_bytes(b"half written")
+        status, err = cli(["--resume", str(out), "--sim", "--quiet"])
+        assert status == 0, err
+        assert finishing.read_bytes() == b"being renamed" and not leftover.exists()
+    finally:
+        alive.kill()
+        alive.wait()
+
+
 def _meta_not_an_object(f: h5py.File) -> None:
     del f["acq/meta_json"]
     f["acq"].create_dataset("meta_json", data="[1, 2]", dtype=h5py.string_dtype())

@@ -351,7 +351,12 @@ class ShakerAmplifier:
                 await self.safe_state()
         finally:
             if self._monitor_task is not None:
-                self._monitor_task.cancel()
+                # Python 3.11's wait_for drops a cancel that lands in the loop iteration where
+                # the monitor's request has just finished (it returns the reply instead), and
+                # the monitor polls on: cancel again until it has ended.
+                while not self._monitor_task.done():
+                    self._monitor_task.cancel()
+                    await asyncio.wait([self._monitor_task], timeout=self.poll_interval_s)
                 await asyncio.gather(self._monitor_task, return_exceptions=True)
                 self._monitor_task = None
             if self.client is not None:

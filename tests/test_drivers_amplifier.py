@@ -276,3 +276,51 @@ def test_sync_facade(sim):
         with pytest.raises(InterlockOpen):
             amp.check()
     assert not sim.model.enabled
+
+
+def test_close_ends_the_monitor_when_its_cancel_lands_as_a_poll_finishes():
+    """Python 3.11's asyncio.wait_for returns the inner result and drops a cancel that lands in
+    the loop iteration where that result has just arrived (gh-86296). The monitor then polled on,
+    close() waited on it, and the release after a Ctrl-C hung 15 s with a thread dump (QA: 1 in
+    146 interrupted runs). The window is one event-loop iteration, which no transport places
+    on demand: a stand-in client holds the first poll's reply until the cancel is queued
+    right behind it."""
+    import types
+
+    async def scenario() -> tuple[bool, bool]:
+        loop = asyncio.get_running_loop()
+        amp = ShakerAmplifier(name="ampX", poll_interval_s=0.01)
+        reply = loop.create_future()
+        polls = 0
+
+        class HeldReplyClient:
+            connected = True
+
+            def read_holding_registers(self, address, count, device_id):
+                nonlocal polls
+                polls += 1
+
+                async def request():
+                    if polls == 1:
+                        await reply  # the first poll waits for its reply
+                    return types.SimpleNamespace(registers=[3, 0, 0, 0, 250, polls, 1], isError=lambda: False)
+                return request()
+
+            def close(self):
+                pass
+
+        amp.client = HeldReplyClient()
+        amp._monitor_task = loop.create_task(amp._monitor())
+        while not polls:
+            await asyncio.sleep(0.005)
+        await asyncio.sleep(0.005)
+        reply.set_result(None)  # the request finishes in the next iteration ...
+        closing = loop.create_task(amp.close(safe_state=False))  # ... and close() cancels in the same one
+        done, _ = await asyncio.wait([closing], timeout=2.0)
+        monitor_running = amp._monitor_task is not None and not amp._monitor_task.done()
+        for task in asyncio.all_tasks() - {asyncio.current_task()}:
+            task.cancel()
+        return bool(done), monitor_running
+
+    closed, monitor_running = asyncio.run(scenario())
+    assert closed and not monitor_running

@@ -156,22 +156,14 @@ def _input_kind(path: str) -> str:
 
 
 def _hdf5_kind(path: str) -> str:
-    import h5py
+    from ssid.io import FRF_FORMAT, MODEL_FORMAT, read_format
 
-    try:
-        # Without HDF5's lock: a run file is read while its acquisition writes it (ssid.io).
-        with h5py.File(path, "r", locking=False) as f:
-            kind = f.attrs.get("format", "")
-            if not kind:  # get() says "absent" also when the attributes are damaged; listing raises
-                list(f.attrs.keys())
-    except (OSError, RuntimeError, UnicodeDecodeError) as exc:  # h5py's only: damage (ssid.io's reader)
-        raise InputError(f"{path}: damaged HDF5 file ({type(exc).__name__}: {exc})") from None
-    kind = kind.decode() if isinstance(kind, bytes) else str(kind)
-    if kind == "ssidlab-frf":
+    kind = read_format(path)
+    if kind == FRF_FORMAT:
         return "frf"
-    if kind == "ssidlab-model":
+    if kind == MODEL_FORMAT:
         return "model"
-    raise InputError(f"{path}: HDF5 file of format {kind!r}; expected an ssidlab FRF or model file")
+    raise InputError(f"{path}: HDF5 file of format {kind or ''!r}; expected an ssidlab FRF or model file")
 
 
 def _read_json(path: str) -> Any:

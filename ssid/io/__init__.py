@@ -17,6 +17,7 @@ from ._common import (
     MODEL_FORMAT,
     QUANTITY,
     SYMMETRY_RTOL,
+    read_format,
 )
 from .frf_file import read_frf, read_measured_frf, validate_frf, write_frf
 from .model_file import Model, read_model, validate_model, write_model
@@ -36,4 +37,5 @@ __all__ = [
     "read_model",
     "write_model",
     "validate_model",
+    "read_format",
 ]

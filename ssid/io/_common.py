@@ -244,6 +244,17 @@ def _create_h5(path: PathLike) -> Iterator[h5py.File]:
         tmp.write_bytes(image.getbuffer())
 
 
+def read_format(path: PathLike) -> str | None:
+    """The root ``format`` attribute of an HDF5 file (None when it has none), opened as the
+    readers open files: a damaged file, or one another process writes, as they say."""
+    src = os.fspath(path)
+    with _open_h5(path, src) as f:
+        if "format" not in f.attrs:
+            list(f.attrs.keys())  # h5py also says "absent" of damaged attributes; listing raises
+            return None
+        return _attr_str(src, f, "format")
+
+
 def _check_kind(src: str, f: h5py.File, expected: str) -> None:
     fmt = _attr_str(src, f, "format")
     if fmt is None:

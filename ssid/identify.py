@@ -270,10 +270,10 @@ def identify_mck(
     step1_weight = d.weight
     modes, M, C, K, asm, rigid = step2_mck(d, est, solver)
     written_from = est  # the step-1 estimate whose roots the written model holds
-    if solver == "ml" and hard_problems(modes, M, K):
+    if solver == "ml" and (problems := hard_problems(modes, M, K)):
         # The refinement fits the data best but cannot hold what the data lack (e.g. a
         # reduced-order model with modes outside its reach); a start that is physical wins.
-        tried = {"ml": (hard_problems(modes, M, K), output_error_cost(d, est))}
+        tried = {"ml": (problems, output_error_cost(d, est))}
         best = None
         for name, cand in starts.items():
             d.weight = step1_weight

@@ -188,8 +188,6 @@ def run_acquire(args: argparse.Namespace) -> int:
         raise InputError("--out and --resume exclude each other (the resumed file is written in place)")
     if args.new_instruments and not args.resume:
         raise InputError("--new-instruments goes with --resume (a new run has no instruments to compare)")
-    inputs = [p for p in (args.setup, args.resume) if p]
-    check_output_paths(inputs, [args.json])
     if args.resume:
         setup = load_resume_setup(args.resume, args.setup)
         out = args.resume
@@ -199,9 +197,9 @@ def run_acquire(args: argparse.Namespace) -> int:
         setup = load_setup(args.setup)
         out = args.out
     # The summary written over the run file would lose the measurement (the UFF export's
-    # path is run_test's to check).
-    if not args.resume:
-        check_output_paths(inputs, [args.json, str(Path(out or setup.output_file))])
+    # path is run_test's to check); a resume's run file is an input.
+    check_output_paths([p for p in (args.setup, args.resume) if p],
+                       [args.json, None if args.resume else str(Path(out or setup.output_file))])
     echo = (lambda m: None) if args.quiet else (lambda m: print(m, flush=True))
     previous = signal.signal(signal.SIGTERM, latching_interrupt_handler(_Terminated))
     # A process started in the background by a non-interactive shell (or by a CI runner)

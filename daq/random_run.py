@@ -54,6 +54,15 @@ def random_bins(setup: TestSetup) -> np.ndarray:
     return f[(f >= r.f_min_hz) & (f <= r.f_max_hz)]
 
 
+def _sums_group(n_avg: int) -> str:
+    """Where the spectral sums of ``n_avg`` averages are kept: two sets, by the count's
+    parity, so that an average overwrites the set before the last one. Overwritten in place,
+    the last set was torn by a ``kill -9`` inside the flush (some sums with the new average,
+    some without, and its count ahead of the commit counter), and the resume started again
+    from no averages."""
+    return f"random_{n_avg % 2}"
+
+
 def _bin_mask(setup: TestSetup) -> np.ndarray:
     r = setup.random
     f = np.fft.rfftfreq(r.block_size, 1.0 / setup.daq.sample_rate_hz)
@@ -93,7 +102,9 @@ class RandomRun:
         self.mask = _bin_mask(setup)
         self.freq = random_bins(setup)
         n_in, n_y = len(self.fi), len(self.yi)
-        saved = runfile.read_arrays("random")
+        # The sums after the last committed average: in the set of its parity (files from
+        # before the two sets: in /acq/random).
+        saved = runfile.read_arrays(_sums_group(runfile.n_done)) or runfile.read_arrays("random")
         # Periodic or burst averages in the sums analysed before their transient had died
         # out; stored with the sums, so a resumed run's summary counts the whole run.
         self.unsettled = 0
@@ -179,7 +190,7 @@ class RandomRun:
 
     def _commit(self) -> None:
         d = self.result()
-        self.rf.write_arrays("random", {"Gxx": self.S.Gxx, "Gyx": self.S.Gyx, "Gyy": self.S.Gyy,
+        self.rf.write_arrays(_sums_group(self.S.n_avg), {"Gxx": self.S.Gxx, "Gyx": self.S.Gyx, "Gyy": self.S.Gyy,
                                         "n_avg": np.int64(self.S.n_avg), "test_time_s": self.test_time_s,
                                         "unsettled_averages": np.int64(self.unsettled)})
         self.rf.write_view(d["H"], d["var"], d["coherence"], d["valid"], d.get("Hr"), d.get("Hr_var"),

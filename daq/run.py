@@ -132,7 +132,8 @@ def _create_runfile(setup: TestSetup, path: Path) -> RunFile:
             "channels": [c.__dict__ for c in setup.channels], "shakers": [s.__dict__ for s in setup.shakers]}
     return RunFile.create(path, kind=setup.excitation, setup_text=setup.text, setup_sha256=setup.sha256,
                           freq_hz=freq, outputs=setup.outputs, inputs=setup.inputs, reactions=setup.reactions,
-                          channel_names=[c.name for c in setup.channels], meta=meta, attrs=attrs)
+                          channel_names=[c.name for c in setup.channels], meta=meta, attrs=attrs,
+                          raw_time=setup.raw_time and setup.excitation == "stepped_sine")
 
 
 def _ctrl_c_latched(fn: Callable) -> Callable:

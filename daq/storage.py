@@ -9,20 +9,29 @@ row per measured sub-line (stepped sine) in acquisition order, or the running sp
 
 Crash safety without SWMR: SWMR leaves a file that only SWMR readers can open after a
 ``kill -9`` (the superblock's "open for writing" flag stays set), so the file is written in
-the default HDF5 format and flushed after every line instead. The contract datasets are
-pre-created at full size, so writing a line changes no metadata there; the record datasets
-are chunked and resizable and grow by one row per line. A line is written in this order:
-record row and contract rows, ``flush()``, then the commit counter ``/acq/n_done``, then
-``flush()`` again. HDF5 writes what one flush holds in an order of its own (``n_done``'s 8
-bytes went out before the records' new extent: a ``kill -9`` inside that flush left a counter
-past the records, and the file could not be resumed), so the counter gets a flush of its own
-after everything it counts is on disk. After a crash, rows beyond ``n_done`` are ignored (and
-trimmed on resume). Raw time samples are stored without compression: a compressed chunk is
-rewritten whole, at a new place in the file, when a line appends to it, and a kill inside
-that write lost the samples of lines committed before (HDF5 "filter returned failure during
-read"); an uncompressed chunk is rewritten in place with the same bytes where it holds them.
-This holds against a killed process (what it wrote is in the operating system's cache); it
-does not order writes against a power cut, for which nothing here calls ``fsync``.
+the default HDF5 format and flushed after every line instead. A line is written in this
+order: record row and contract rows, ``flush()``, then the commit counter ``/acq/n_done``,
+then ``flush()`` again. HDF5 writes what one flush holds in an order of its own (``n_done``'s
+8 bytes went out before the records' new extent: a ``kill -9`` inside that flush left a
+counter past the records, and the file could not be resumed), so the counter gets a flush of
+its own after everything it counts is on disk. After a crash, rows beyond ``n_done`` are
+ignored (and trimmed on resume).
+
+Nor does HDF5 change a file's structure (a new dataset, group or attribute, a dataset's
+first space, a chunk index) in one write, and a kill between those writes damaged the file:
+inside the first line's flush, or while a resume replaced ``meta_json``, with it the records
+of every line committed before. So a line changes no structure. :meth:`RunFile.create` builds
+the file under another name and links it to its own when whole, with the contract datasets'
+space written and the records' chunk indexes built; what a session adds (its metadata, its
+noise floor, a random run's first sums) is made in a copy renamed over the file
+(:meth:`RunFile._edit_in_copy`). A random run's sums are overwritten in place at every
+average, so they are kept in two sets, written in turn (``daq.random_run``). Raw time samples
+are stored without compression: a compressed chunk is rewritten whole, at a new place in the
+file, when a line appends to it, and a kill inside that write lost the samples of lines
+committed before (HDF5 "filter returned failure during read"); an uncompressed chunk is
+rewritten in place with the same bytes where it holds them. This holds against a killed
+process (what it wrote is in the operating system's cache); it does not order writes against
+a power cut, for which nothing here calls ``fsync``.
 
 When the run ends, :meth:`RunFile.finalize` writes the compact FRF file (only measured
 lines) with :func:`ssid.io.write_frf` under a temporary name, copies ``/acq`` into it and
@@ -35,6 +44,7 @@ import glob
 import json
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import h5py
@@ -76,10 +86,10 @@ def peek_run_file(path: str | Path) -> tuple[str | None, int] | None:
 
 
 def _finishing(final: Path) -> bool:
-    """Whether the process named in a compact file's name ``.RUN.h5.<pid>.final`` still runs:
-    between closing the run file (its lock gone) and renaming its compact file over it, a run
-    is still finishing, and a resume that opened the run file then must not delete its copy
-    (the run then failed on its rename)."""
+    """Whether the process named in a replacement's name (``.RUN.h5.<pid>.final`` or
+    ``.edit``, :func:`_temp_name`) still runs: between closing the run file (its lock gone) and
+    renaming its replacement over it, a run is still writing, and a resume that opened the run
+    file then must not delete its copy (the run then failed on its rename)."""
     pid = final.name.rsplit(".", 2)[-2]
     if not pid.isdigit() or int(pid) == os.getpid():
         return False
@@ -107,6 +117,39 @@ def _check_compact(path: Path, frf: FRFData, run_path: Path) -> None:
                       f"and `ssidlab acquire --resume {run_path}` finishes it (a full disk?)") from exc
 
 
+def _index_chunks(ds: h5py.Dataset) -> None:
+    """Build the chunk index of a dataset of no rows now, while nothing is measured: HDF5
+    builds it at the first write, as several writes in the first line's flush (the index's
+    nodes, the dataset's header), and a ``kill -9`` between them left a file that could not
+    be resumed. A row written and cut again leaves the (empty) index in place; later lines
+    add their chunks to it."""
+    ds.resize(1, axis=0)
+    ds[0] = np.zeros(ds.shape[1:], ds.dtype)
+    ds.resize(0, axis=0)
+
+
+def _create_raw(acq: h5py.Group, nch: int) -> None:
+    """``/acq/raw``: the dwell records' samples (n, nch) and each line's first row."""
+    raw = acq.create_group("raw")
+    _index_chunks(raw.create_dataset("samples", shape=(0, nch), maxshape=(None, nch), chunks=(4096, nch), dtype="f4"))
+    _index_chunks(raw.create_dataset("offset", shape=(0,), maxshape=(None,), chunks=(256,), dtype="i8"))
+
+
+def _remove_stale(path: Path, what: str) -> None:
+    """Remove the replacements of ``path`` (:func:`_temp_name`) a killed run left half-written.
+    One whose process still runs is that process's, renamed over the run file after it closed
+    it."""
+    for stale in path.parent.glob(f".{glob.escape(path.name)}.*.{what}"):
+        if not _finishing(stale):
+            stale.unlink(missing_ok=True)
+
+
+def _temp_name(path: Path, pid: int | str, what: str) -> Path:
+    """The name of a file that replaces the run file ``path`` when it is whole: the compact
+    file (``what`` "final") or an edited copy ("edit"), by process ``pid``."""
+    return path.with_name(f".{path.name}.{pid}.{what}")
+
+
 class _Inconsistent(ValueError):
     """A run file that HDF5 reads but that contradicts how run files are written."""
 
@@ -123,18 +166,20 @@ class RunFile:
     @classmethod
     def create(cls, path: str | Path, *, kind: str, setup_text: str, setup_sha256: str,
                freq_hz: np.ndarray, outputs: list[str], inputs: list[str], reactions: list[str],
-               channel_names: list[str], meta: dict, attrs: dict) -> RunFile:
-        """A new run file with the contract view over ``freq_hz`` (nothing measured yet)."""
+               channel_names: list[str], meta: dict, attrs: dict, raw_time: bool = False) -> RunFile:
+        """A new run file with the contract view over ``freq_hz`` (nothing measured yet), and
+        ``/acq/raw`` where the run keeps its dwell records (``raw_time``)."""
         path = Path(path)
+        exists = f"{path}: exists already (use --resume to continue it, or another name)"
         if path.exists():
-            raise InputError(f"{path}: exists already (use --resume to continue it, or another name)")
+            raise InputError(exists)
+        _remove_stale(path, "new")
+        # Built under another name and linked to its own when whole: a kill -9 while HDF5
+        # writes a new file's structure left a file by the run's name that was no HDF5 file
+        # or could not be opened, and a resume could not tell that nothing had been measured.
+        tmp = _temp_name(path, os.getpid(), "new")
         try:
-            # "x", not "w": another run creating the same file between the check above and
-            # here must fail, not truncate the file that run is writing (HDF5 truncates before
-            # it takes its lock).
-            f = h5py.File(path, "x")
-        except FileExistsError:
-            raise InputError(f"{path}: exists already (use --resume to continue it, or another name)") from None
+            f = h5py.File(tmp, "x")
         except OSError as exc:
             raise OSError(f"{path}: cannot create the run file ({exc})") from exc
         try:
@@ -169,13 +214,28 @@ class RunFile:
             if kind == "stepped_sine":
                 for name, (dt, per_ch) in SINE_FIELDS.items():
                     shape, chunks = ((0, nch), (64, nch)) if per_ch else ((0,), (256,))
-                    rec.create_dataset(name, shape=shape, maxshape=(None,) + shape[1:], chunks=chunks, dtype=dt)
-            f.flush()
-        except BaseException:
+                    _index_chunks(rec.create_dataset(name, shape=shape, maxshape=(None,) + shape[1:],
+                                                     chunks=chunks, dtype=dt))
+            if raw_time:
+                _create_raw(acq, nch)
+            # HDF5 gives a dataset of fill values its space at the first write: written
+            # now, so that the first line's flush does not change the file's layout.
+            for ds in (f["H"], f["valid"], f["coherence"], f["H_var"], acq["line_done"],
+                       *((f["H_reaction"], f["H_reaction_var"]) if nr else ())):
+                ds[...] = ds.fillvalue
             f.close()
-            path.unlink(missing_ok=True)
-            raise
-        return cls(path, f)
+            # A link, not a rename: another run that created the same name in the meantime
+            # must make this one fail, not lose its file.
+            os.link(tmp, path)
+        except FileExistsError:
+            raise InputError(exists) from None
+        except OSError as exc:
+            raise OSError(f"{path}: cannot create the run file ({exc})") from exc
+        finally:
+            if f.id.valid:
+                f.close()
+            tmp.unlink(missing_ok=True)
+        return cls(path, h5py.File(path, "r+"))
 
     @classmethod
     def open(cls, path: str | Path) -> RunFile:
@@ -213,11 +273,8 @@ class RunFile:
             f.close()
             raise InputError(f"{path}: the run file is damaged and cannot be resumed "
                              f"({type(exc).__name__}: {exc})") from None
-        # A compact file a finalize that was killed left half-written. One whose process
-        # still runs is that process's, renamed over the run file after it closed it.
-        for stale in path.parent.glob(f".{glob.escape(path.name)}.*.final"):
-            if not _finishing(stale):
-                stale.unlink(missing_ok=True)
+        _remove_stale(path, "final")
+        _remove_stale(path, "edit")
         return rf
 
     def _read_everything_resume_needs(self) -> None:
@@ -347,8 +404,12 @@ class RunFile:
         with the contract's ``n_avg`` of what it holds, so that a stopped run's file says it."""
         self._write(Ellipsis, H, H_var, coherence, valid, H_reaction, H_reaction_var)
         self.acq["line_done"][...] = True
-        if n_avg is not None:
-            self.f.attrs["n_avg"] = np.int64(n_avg)
+        if n_avg is None:
+            return
+        if "n_avg" in self.f.attrs:
+            self.f.attrs.modify("n_avg", np.int64(n_avg))  # its value in place: same type and size
+        else:  # a new attribute grows the root's header: structure (:meth:`_edit_in_copy`)
+            self._edit_in_copy(lambda f: f.attrs.create("n_avg", np.int64(n_avg)))
 
     def _write(self, k, H, H_var, coherence, valid, H_reaction, H_reaction_var) -> None:
         # A variance of 0 where a value is unknown: readers treat it as "no estimate".
@@ -363,15 +424,22 @@ class RunFile:
         f["valid"][k] = valid
 
     def write_arrays(self, group: str, arrays: dict[str, np.ndarray]) -> None:
-        """Fixed-shape arrays under ``/acq/<group>`` (created on first use, then overwritten)."""
-        g = self.acq.require_group(group)
-        for name, a in arrays.items():
-            if name in g and g[name].shape == np.shape(a):
+        """Fixed-shape arrays under ``/acq/<group>``: overwritten in place where they exist with
+        their shape, else created in an edited copy (:meth:`_edit_in_copy`)."""
+        g = self.acq.get(group)
+        if isinstance(g, h5py.Group) and all(name in g and g[name].shape == np.shape(a) for name, a in arrays.items()):
+            for name, a in arrays.items():
                 g[name][...] = a
-            else:
-                if name in g:
-                    del g[name]
-                g.create_dataset(name, data=a)
+            return
+
+        def edit(f: h5py.File) -> None:
+            h = f["acq"].require_group(group)
+            for name, a in arrays.items():
+                if name in h:
+                    del h[name]
+                h.create_dataset(name, data=a)
+
+        self._edit_in_copy(edit)
 
     def read_arrays(self, group: str) -> dict[str, np.ndarray]:
         if group not in self.acq:
@@ -379,14 +447,12 @@ class RunFile:
         return {name: ds[()] for name, ds in self.acq[group].items()}
 
     def append_raw(self, data: np.ndarray) -> None:
-        """Raw time samples (n_ch, n) of the line just measured (float32, gzip)."""
-        g = self.acq.require_group("raw")
+        """Raw time samples (n_ch, n) of the line just measured (float32, not compressed: see
+        the module's docstring) into ``/acq/raw``, which :meth:`create` made (``raw_time``)."""
         nch, n = data.shape
-        if "samples" not in g:
-            # Not compressed: see the module's docstring (crash safety of committed lines).
-            g.create_dataset("samples", shape=(0, nch), maxshape=(None, nch), chunks=(4096, nch), dtype="f4")
-            g.create_dataset("offset", shape=(0,), maxshape=(None,), chunks=(256,), dtype="i8")
-        s, o = g["samples"], g["offset"]
+        if "raw" not in self.acq:  # a session resumed with raw_time, or a file from before
+            self._edit_in_copy(lambda f: _create_raw(f["acq"], nch))
+        s, o = self.acq["raw/samples"], self.acq["raw/offset"]
         k = self.n_done
         o.resize(k + 1, axis=0)
         o[k] = s.shape[0]
@@ -405,9 +471,48 @@ class RunFile:
         self.f.flush()
 
     def set_meta(self, meta: dict) -> None:
-        del self.acq["meta_json"]
-        self.acq.create_dataset("meta_json", data=json.dumps(meta), dtype=_STR)
+        """Replace ``/acq/meta_json`` (in an edited copy, :meth:`_edit_in_copy`)."""
+
+        def edit(f: h5py.File) -> None:
+            del f["acq/meta_json"]
+            f["acq"].create_dataset("meta_json", data=json.dumps(meta), dtype=_STR)
+
+        self._edit_in_copy(edit)
+
+    def _edit_in_copy(self, edit: Callable[[h5py.File], None]) -> None:
+        """Change the file's structure (a dataset created or replaced) in a copy of it, then
+        rename the copy over it.
+
+        HDF5 links a new object into a group with several writes (the group's name heap, its
+        symbol-table node, the object's header, at their own places in the file), and a
+        ``kill -9`` between them left ``/acq`` unreadable: a resumed run killed while it
+        replaced ``meta_json`` could no longer be resumed, nor its records read. The copy is
+        whole or absent when the file is renamed. This happens at a session's start (its
+        metadata, its noise floor) and at a random run's first average, before anything of
+        the session is measured; it costs a copy of the file, raw samples included."""
+        tmp = _temp_name(self.path, os.getpid(), "edit")
         self.f.flush()
+        try:
+            with h5py.File(tmp, "x") as g:
+                for k in self.f.attrs:
+                    g.attrs.create(k, self.f.attrs[k], dtype=self.f.attrs.get_id(k).dtype)
+                for name in self.f:
+                    self.f.copy(self.f[name], g, name=name)
+                edit(g)
+                g.flush()  # a full disk raises here; at close HDF5 would only print it
+            with h5py.File(tmp, "r") as g:
+                if int(g["acq/n_done"][0]) != self.n_done:
+                    raise OSError("the copy's commit counter differs")
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        self.f.close()
+        try:
+            os.replace(tmp, self.path)
+        finally:
+            tmp.unlink(missing_ok=True)
+            self.f = h5py.File(self.path, "r+")
+            self.acq = self.f["acq"]
 
     # ------------------------------------------------------------------ finish
     def finalize(self, frf: FRFData, state: str = "complete") -> None:
@@ -418,7 +523,7 @@ class RunFile:
         leaves a file that a resume finishes (a "complete" run file in the running layout
         would never be made compact, and would hold the unmeasured lines as NaN rows).
         """
-        tmp = self._final_name(os.getpid())
+        tmp = _temp_name(self.path, os.getpid(), "final")
         self.f.flush()
         try:
             write_frf(tmp, frf)
@@ -435,10 +540,6 @@ class RunFile:
         except BaseException:
             tmp.unlink(missing_ok=True)
             raise
-
-    def _final_name(self, pid: int | str) -> Path:
-        """The compact file's temporary name while :meth:`finalize` writes it."""
-        return self.path.with_name(f".{self.path.name}.{pid}.final")
 
     def close(self) -> None:
         if self.f.id.valid:

@@ -14,7 +14,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from test_daq_helpers import cli, ctrl_c_at_line, run_on_sim, sine_setup
+from test_daq_helpers import cli, ctrl_c_at_line, random_setup, run_on_sim, sine_setup
 
 from daq.setup import parse_setup
 from ssid.errors import InputError
@@ -289,23 +289,75 @@ def test_a_run_file_created_by_another_run_meanwhile_is_not_truncated(tmp_path, 
     assert out.read_bytes() == b"the other run's file"
 
 
+def _kill_at_write(run: Path, nth_write: int, args: list[str], cwd: Path) -> None:
+    """``ssidlab acquire ARGS``, killed (-9) at its ``nth_write`` write to ``run`` (strace
+    fault injection)."""
+    killed = subprocess.run(
+        ["strace", "-f", "-o", "/dev/null", "-P", str(run), "-e", "trace=pwrite64", "-e",
+         f"inject=pwrite64:signal=KILL:when={nth_write}", sys.executable, "-m", "ssidlab", "acquire", *args,
+         "--sim", "--quiet"],
+        cwd=cwd, capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert killed.returncode != 0 and run.exists(), killed.stderr
+    assert _state(run) == "running"  # killed mid-run, not after it
+
+
 @pytest.mark.skipif(shutil.which("strace") is None, reason="needs strace to kill the run inside a write")
-@pytest.mark.parametrize("nth_write", [100, 200, 300])
+@pytest.mark.parametrize("nth_write", [20, 47, 100, 200, 300])
 def test_a_run_killed_inside_a_lines_flush_can_be_resumed(tmp_path, nth_write):
-    """kill -9 at the nth write to the run file (strace fault injection), then resume. HDF5
-    wrote a line's commit counter to disk before the records' new extent within one flush:
-    killed between the two, the file held a counter past its records and the resume refused
-    it as damaged (on this setup at every 20th write from the 80th, one per line)."""
+    """kill -9 at the nth write to the run file, then resume. HDF5 wrote a line's commit
+    counter to disk before the records' new extent within one flush: killed between the two,
+    the file held a counter past its records and the resume refused it as damaged (on this
+    setup at every 20th write from the 80th, one per line). Inside the first line's flush
+    (writes 41-59 here, and 20) HDF5 built the records' chunk index and linked the noise
+    floor's group into /acq: killed there, the file was damaged."""
     setup = tmp_path / "s.toml"
     setup.write_text(sine_setup(two=True))
     run = tmp_path / "run.h5"
-    killed = subprocess.run(
-        ["strace", "-f", "-o", "/dev/null", "-P", str(run), "-e", "trace=pwrite64", "-e",
-         f"inject=pwrite64:signal=KILL:when={nth_write}", sys.executable, "-m", "ssidlab", "acquire", str(setup),
-         "--sim", "--out", str(run), "--quiet"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(ROOT)))
-    assert killed.returncode != 0 and run.exists(), killed.stderr
-    assert _state(run) == "running"  # killed mid-run, not after it
+    _kill_at_write(run, nth_write, [str(setup), "--out", str(run)], tmp_path)
     status, err = cli(["--resume", str(run), "--sim", "--quiet"])
     assert status == 0, err
     assert _state(run) == "complete" and read_frf(run).valid_mask().all()
+
+
+@pytest.mark.skipif(shutil.which("strace") is None, reason="needs strace to kill the run inside a write")
+@pytest.mark.parametrize("nth_write", [60, 66, 72])
+def test_a_random_run_killed_inside_an_averages_flush_keeps_its_averages(tmp_path, nth_write):
+    """A random run overwrote its one set of spectral sums in place at every average: a kill
+    -9 inside the flush left sums of different averages and a count ahead of the commit
+    counter, and the resume started again from no averages (on this setup at writes 49-59
+    and 64-74, inside the 2nd and 3rd averages' flushes). Two sets, written in turn, keep the
+    last committed one whole."""
+    setup = tmp_path / "r.toml"
+    setup.write_text(random_setup(averages=8))
+    run = tmp_path / "run.h5"
+    _kill_at_write(run, nth_write, [str(setup), "--out", str(run)], tmp_path)
+    with h5py.File(run, "r") as f:
+        committed = int(f["acq/n_done"][0])
+    resumed = subprocess.run([sys.executable, "-m", "ssidlab", "acquire", "--resume", str(run), "--sim"],
+                             cwd=tmp_path, capture_output=True, text=True, timeout=180,
+                             env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert resumed.returncode == 0, resumed.stderr
+    if committed:
+        assert f"resuming: {committed} averages on file" in resumed.stdout, resumed.stdout
+    assert _state(run) == "complete" and read_frf(run).n_avg == 8
+
+
+@pytest.mark.skipif(shutil.which("strace") is None, reason="needs strace to kill the run inside a write")
+def test_a_resume_killed_while_it_writes_its_session_keeps_the_run(tmp_path):
+    """A resume replaces the run's metadata (``/acq/meta_json``); HDF5 did it in place, and a
+    kill -9 inside (the resume's 27th write here) left /acq unreadable: the records of the
+    lines committed before could no longer be resumed or read. It is now done in a copy of
+    the file, renamed over it when whole."""
+    setup = tmp_path / "s.toml"
+    setup.write_text(sine_setup(two=True))
+    run = tmp_path / "run.h5"
+    _kill_at_write(run, 200, [str(setup), "--out", str(run)], tmp_path)
+    with h5py.File(run, "r") as f:
+        committed = int(f["acq/n_done"][0])
+    assert committed > 0
+    _kill_at_write(run, 27, ["--resume", str(run)], tmp_path)
+    status, err = cli(["--resume", str(run), "--sim", "--quiet"])
+    assert status == 0, err
+    assert _state(run) == "complete" and read_frf(run).valid_mask().all()
+    with h5py.File(run, "r") as f:
+        assert f["acq/records/grid_index"].shape[0] >= committed

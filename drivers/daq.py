@@ -60,6 +60,12 @@ UNITS = {"acceleration": "m/s^2", "force": "N", "voltage": "V"}
 #: than the driver must not keep a poll going, and with it a held Ctrl-C or a request's
 #: time-out, for as long as it sends.
 MAX_FRAMES_PER_POLL = 2048
+#: Quiet time after which, once an input's last frame of a finite acquisition is in, the frames
+#: still missing are declared lost. The node sends every input's frames of a scan block
+#: together, so the others' last frames are on the bus within a few frame times (8 frames,
+#: the reorder window, are 1.4 ms at 5 Mbit/s); 0.1 s leaves room for host scheduling and a
+#: TCP gateway, and is well under any ``stream_timeout_s`` worth setting.
+END_WAIT_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -359,7 +365,8 @@ class CanFdDaq:
         """Start acquiring ``n_scans`` scans (0: until :meth:`stop`)."""
         if not self.channels:
             raise InstrumentError(f"{self.name}: configure channels first")
-        self._streams = {c.input: ChannelStream(c.name, self.reorder_window) for c in self.channels}
+        total = int(n_scans) or None
+        self._streams = {c.input: ChannelStream(c.name, self.reorder_window, total) for c in self.channels}
         self._errors.clear()
         self.request("START", n_scans=int(n_scans))
         self.running = True
@@ -409,6 +416,8 @@ class CanFdDaq:
             # Listen before judging the stream dead: frames that queued while the caller was
             # away (processing a block, a slow disk) are a live node's, not silence.
             self._pump(0.05)
+            if self._end_streams(streams):
+                continue
             silent_s = time.monotonic() - self._last_data
             if (silent_s > self.stream_timeout_s and min(s.available for s in streams) < n_scans
                     and not all(s.finished for s in streams)):
@@ -433,6 +442,22 @@ class CanFdDaq:
             exc.block = block
             raise exc
         return block
+
+    def _end_streams(self, streams: list[ChannelStream]) -> bool:
+        """Declare the frames still missing at the end of a finite acquisition lost.
+
+        No later frame overflows a reorder buffer there, so without this a lost frame near
+        the end would wait for ``stream_timeout_s`` and be taken for a silent node. Once
+        any input's last frame is in and the bus has been quiet for a short while, every
+        frame the node sent has arrived. True if streams were ended.
+        """
+        quiet_s = time.monotonic() - self._last_data
+        if (quiet_s < min(END_WAIT_S, self.stream_timeout_s / 2) or all(s.finished for s in streams)
+                or not any(s.saw_end for s in streams)):
+            return False
+        for s in streams:
+            self._errors.extend(s.end())
+        return True
 
     def _raise_errors(self) -> None:
         for err in list(self._errors):

@@ -97,10 +97,15 @@ class ChannelStream:
     missing ones are declared lost: their samples are kept as a gap (NaN after decoding) so
     that every input stays aligned on the sample clock. A frame behind the expected one,
     or one already waiting, is a duplicate and is dropped.
+
+    At the end of a finite acquisition no later frame overflows the buffer: the caller
+    says when every frame has been sent (:meth:`end`), and what is still missing up to
+    ``total`` samples (the scans asked for at START) is declared lost the same way.
     """
 
     name: str
     reorder_window: int = 8
+    total: int | None = None  # samples of the acquisition (None: until STOP)
     next_seq: int | None = None
     next_tick: int = 0
     payload: bytearray = field(default_factory=bytearray)
@@ -136,21 +141,48 @@ class ChannelStream:
             self.reordered += self._drain()
         return None
 
+    @property
+    def saw_end(self) -> bool:
+        """The frame flagged last has arrived (accepted, or waiting behind a gap)."""
+        return self.finished or any(_HDR.unpack_from(d)[2] & 2 for d in self.pending.values())
+
+    def end(self) -> list[FramesLost]:
+        """Every frame of the acquisition has been sent: declare the missing ones lost.
+
+        Returns
+        -------
+        list of FramesLost
+            One per gap: before each frame still waiting in the reorder buffer, and the
+            tail up to ``total`` samples when the last frame itself was lost.
+        """
+        lost = []
+        while self.pending:
+            lost.append(self._declare_gap())
+        if not self.finished and self.total is not None and self.total > self.next_tick:
+            n_samples = self.total - self.next_tick
+            lost.append(self._mark_lost(-(-n_samples // SAMPLES_PER_FRAME), n_samples))
+        self.finished = True
+        return lost
+
     def _declare_gap(self) -> FramesLost:
         first = min(self.pending, key=lambda s: (s - self.next_seq) & 0xFFFF)
-        n_lost = (first - self.next_seq) & 0xFFFF
         tick = _HDR.unpack_from(self.pending[first])[1]
-        n_samples = (tick - self.next_tick) & 0xFFFFFFFF
+        err = self._mark_lost((first - self.next_seq) & 0xFFFF, (tick - self.next_tick) & 0xFFFFFFFF)
+        self._drain()
+        return err
+
+    def _mark_lost(self, n_lost: int, n_samples: int) -> FramesLost:
+        """Keep ``n_samples`` lost samples (``n_lost`` frames) as a gap and step past them."""
         start = self.base + len(self.payload) // 3
         err = FramesLost(
-            f"{self.name}: {n_lost} frame(s) lost (seq {self.next_seq}..{(first - 1) & 0xFFFF}, "
+            f"{self.name}: {n_lost} frame(s) lost (seq {self.next_seq}..{(self.next_seq + n_lost - 1) & 0xFFFF}, "
             f"{n_samples} samples from sample {start})"
         )
         self.gaps.append((start, start + n_samples))
         self.payload += bytes(3 * n_samples)
         self.lost_frames += n_lost
-        self.next_seq, self.next_tick = first, tick
-        self._drain()
+        self.next_seq = (self.next_seq + n_lost) & 0xFFFF
+        self.next_tick = (self.next_tick + n_samples) & 0xFFFFFFFF
         return err
 
     def _accept(self, seq: int, tick: int, flags: int, data: bytes) -> None:

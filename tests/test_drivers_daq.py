@@ -145,6 +145,29 @@ def test_lost_frame_raises_or_marks(rig):
     assert np.allclose(blk.data[1, ok], ref[1, ok], atol=1e-2)
 
 
+@pytest.mark.parametrize("on_gap", ["raise", "mark"])
+@pytest.mark.parametrize("seq,n_lost", [(39, 7), (36, 19)])
+def test_a_frame_lost_at_the_end_of_a_finite_acquisition_is_a_gap(rig, on_gap, seq, n_lost):
+    """A frame lost near the end of start(n) (the last one, partial here, or one before it)
+    is a gap found within a short wait, not after ``stream_timeout_s`` as a silent node:
+    no later frame comes to overflow the reorder buffer (before: BusOff "no sample frames")."""
+    _, sim, daq = rig
+    daq.on_gap = on_gap
+    daq.configure(CHANNELS, FS)
+    sim.inject("drop", channel=2, seq=seq)
+    n = 19 * 39 + 7  # 40 frames per input, the last of 7 samples
+    daq.start(n)
+    t0 = time.monotonic()
+    if on_gap == "raise":
+        with pytest.raises(FramesLost, match=rf"acc 1\+Z: 1 frame\(s\) lost \(seq {seq}..{seq}, {n_lost} samples "
+                                             rf"from sample {19 * seq}\)"):
+            daq.read(n)
+    else:
+        lost = np.isnan(daq.read(n).data)
+        assert lost[1].sum() == n_lost and np.all(lost[1, 19 * seq:19 * seq + n_lost]) and not lost[[0, 2]].any()
+    assert time.monotonic() - t0 < daq.stream_timeout_s
+
+
 @pytest.mark.parametrize("fault,counter", [("duplicate", "duplicates"), ("swap", "reordered")])
 def test_duplicated_and_reordered_frames_are_repaired(rig, fault, counter):
     _, sim, daq = rig

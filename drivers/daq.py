@@ -201,6 +201,7 @@ class CanFdDaq:
         self._poll_s = 0.002 if isinstance(self.bus, VirtualBus) else 0.0
         self._token = 0
         self._responses: dict[int, dict] = {}
+        self._waiting: int | None = None  # token of the request waiting for its response
         self._streams: dict[int, ChannelStream] = {}
         self._errors: list[InstrumentError] = []
         self._last_data = time.monotonic()
@@ -271,12 +272,25 @@ class CanFdDaq:
             if gap is not None:
                 self._errors.append(gap)
         elif aid == RSP_ID:
-            try:
-                d = self._rsp.decode(bytes(msg.data))
-            except Exception as exc:  # cantools raises several types for a malformed frame
-                self._errors.append(ProtocolError(f"{self.name}: bad response frame: {exc}"))
-                return
-            self._responses[int(d["token"])] = d
+            self._on_response(bytes(msg.data))
+
+    def _on_response(self, data: bytes) -> None:
+        """Keep the response the waiting request waits for, drop any other.
+
+        A response to no waiting request (one that came after its request timed out, a
+        duplicate) kept would answer a later request that reuses its 8-bit token.
+        """
+        try:
+            d = self._rsp.decode(data)
+        except Exception as exc:  # cantools raises several types for a malformed frame
+            self._errors.append(ProtocolError(f"{self.name}: bad response frame: {exc}"))
+            return
+        token = int(d["token"])
+        if token != self._waiting:
+            log.debug("%s: response to command %s, token %d, dropped: no request waits for it",
+                      self.name, d["cmd"], token)
+            return
+        self._responses[token] = d
 
     def request(self, cmd: str, channel: int = 0, timeout_s: float | None = None, **fields) -> dict:
         """Send one DAQ_REQUEST and wait for its response; raise on a non-ok result."""
@@ -289,13 +303,31 @@ class CanFdDaq:
             data = self._req.encode(sig, strict=True)
         except (cantools.database.errors.EncodeError, KeyError, ValueError) as exc:
             raise RangeError(f"{self.name}: {cmd}: {exc}") from None
+        # The token's slot starts empty: nothing but this request's own response may answer it.
+        self._responses.pop(token, None)
+        self._waiting = token
+        try:
+            self._send_request(cmd, data)
+            rsp = self._await_response(token, cmd, self.timeout_s if timeout_s is None else timeout_s)
+        finally:
+            self._waiting = None
+        if int(rsp["cmd"]) != CMD[cmd]:
+            raise ProtocolError(f"{self.name}: response to {cmd} echoes command {rsp['cmd']}")
+        if int(rsp["result"]) != 0:
+            raise DeviceError(f"{self.name}: {cmd} refused: {RESULTS.get(int(rsp['result']), rsp['result'])}")
+        return rsp
+
+    def _send_request(self, cmd: str, data: bytes) -> None:
         try:
             with interrupts_held:
                 self.bus.send(can.Message(arbitration_id=REQ_ID, data=data, is_fd=True, bitrate_switch=True,
                                           is_extended_id=False), timeout=self.timeout_s)
         except can.CanError as exc:
             raise BusOff(f"{self.name}: cannot send {cmd}: {exc}") from exc
-        deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
+
+    def _await_response(self, token: int, cmd: str, timeout_s: float) -> dict:
+        """The response with ``token``, pumping the bus (sample frames are kept) meanwhile."""
+        deadline = time.monotonic() + timeout_s
         while token not in self._responses:
             for err in self._errors:
                 if isinstance(err, BusOff):
@@ -305,12 +337,7 @@ class CanFdDaq:
             if left <= 0:
                 raise InstrumentTimeout(f"{self.name}: no response to {cmd} within {self.timeout_s:g} s (DAQ silent or bus-off?)")
             self._pump(min(left, 0.05))
-        rsp = self._responses.pop(token)
-        if int(rsp["cmd"]) != CMD[cmd]:
-            raise ProtocolError(f"{self.name}: response to {cmd} echoes command {rsp['cmd']}")
-        if int(rsp["result"]) != 0:
-            raise DeviceError(f"{self.name}: {cmd} refused: {RESULTS.get(int(rsp['result']), rsp['result'])}")
-        return rsp
+        return self._responses.pop(token)
 
     # ------------------------------------------------------------------ configuration
     def check_capacity(self, n_channels: int, sample_rate_hz: float) -> float:

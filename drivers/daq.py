@@ -200,7 +200,7 @@ class CanFdDaq:
         self.bus = bus
         self._poll_s = 0.002 if isinstance(self.bus, VirtualBus) else 0.0
         self._token = 0
-        self._responses: dict[int, dict] = {}
+        self._responses: dict[int, dict | Exception] = {}
         self._waiting: int | None = None  # token of the request waiting for its response
         self._streams: dict[int, ChannelStream] = {}
         self._errors: list[InstrumentError] = []
@@ -278,19 +278,19 @@ class CanFdDaq:
         """Keep the response the waiting request waits for, drop any other.
 
         A response to no waiting request (one that came after its request timed out, a
-        duplicate) kept would answer a later request that reuses its 8-bit token.
+        duplicate) kept would answer a later request that reuses its 8-bit token. A
+        malformed response to the waiting request is kept as the exception it raises: its
+        request fails with the cause, not with a time-out blaming a silent DAQ.
         """
+        # Byte 1 is the token; a frame too short to hold one can only be the waiting one's.
+        token = data[1] if len(data) > 1 else self._waiting
+        if self._waiting is None or token != self._waiting:
+            log.debug("%s: response frame %s dropped: no request waits for it (token %s)", self.name, data.hex(), token)
+            return
         try:
-            d = self._rsp.decode(data)
+            self._responses[token] = self._rsp.decode(data)
         except Exception as exc:  # cantools raises several types for a malformed frame
-            self._errors.append(ProtocolError(f"{self.name}: bad response frame: {exc}"))
-            return
-        token = int(d["token"])
-        if token != self._waiting:
-            log.debug("%s: response to command %s, token %d, dropped: no request waits for it",
-                      self.name, d["cmd"], token)
-            return
-        self._responses[token] = d
+            self._responses[token] = exc
 
     def request(self, cmd: str, channel: int = 0, timeout_s: float | None = None, **fields) -> dict:
         """Send one DAQ_REQUEST and wait for its response; raise on a non-ok result."""
@@ -337,7 +337,10 @@ class CanFdDaq:
             if left <= 0:
                 raise InstrumentTimeout(f"{self.name}: no response to {cmd} within {self.timeout_s:g} s (DAQ silent or bus-off?)")
             self._pump(min(left, 0.05))
-        return self._responses.pop(token)
+        rsp = self._responses.pop(token)
+        if isinstance(rsp, Exception):
+            raise ProtocolError(f"{self.name}: bad response frame to {cmd}: {rsp}") from rsp
+        return rsp
 
     # ------------------------------------------------------------------ configuration
     def check_capacity(self, n_channels: int, sample_rate_hz: float) -> float:

@@ -13,7 +13,7 @@ import pytest
 from conftest import driven_world
 
 from drivers.daq import CanFdDaq, DaqChannel
-from drivers.errors import InstrumentTimeout
+from drivers.errors import InstrumentTimeout, ProtocolError
 from sim_devices.daq_sim import CMD_STATUS, RSP_ID, SimDaq
 
 FS = 5120
@@ -69,6 +69,20 @@ def test_a_late_response_answers_no_later_request(bad_daq, caplog):
         daq.start()
         assert (daq._token + 1) & 0xFF == late_token  # the next request reuses the late one's token
         assert daq.status()["state"] == "acquiring"
-    dropped = [r for r in caplog.records if "no request waits for it" in r.getMessage()]
+    dropped = [r for r in caplog.records if "dropped: no request waits for it" in r.getMessage()]
     assert len(dropped) == 1 and dropped[0].levelno == logging.DEBUG
     assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+
+
+def test_a_cut_response_fails_its_request_with_the_cause(bad_daq):
+    """A truncated (8-byte) response to the waiting request fails it at once with the
+    ProtocolError that says so (before: a time-out blaming a silent DAQ, the cause left
+    queued for the next read); the next request is answered normally."""
+    sim, daq = bad_daq
+    sim.short.add(CMD_STATUS)
+    t0 = time.monotonic()
+    with pytest.raises(ProtocolError, match="bad response frame to STATUS: .*8 instead of 16 bytes"):
+        daq.status()
+    assert time.monotonic() - t0 < daq.timeout_s
+    assert daq.status()["state"] == "idle"
+    assert not daq._errors

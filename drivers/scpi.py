@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import re
 import time
 
@@ -10,7 +11,13 @@ from .serial_line import SerialLine
 
 __all__ = ["ScpiProtocol"]
 
+log = logging.getLogger(__name__)
+
 _ERR_REPLY = re.compile(r'^([+-]?\d+)\s*,\s*"(.*)"$')
+#: Re-synchronising query and its reply: two ``*OPC?`` in one line are answered by the one
+#: line ``1;1``, which is no reply to anything else the drivers send (a late ``*OPC?`` or
+#: ``OUTP?`` reply is a plain ``1``), so a late reply is not taken for it.
+_SYNC_QUERY, _SYNC_REPLY = "*OPC?;*OPC?", "1;1"
 
 
 class ScpiProtocol:
@@ -24,19 +31,56 @@ class ScpiProtocol:
     def __init__(self, line: SerialLine, name: str = "instrument") -> None:
         self.line = line
         self.name = name
+        self._stale = False  # a query timed out: its reply may still come
 
     def query(self, command: str, timeout_s: float | None = None) -> str:
         """Send a query and return its reply line."""
-        self.line.write_line(command)
+        self._send(command)
         try:
             return self.line.read_line(timeout_s)
         except InstrumentTimeout as exc:
+            self._stale = True
             raise InstrumentTimeout(f"{self.name}: {command!r}: {exc}") from exc
+
+    def _send(self, command: str) -> None:
+        """Send one line, after re-synchronising if a reply may be late."""
+        if self._stale:
+            try:
+                self._sync()
+            except InstrumentTimeout as exc:
+                raise InstrumentTimeout(f"{self.name}: {_SYNC_QUERY!r} (re-synchronising before {command!r}): "
+                                        f"{exc}") from exc
+        self.line.write_line(command)
+
+    def _sync(self) -> None:
+        """Read up to the reply of :data:`_SYNC_QUERY`, dropping every line before it.
+
+        A reply that comes after its query timed out would otherwise be read as the reply
+        to the next command, and every later command would get its predecessor's reply (a
+        refused setting taken as accepted). The instrument answers in order, so the late
+        reply, if any, comes before the sync reply.
+        """
+        self.line.discard_input()
+        self.line.write_line(_SYNC_QUERY)
+        deadline = time.monotonic() + self.line.timeout_s
+        while (reply := self._read_until(deadline)) != _SYNC_REPLY:
+            log.debug("%s: late reply %r dropped", self.name, reply[:60])
+        self._stale = False
+
+    def _read_until(self, deadline: float) -> str:
+        """The next reply line before ``deadline``; a garbled one is returned as its error text."""
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise InstrumentTimeout(f"{self.line.url}: no {_SYNC_REPLY!r} within {self.line.timeout_s:g} s")
+        try:
+            return self.line.read_line(left)
+        except ProtocolError as exc:
+            return str(exc)
 
     def write(self, command: str, check: bool = True) -> None:
         """Send a command; with ``check``, raise if the instrument queued an error for it."""
         if not check:
-            self.line.write_line(command)
+            self._send(command)
             return
         # Command and error query in one line (";:" returns to the root): one round trip,
         # and no wait on TCP's Nagle/delayed-ACK between two small writes on socket links.
@@ -88,7 +132,7 @@ class ScpiProtocol:
             self.line.discard_input()
             try:
                 self.line.write_line("*CLS")
-                self.opc()
+                self._sync()  # *OPC? with a reply that a late one cannot be taken for
                 return
             except (InstrumentTimeout, ProtocolError) as exc:
                 last = exc

@@ -13,10 +13,16 @@ import pytest
 from conftest import driven_world
 
 from drivers.daq import CanFdDaq, DaqChannel
-from drivers.errors import InstrumentTimeout, ProtocolError
+from drivers.errors import DeviceError, InstrumentTimeout, ProtocolError
+from drivers.siggen import SignalGenerator
+from sim_devices.components import ShakerSpec
 from sim_devices.daq_sim import CMD_STATUS, RSP_ID, SimDaq
+from sim_devices.siggen_sim import SimSignalGenerator
+from sim_devices.world import World
+from ssid.models import example_system
 
 FS = 5120
+FAST = dict(timeout_s=0.25, ramp_time_s=0.05, ramp_step_s=0.005)
 CHANNELS = [DaqChannel("force 1+Z", 0, "force", 22.5, 10.0, "DC"), DaqChannel("acc 1+Z", 2)]
 _names = itertools.count()
 
@@ -86,3 +92,50 @@ def test_a_cut_response_fails_its_request_with_the_cause(bad_daq):
     assert time.monotonic() - t0 < daq.timeout_s
     assert daq.status()["state"] == "idle"
     assert not daq._errors
+
+
+# ---------------------------------------------------------------------- signal generator
+class MisbehavingGenerator(SimSignalGenerator):
+    """The simulated generator, answering the first line that contains :attr:`late_match`
+    :attr:`late_s` late."""
+
+    late_match: str = ""
+    late_s: float = 0.0
+    _line: str = ""
+
+    def _handle_line(self, line: str) -> str | None:
+        self._line = line
+        return super()._handle_line(line)
+
+    def _send_reply(self, reply: str) -> None:
+        if self.late_match and self.late_match in self._line:
+            self.late_match = ""
+            time.sleep(self.late_s)
+        super()._send_reply(reply)
+
+
+@pytest.fixture
+def gen_world() -> World:
+    M, C, K, dofs = example_system()
+    return World(M, C, K, dofs, shakers=[ShakerSpec("1+Z"), ShakerSpec("5+Z", channel=2)], noise=False)
+
+
+@pytest.fixture(params=["pty", "tcp"])
+def bad_gen(request, gen_world):
+    with MisbehavingGenerator(gen_world, 0, transport=request.param) as sim:
+        yield sim
+
+
+def test_a_reply_after_the_time_out_answers_no_later_command(bad_gen, gen_world):
+    """The reply to 'OUTP1 ON' comes just after the time-out: the next command still gets
+    its own reply (before: each got its predecessor's, a refused frequency was taken as
+    accepted and the next valid one was refused with its error)."""
+    with SignalGenerator(bad_gen.url, **FAST) as gen:
+        bad_gen.late_match, bad_gen.late_s = "OUTP1 ON", 1.2 * FAST["timeout_s"]
+        with pytest.raises(InstrumentTimeout, match=r"siggen: 'OUTP1 ON;:SYST:ERR\?': .*no reply within 0.25 s"):
+            gen.output_on(1)
+        with pytest.raises(DeviceError, match=r"after 'SOUR1:FREQ 1e\+12': -222"):
+            gen.scpi.write("SOUR1:FREQ 1e+12")
+        gen.set_frequency(1, 100.0)
+        assert gen_world.generators[0].channels[0].freq_hz == 100.0
+        assert gen.scpi.query("SOUR1:FREQ?") == "100"

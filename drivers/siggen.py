@@ -95,7 +95,7 @@ class SignalGenerator:
                 raise ProtocolError(f"{name}: unexpected *IDN? reply {self.idn[:60]!r}")
             self.scpi.write("*CLS")
             for ch in self.channels:
-                self._vpp[ch] = float(self.scpi.query(f"SOUR{ch}:VOLT?"))
+                self._vpp[ch] = self._query_number(f"SOUR{ch}:VOLT?")
                 self._on[ch] = self.scpi.query(f"OUTP{ch}?").strip() in ("1", "ON")
         except BaseException:
             self.line.close()
@@ -114,7 +114,24 @@ class SignalGenerator:
         self.scpi.check_errors("*RST")
         for ch in self.channels:
             self._on[ch] = False
-            self._vpp[ch] = float(self.scpi.query(f"SOUR{ch}:VOLT?"))
+            self._vpp[ch] = self._query_number(f"SOUR{ch}:VOLT?")
+
+    def _query_number(self, command: str) -> float:
+        """The reply to ``command`` as a finite number.
+
+        Raises
+        ------
+        ProtocolError
+            The reply is not one (an ASCII reply the link passes as text, but garbage).
+        """
+        reply = self.scpi.query(command)
+        try:
+            value = float(reply)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value):
+            raise ProtocolError(f"{self.name}: unexpected {command} reply {reply[:60]!r} (not a number)")
+        return value
 
     def set_function(self, ch: int, function: str) -> None:
         """``SIN``, ``NOIS`` or ``ARB`` (the arbitrary waveform must be uploaded first)."""

@@ -97,15 +97,20 @@ def test_a_cut_response_fails_its_request_with_the_cause(bad_daq):
 # ---------------------------------------------------------------------- signal generator
 class MisbehavingGenerator(SimSignalGenerator):
     """The simulated generator, answering the first line that contains :attr:`late_match`
-    :attr:`late_s` late."""
+    :attr:`late_s` late, and a line that contains a key of :attr:`garble` with its value."""
 
     late_match: str = ""
     late_s: float = 0.0
     _line: str = ""
 
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.garble: dict[str, str] = {}
+
     def _handle_line(self, line: str) -> str | None:
         self._line = line
-        return super()._handle_line(line)
+        reply = super()._handle_line(line)
+        return next((v for k, v in self.garble.items() if k in line), reply)
 
     def _send_reply(self, reply: str) -> None:
         if self.late_match and self.late_match in self._line:
@@ -124,6 +129,21 @@ def gen_world() -> World:
 def bad_gen(request, gen_world):
     with MisbehavingGenerator(gen_world, 0, transport=request.param) as sim:
         yield sim
+
+
+def test_a_non_numeric_amplitude_reply_is_a_protocol_error(bad_gen):
+    """ASCII garbage as the reply to 'SOURn:VOLT?', on connect and after reset(): a
+    ProtocolError naming the generator, the query and the reply (before: a bare ValueError
+    from float(), which a run does not take for an instrument fault)."""
+    bad_gen.garble = {"SOUR1:VOLT?": "#@!garbage"}
+    with pytest.raises(ProtocolError, match=r"^siggen: unexpected SOUR1:VOLT\? reply '#@!garbage'"):
+        SignalGenerator(bad_gen.url, **FAST)
+    bad_gen.garble = {}
+    with SignalGenerator(bad_gen.url, **FAST) as gen:
+        bad_gen.garble = {"SOUR2:VOLT?": "1.5 V"}
+        with pytest.raises(ProtocolError, match=r"^siggen: unexpected SOUR2:VOLT\? reply '1.5 V'"):
+            gen.reset()
+        bad_gen.garble = {}
 
 
 def test_a_reply_after_the_time_out_answers_no_later_command(bad_gen, gen_world):

@@ -88,6 +88,9 @@ class SignalGenerator:
             raise ConnectionLost(f"{name}: {exc}") from exc
         self.scpi = ScpiProtocol(self.line, name)
         self._vpp = {ch: GeneratorLimits.vpp_min for ch in self.channels}
+        # The offset as set (or read at connect): an amplitude is range-checked with it, since
+        # the instrument refuses |offset| + Vpp/2 > 10 V only once a ramp has begun.
+        self._offset = {ch: 0.0 for ch in self.channels}
         self._on = {ch: False for ch in self.channels}
         try:
             self.idn = self.scpi.query("*IDN?")
@@ -96,6 +99,7 @@ class SignalGenerator:
             self.scpi.write("*CLS")
             for ch in self.channels:
                 self._vpp[ch] = self._query_number(f"SOUR{ch}:VOLT?")
+                self._offset[ch] = self._query_number(f"SOUR{ch}:VOLT:OFFS?")
                 self._on[ch] = self.scpi.query(f"OUTP{ch}?").strip() in ("1", "ON")
         except BaseException:
             self.line.close()
@@ -115,6 +119,7 @@ class SignalGenerator:
         for ch in self.channels:
             self._on[ch] = False
             self._vpp[ch] = self._query_number(f"SOUR{ch}:VOLT?")
+            self._offset[ch] = self._query_number(f"SOUR{ch}:VOLT:OFFS?")
 
     def _query_number(self, command: str) -> float:
         """The reply to ``command`` as a finite number.
@@ -158,6 +163,7 @@ class SignalGenerator:
     def set_offset(self, ch: int, volt: float) -> None:
         self._check_peak(self._vpp[self._ch(ch)], volt)
         self.scpi.write(f"SOUR{ch}:VOLT:OFFS {volt:.12g}")
+        self._offset[ch] = float(volt)
 
     def _check_vpp(self, vpp: float) -> None:
         if not (math.isfinite(vpp) and GeneratorLimits.vpp_min <= vpp <= self.max_vpp):
@@ -166,14 +172,21 @@ class SignalGenerator:
                 "(instrument range and this set-up's safety limit)"
             )
 
+    def _check_amplitude(self, ch: int, vpp: float) -> None:
+        """``vpp`` within the instrument's and this set-up's range, and its peak with the
+        channel's offset within the output's."""
+        self._check_vpp(vpp)
+        self._check_peak(vpp, self._offset[ch])
+
     def _check_peak(self, vpp: float, offset: float) -> None:
         if not math.isfinite(offset) or abs(offset) + vpp / 2 > GeneratorLimits.peak_max_volt:
             raise RangeError(f"{self.name}: |offset| + Vpp/2 must stay within {GeneratorLimits.peak_max_volt:g} V")
 
     def set_amplitude(self, ch: int, vpp: float, ramp_time_s: float | None = None) -> None:
         """Set the amplitude (Vpp); ramped in steps while the output is on."""
-        self._check_vpp(vpp)
-        self._ramp(self._ch(ch), vpp, self.ramp_time_s if ramp_time_s is None else ramp_time_s)
+        ch = self._ch(ch)
+        self._check_amplitude(ch, vpp)
+        self._ramp(ch, vpp, self.ramp_time_s if ramp_time_s is None else ramp_time_s)
 
     def _ramp(self, ch: int, target: float, ramp_time_s: float) -> None:
         start = self._vpp[ch]
@@ -218,7 +231,7 @@ class SignalGenerator:
         """Switch the output on at the lowest amplitude, then ramp up to ``vpp`` (if given)."""
         ch = self._ch(ch)
         if vpp is not None:
-            self._check_vpp(vpp)
+            self._check_amplitude(ch, vpp)
         if not self._on[ch]:
             self.scpi.write(f"SOUR{ch}:VOLT {GeneratorLimits.vpp_min:.9g}")
             self._vpp[ch] = GeneratorLimits.vpp_min

@@ -84,6 +84,24 @@ def test_ranges_checked_before_sending_and_errors_from_the_queue(sim):
         gen.scpi.check_errors()  # the queue is empty again
 
 
+def test_the_peak_with_the_offset_is_checked_before_sending(sim, world):
+    """An amplitude whose peak with the channel's offset (set by the driver, or found at
+    connect) exceeds 10 V is refused before anything is sent: before, only Vpp was checked,
+    and the instrument refused mid-ramp, leaving the output on at a partial level."""
+    ch1, ch2 = world.generators[0].channels
+    ch2.offset_volt = -6.0  # left by an earlier session
+    with SignalGenerator(sim.url, **FAST) as gen:
+        gen.set_offset(1, 5.0)
+        n = len(sim.log)
+        with pytest.raises(RangeError, match=r"\|offset\| \+ Vpp/2"):
+            gen.output_on(1, vpp=12.0)  # 5 + 6 V
+        with pytest.raises(RangeError, match=r"\|offset\| \+ Vpp/2"):
+            gen.set_amplitude(2, 9.0)  # 6 + 4.5 V
+        assert len(sim.log) == n and not ch1.output_on and ch1.vpp == ch2.vpp == 0.1  # as they were
+        gen.output_on(1, vpp=10.0)  # 5 + 5 V: allowed
+        assert ch1.vpp == pytest.approx(10.0)
+
+
 def test_arbitrary_waveform_upload(sim, world):
     x = np.random.default_rng(0).standard_normal(512)
     with SignalGenerator(sim.url, **FAST) as gen:

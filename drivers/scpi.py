@@ -5,8 +5,10 @@ from __future__ import annotations
 import logging
 import re
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
-from .errors import DeviceError, InstrumentTimeout, ProtocolError
+from .errors import ConnectionLost, DeviceError, InstrumentTimeout, ProtocolError
 from .serial_line import SerialLine
 
 __all__ = ["ScpiProtocol"]
@@ -36,21 +38,31 @@ class ScpiProtocol:
     def query(self, command: str, timeout_s: float | None = None) -> str:
         """Send a query and return its reply line."""
         self._send(command)
-        try:
+        with self._link(repr(command)):
             return self.line.read_line(timeout_s)
+
+    @contextmanager
+    def _link(self, what: str) -> Iterator[None]:
+        """The line's time-outs and link errors, naming this instrument and ``what`` was sent
+        (the line names only its port, which does not say which instrument a run lost).
+
+        After a time-out a reply may still come: the next command re-synchronises first.
+        """
+        try:
+            yield
         except InstrumentTimeout as exc:
             self._stale = True
-            raise InstrumentTimeout(f"{self.name}: {command!r}: {exc}") from exc
+            raise InstrumentTimeout(f"{self.name}: {what}: {exc}") from exc
+        except ConnectionLost as exc:
+            raise ConnectionLost(f"{self.name}: {what}: {exc}") from exc
 
     def _send(self, command: str) -> None:
         """Send one line, after re-synchronising if a reply may be late."""
         if self._stale:
-            try:
+            with self._link(f"{_SYNC_QUERY!r} (re-synchronising before {command!r})"):
                 self._sync()
-            except InstrumentTimeout as exc:
-                raise InstrumentTimeout(f"{self.name}: {_SYNC_QUERY!r} (re-synchronising before {command!r}): "
-                                        f"{exc}") from exc
-        self.line.write_line(command)
+        with self._link(repr(command)):
+            self.line.write_line(command)
 
     def _sync(self) -> None:
         """Read up to the reply of :data:`_SYNC_QUERY`, dropping every line before it.
@@ -131,8 +143,9 @@ class ScpiProtocol:
             time.sleep(0.02)  # let a late reply arrive so that it is flushed, not read later
             self.line.discard_input()
             try:
-                self.line.write_line("*CLS")
-                self._sync()  # *OPC? with a reply that a late one cannot be taken for
+                with self._link(f"'*CLS', {_SYNC_QUERY!r}"):
+                    self.line.write_line("*CLS")
+                    self._sync()  # *OPC? with a reply that a late one cannot be taken for
                 return
             except (InstrumentTimeout, ProtocolError) as exc:
                 last = exc

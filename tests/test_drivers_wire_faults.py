@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import itertools
 import logging
+import socket
+import struct
 import time
 
 import can
@@ -13,7 +15,7 @@ import pytest
 from conftest import driven_world
 
 from drivers.daq import CanFdDaq, DaqChannel
-from drivers.errors import DeviceError, InstrumentTimeout, ProtocolError
+from drivers.errors import ConnectionLost, DeviceError, InstrumentError, InstrumentTimeout, ProtocolError
 from drivers.siggen import SignalGenerator
 from sim_devices.components import ShakerSpec
 from sim_devices.daq_sim import CMD_STATUS, RSP_ID, SimDaq
@@ -97,10 +99,12 @@ def test_a_cut_response_fails_its_request_with_the_cause(bad_daq):
 # ---------------------------------------------------------------------- signal generator
 class MisbehavingGenerator(SimSignalGenerator):
     """The simulated generator, answering the first line that contains :attr:`late_match`
-    :attr:`late_s` late, and a line that contains a key of :attr:`garble` with its value."""
+    :attr:`late_s` late, and a line that contains a key of :attr:`garble` with its value;
+    on TCP, resetting the connection on the first line that contains :attr:`reset_match`."""
 
     late_match: str = ""
     late_s: float = 0.0
+    reset_match: str = ""
     _line: str = ""
 
     def __init__(self, *args, **kwargs) -> None:
@@ -109,6 +113,13 @@ class MisbehavingGenerator(SimSignalGenerator):
 
     def _handle_line(self, line: str) -> str | None:
         self._line = line
+        if self.reset_match and self.reset_match in line and self._conn is not None:
+            self.reset_match = ""
+            # Linger 0: close() sends a RST, as a converter or instrument that restarts does.
+            self._conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            self._conn.close()
+            self._conn = None
+            return None
         reply = super()._handle_line(line)
         return next((v for k, v in self.garble.items() if k in line), reply)
 
@@ -159,3 +170,18 @@ def test_a_reply_after_the_time_out_answers_no_later_command(bad_gen, gen_world)
         gen.set_frequency(1, 100.0)
         assert gen_world.generators[0].channels[0].freq_hz == 100.0
         assert gen.scpi.query("SOUR1:FREQ?") == "100"
+
+
+def test_a_reset_link_names_the_generator(gen_world):
+    """A TCP reset while the generator is being set: ConnectionLost names the generator and
+    the command, as a time-out does (before: only the socket's address)."""
+    with MisbehavingGenerator(gen_world, 0, transport="tcp") as sim:
+        gen = SignalGenerator(sim.url, name="gen-A", **FAST)
+        try:
+            sim.reset_match = "SOUR1:FREQ"
+            with pytest.raises(ConnectionLost, match=r"^gen-A: 'SOUR1:FREQ 100;:SYST:ERR\?': socket://127.0.0.1:\d+: "):
+                gen.set_frequency(1, 100.0)
+            with pytest.raises(InstrumentError, match=r"could not confirm outputs off: channel 1: gen-A: "):
+                gen.safe_state()  # the link stays broken: every failure names the generator
+        finally:
+            gen.release()

@@ -452,6 +452,8 @@ class CanFdDaq:
             if (silent_s > self.stream_timeout_s and min(s.available for s in streams) < n_scans
                     and not all(s.finished for s in streams)):
                 self._raise_errors()  # the controller's own report first, if it sent one
+                if self._ended_by_status(streams):
+                    continue
                 raise BusOff(f"{self.name}: no sample frames for {silent_s:.1f} s (DAQ silent, disconnected or bus-off)")
         self._raise_errors()
         first = streams[0].base
@@ -488,6 +490,24 @@ class CanFdDaq:
         for s in streams:
             self._errors.extend(s.end())
         return True
+
+    def _ended_by_status(self, streams: list[ChannelStream]) -> bool:
+        """A finite acquisition gone quiet with no input's last frame in: ask the DAQ.
+
+        If every input lost its last frame, nothing in the stream tells a finished
+        acquisition from a dead node; a DAQ that answers "finished" has sent them all, so
+        the missing frames were lost. True if it did (the streams are then ended).
+        """
+        if any(s.total is None for s in streams):
+            return False
+        try:
+            finished = self.status()["state"] == "finished"
+        except InstrumentError:
+            return False  # no answer either: the node is silent, as the caller reports
+        if finished:
+            for s in streams:
+                self._errors.extend(s.end())
+        return finished
 
     def _raise_errors(self) -> None:
         for err in list(self._errors):

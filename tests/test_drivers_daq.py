@@ -168,6 +168,18 @@ def test_a_frame_lost_at_the_end_of_a_finite_acquisition_is_a_gap(rig, on_gap, s
     assert time.monotonic() - t0 < daq.stream_timeout_s
 
 
+def test_the_last_frame_of_every_input_lost_is_a_gap(rig):
+    """With one input, whose last frame is lost, nothing in the stream says it ended: after
+    ``stream_timeout_s`` the DAQ's status "finished" tells lost frames from a silent node
+    (before: BusOff "no sample frames")."""
+    _, sim, daq = rig
+    daq.configure(CHANNELS[:1], FS)
+    sim.inject("drop", channel=0, seq=39)
+    daq.start(19 * 40)
+    with pytest.raises(FramesLost, match=r"force 1\+Z: 1 frame\(s\) lost \(seq 39..39, 19 samples from sample 741\)"):
+        daq.read(19 * 40)
+
+
 @pytest.mark.parametrize("fault,counter", [("duplicate", "duplicates"), ("swap", "reordered")])
 def test_duplicated_and_reordered_frames_are_repaired(rig, fault, counter):
     _, sim, daq = rig

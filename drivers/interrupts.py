@@ -16,12 +16,19 @@ from another thread, waited on the same queue and was never answered.
 Drivers therefore wrap such waits in :data:`interrupts_held`. A signal handler that asks
 :func:`hold_interrupt` first raises at once outside those sections and, inside one, when the
 outermost section ends (its waits are short: a bus poll, a slice of a future's wait). Only the
-main thread runs Python signal handlers, so only its sections count.
+main thread runs Python signal handlers, so only its sections count. Where SIGINT still has
+Python's own handler (a script that uses the drivers without ``ssidlab``'s), a section puts
+one that asks :func:`hold_interrupt` in its place while it lasts: with Python's, a Ctrl-C in a
+script left a lock taken and a driver's ``close()`` hung, or the amplifier enabled.
+
+The drivers' ``close()`` also hold Ctrl-C back while they bring their instrument to its safe
+state: interrupted there, the excitation stayed on.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
+import signal
 import threading
 import time
 from typing import Any
@@ -32,25 +39,49 @@ __all__ = ["future_result", "hold_interrupt", "interrupts_held"]
 class _HeldSection:
     """Context manager (reentrant) marking code the main thread must not be interrupted in."""
 
-    __slots__ = ("depth", "pending", "_main")
+    __slots__ = ("depth", "pending", "_main", "_put_handler")
 
     def __init__(self) -> None:
         self.depth = 0
         self.pending: type[BaseException] | None = None
         self._main = threading.main_thread().ident
+        self._put_handler = False
 
     def __enter__(self) -> _HeldSection:
         if threading.get_ident() == self._main:
+            if self.depth == 0:
+                self._put_handler = _hold_in_pythons_place()
             self.depth += 1
         return self
 
     def __exit__(self, *exc) -> bool:
         if threading.get_ident() == self._main:
+            if self.depth == 1 and self._put_handler:
+                signal.signal(signal.SIGINT, signal.default_int_handler)
+                self._put_handler = False
             self.depth -= 1
             if self.depth == 0 and self.pending is not None:
                 exc_type, self.pending = self.pending, None
                 raise exc_type()
         return False
+
+
+def _holding_int_handler(signum, frame) -> None:
+    """Python's SIGINT handler, but held back inside :data:`interrupts_held`."""
+    if not hold_interrupt(KeyboardInterrupt):
+        raise KeyboardInterrupt
+
+
+def _hold_in_pythons_place() -> bool:
+    """Put :func:`_holding_int_handler` in place of Python's SIGINT handler (main thread);
+    True if it did. A handler someone else installed stays: it is theirs to hold with."""
+    try:
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            signal.signal(signal.SIGINT, _holding_int_handler)
+            return True
+    except ValueError:  # not the main interpreter's main thread
+        pass
+    return False
 
 
 #: ``with interrupts_held:`` around a call that takes a lock another thread also takes.

@@ -24,13 +24,18 @@ from drivers.errors import FramesLost
 from drivers.interrupts import future_result, interrupts_held
 
 
-@pytest.fixture
-def ctrl_c_handler():
-    """The run's SIGINT handler (daq.control), in place for the test; the main thread only."""
+@pytest.fixture(params=["run's", "python's"])
+def ctrl_c_handler(request):
+    """A SIGINT handler in place for the test (the main thread only): the run's (daq.control),
+    or Python's own, as a script that uses the drivers has it. With Python's, the held sections
+    did not hold: a Ctrl-C in a script left the driver's lock taken."""
     if threading.current_thread() is not threading.main_thread():
         pytest.skip("signal handlers belong to the main thread")
-    previous = signal.signal(signal.SIGINT, latching_interrupt_handler(KeyboardInterrupt))
+    handler = (latching_interrupt_handler(KeyboardInterrupt) if request.param == "run's"
+               else signal.default_int_handler)
+    previous = signal.signal(signal.SIGINT, handler)
     yield
+    assert signal.getsignal(signal.SIGINT) is handler  # the sections put back what they found
     signal.signal(signal.SIGINT, previous)
     clear_interrupts()
 

@@ -35,7 +35,7 @@ from .errors import (
     ProtocolError,
     RangeError,
 )
-from .interrupts import future_result
+from .interrupts import future_result, interrupts_held
 
 __all__ = ["FAULT_NAMES", "MODEL_ID", "REG", "AmpStatus", "ShakerAmplifier", "SyncShakerAmplifier"]
 
@@ -386,7 +386,8 @@ class SyncShakerAmplifier:
         try:
             self._call(self.amp.connect())
         except BaseException:
-            self._shutdown_loop()
+            with interrupts_held:
+                self._shutdown_loop()
             raise
 
     def _call(self, coro, timeout_s: float | None = None):
@@ -401,6 +402,11 @@ class SyncShakerAmplifier:
                 raise  # the call's own InstrumentTimeout (a TimeoutError too), with its own words
             fut.cancel()
             raise InstrumentTimeout(f"{self.amp.name}: call did not finish within {deadline:g} s") from None
+        except BaseException:
+            # A Ctrl-C: the call must not go on behind the caller's back (an enable() that
+            # finished after the safe state had disabled the amplifier re-enabled it).
+            fut.cancel()
+            raise
 
     def read_status(self) -> AmpStatus:
         return self._call(self.amp.read_status())
@@ -424,22 +430,27 @@ class SyncShakerAmplifier:
         self._call(self.amp.safe_state())
 
     def close(self) -> None:
+        """Safe state, then end the link and the event loop. A Ctrl-C meanwhile is raised
+        when both are done: it cancelled the safe state, the amplifier stayed enabled, and
+        the loop it stopped left a second ``close()`` nothing to do it with."""
         if not self._thread.is_alive():
             return
-        try:
-            self._call(self.amp.close())
-        finally:
-            self._shutdown_loop()
+        with interrupts_held:
+            try:
+                self._call(self.amp.close())
+            finally:
+                self._shutdown_loop()
 
     def release(self) -> None:
         """Close the link without another safe state (as ``SignalGenerator.release``); the
         amplifier's own comms watchdog disables it once the link is gone."""
         if not self._thread.is_alive():
             return
-        try:
-            self._call(self.amp.close(safe_state=False))
-        finally:
-            self._shutdown_loop()
+        with interrupts_held:
+            try:
+                self._call(self.amp.close(safe_state=False))
+            finally:
+                self._shutdown_loop()
 
     def _shutdown_loop(self) -> None:
         async def cancel_the_rest() -> None:

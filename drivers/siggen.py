@@ -16,6 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .errors import ConnectionLost, InstrumentError, ProtocolError, RangeError
+from .interrupts import interrupts_held
 from .scpi import ScpiProtocol
 from .serial_line import SerialLine
 
@@ -282,12 +283,15 @@ class SignalGenerator:
             raise InstrumentError(f"{self.name}: could not confirm outputs off: " + "; ".join(failures))
 
     def close(self) -> None:
-        """Safe state, then release the port (the port is released even if safe_state fails)."""
-        try:
-            if self.line.is_open:
-                self.safe_state()
-        finally:
-            self.line.close()
+        """Safe state, then release the port (the port is released even if safe_state fails).
+        A Ctrl-C meanwhile is raised when the port is released: inside the safe state it could
+        cut the ``OUTP OFF`` that ends it, and the output stayed on."""
+        with interrupts_held:
+            try:
+                if self.line.is_open:
+                    self.safe_state()
+            finally:
+                self.line.close()
 
     def release(self) -> None:
         """Release the port without another safe state: for a caller that has just brought

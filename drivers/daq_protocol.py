@@ -101,12 +101,18 @@ class ChannelStream:
     At the end of a finite acquisition no later frame overflows the buffer: the caller
     says when every frame has been sent (:meth:`end`), and what is still missing up to
     ``total`` samples (the scans asked for at START) is declared lost the same way.
+
+    A stream is made at START, which restarts every input's ``seq`` and the sample clock
+    at 0: the first frame expected is seq 0 at tick 0, not whichever frame arrives first.
+    Frames lost before the first one received are then a gap like any other (a frame 1
+    that arrives before frame 0 waits in the reorder buffer), and the input is not shifted
+    against the others by the samples it missed.
     """
 
     name: str
     reorder_window: int = 8
     total: int | None = None  # samples of the acquisition (None: until STOP)
-    next_seq: int | None = None
+    next_seq: int = 0  # START restarts seq and the sample clock: frame 0 is expected at tick 0
     next_tick: int = 0
     payload: bytearray = field(default_factory=bytearray)
     base: int = 0  # sample index (since START) of payload[0]
@@ -125,8 +131,6 @@ class ChannelStream:
             raise ProtocolError(f"{self.name}: sample frame of {len(data)} bytes (want 64)")
         seq, tick, flags = _HDR.unpack_from(data)
         self.frames += 1
-        if self.next_seq is None:
-            self.next_seq, self.next_tick = seq, tick
         d = (seq - self.next_seq) & 0xFFFF
         if d >= 0x8000 or seq in self.pending:
             self.duplicates += 1

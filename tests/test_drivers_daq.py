@@ -180,6 +180,61 @@ def test_the_last_frame_of_every_input_lost_is_a_gap(rig):
         daq.read(19 * 40)
 
 
+@pytest.mark.parametrize("on_gap", ["raise", "mark"])
+@pytest.mark.parametrize("n_scans", [19 * 40, 19 * 5, 0], ids=["finite", "short", "continuous"])
+def test_the_first_frame_of_an_input_lost_is_a_gap(rig, on_gap, n_scans):
+    """START restarts seq and the sample clock at 0: an input whose frame 0 is lost has a
+    gap at its start (declared when the reorder buffer overflows, or at the end of an
+    acquisition of fewer frames than it holds), and every input stays aligned on the
+    sample clock (before: the stream began at frame 1, no error, the input shifted by 19
+    samples against the others). With on_gap="raise" the scans are kept: reading on
+    returns them, from sample 0, the lost ones NaN."""
+    _, sim, daq = rig
+    daq.on_gap = on_gap
+    daq.configure(CHANNELS, FS)
+    sim.inject("drop", channel=2, seq=0)
+    daq.start(n_scans)
+    n = n_scans or 19 * 40
+    if on_gap == "raise":
+        with pytest.raises(FramesLost, match=r"acc 1\+Z: 1 frame\(s\) lost \(seq 0..0, 19 samples from sample 0\)"):
+            daq.read(n)
+    blk = daq.read(n)
+    lost = np.isnan(blk.data)
+    assert blk.first_index == 0 and lost[1].sum() == 19 and np.all(lost[1, :19]) and not lost[[0, 2]].any()
+    assert_is_the_world(np.where(lost, reference(n), blk.data))
+    assert daq.stats["acc 1+Z"]["lost"] == 1
+
+
+def test_an_input_that_received_no_frame_is_a_gap(rig):
+    """Every frame of one input lost in a short acquisition: its stream still starts at
+    seq 0, tick 0, so the whole input is a declared gap (before: a bare TypeError, the
+    stream having no seq to start from)."""
+    _, sim, daq = rig
+    daq.configure(CHANNELS, FS)
+    sim.inject("drop", channel=2, seq=0)
+    sim.inject("drop", channel=2, seq=1)
+    daq.start(19 * 2)
+    with pytest.raises(FramesLost, match=r"acc 1\+Z: 2 frame\(s\) lost \(seq 0..1, 38 samples from sample 0\)"):
+        daq.read(19 * 2)
+
+
+@pytest.mark.parametrize("n_scans", [19 * 40, 19 * 5, 0], ids=["finite", "short", "continuous"])
+def test_the_first_two_frames_swapped_are_reordered_not_lost(rig, n_scans):
+    """Frame 1 of an input arriving before its frame 0 is reordering, not a loss: it waits
+    for frame 0 and the data are whole (before: the stream began at frame 1 and dropped
+    frame 0 as a duplicate, the input shifted by 19 samples)."""
+    _, sim, daq = rig
+    daq.configure(CHANNELS, FS)
+    sim.inject("swap", channel=2, seq=0)
+    daq.start(n_scans)
+    n = n_scans or 19 * 40
+    blk = daq.read(n)
+    assert blk.first_index == 0
+    assert_is_the_world(blk.data)
+    st = daq.stats["acc 1+Z"]
+    assert (st["reordered"], st["duplicates"], st["lost"]) == (1, 0, 0)
+
+
 @pytest.mark.parametrize("fault,counter", [("duplicate", "duplicates"), ("swap", "reordered")])
 def test_duplicated_and_reordered_frames_are_repaired(rig, fault, counter):
     _, sim, daq = rig

@@ -302,7 +302,10 @@ def correlate_with_frf(
     if analysis.C is None:
         from .modal import modal_damping_matrix
 
-        C = modal_damping_matrix(analysis.M, analysis.K, np.full(analysis.n, zeta))
+        try:
+            C = modal_damping_matrix(analysis.M, analysis.K, np.full(analysis.n, zeta))
+        except InputError as exc:
+            raise InputError(f"analysis model: {exc}") from None
         damping_source = f"modal, zeta = {zeta:g} (the model has no C)"
     else:
         C = analysis.C

@@ -10,6 +10,12 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
+from .errors import InputError
+
+#: Why no modal damping matrix can be built on a model: said where one stands in for its C.
+MODAL_DAMPING_NEEDS_MASS = ("M is not positive definite (a DOF without mass?), and modal damping, which stands "
+                            "in for a model without C, needs a mass at every DOF: give the model its C")
+
 __all__ = [
     "root_frequency_damping",
     "modal_phase_collinearity",
@@ -106,8 +112,17 @@ def modal_damping_matrix(M: np.ndarray, K: np.ndarray, zeta: np.ndarray) -> np.n
 
     ``C = M Phi diag(2 zeta_r omega_r) Phi^T M`` with ``Phi`` the mass-normalised real modes,
     ``zeta`` in the order of ascending undamped frequency (missing ratios: the last one given).
+
+    Raises
+    ------
+    InputError
+        M is not positive definite (:data:`MODAL_DAMPING_NEEDS_MASS`): the modes whose
+        ratios are given need a mass at every DOF.
     """
-    wn, phi = real_modes(M, K)
+    try:
+        wn, phi = real_modes(M, K)
+    except np.linalg.LinAlgError:
+        raise InputError(MODAL_DAMPING_NEEDS_MASS) from None
     z = np.asarray(zeta, dtype=float)
     if z.size < wn.size:
         z = np.concatenate([z, np.full(wn.size - z.size, z[-1] if z.size else 0.0)])

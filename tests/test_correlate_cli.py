@@ -59,6 +59,9 @@ def files(tmp_path_factory):
     red = guyan_reduce(1.03 * M, K, a)
     write_model(d / "test.h5", Model(red.M, red.K, None, labels))
     write_model(d / "unstable.h5", Model(red.M, -red.K, None, labels))  # K negative definite
+    massless = M.copy()
+    massless[0, :] = massless[:, 0] = 0.0
+    write_model(d / "massless.h5", Model(massless, K, None, dofs))
     frf = accelerance_from_model(M, C, K, dofs, np.linspace(5.0, 900.0, 1200), labels, labels[:2])
     write_frf(d / "frf.h5", frf)
     blank = (frf.freq_hz > 100.0) & (frf.freq_hz < 200.0)  # a stretch of lines blanked
@@ -177,6 +180,9 @@ def test_mode_list():
         # read as -200 % frequency errors and a passing orthogonality, exit 0 (QA)
         (["--model", "{d}/test.h5", "--model", "{d}/unstable.h5", "--json", "{d}/o.json"],
          "unstable.h5 \\(analysis model\\): K is not positive semi-definite"),
+        # a DOF without mass and no C: scipy's LinAlgError as an internal error (QA)
+        (["--model", "{d}/massless.h5", "--frf", "{d}/frf.h5", "--json", "{d}/o.json"],
+         "massless.h5 \\(analysis model\\): M is not positive definite .* give the model its C"),
         (["--model", "{d}/test.h5", "--model", "{d}/nan.mat", "--json", "{d}/o.json"], "NaN"),
         (["--model", "{d}/test.h5", "--model", "{d}/nan.h5", "--json", "{d}/o.json"],
          "not an HDF5|recognised"),

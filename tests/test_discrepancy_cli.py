@@ -113,6 +113,30 @@ def test_an_unstable_model_is_refused_naming_its_file(files, tmp_path):
         args.run(args)
 
 
+@pytest.mark.parametrize("kind", ["massless DOF without C", "scaled beyond floating point"])
+def test_a_model_the_analysis_cannot_compute_with_is_refused_naming_its_file(files, tmp_path, kind):
+    """A DOF without mass and no C: the modal damping put in C's place needs a mass at every
+    DOF, and scipy's LinAlgError was an internal error (QA). M and K times 1e-300: the model's
+    response overflows: the gaps were NaN and the summary a TypeError, or, with reactions, no
+    value kept a weight and a ZeroDivisionError was one."""
+    d, case = files
+    from ssid.io import Model
+
+    m = case.nominal
+    if kind.startswith("massless"):
+        M = m.M.copy()
+        M[0, :] = M[:, 0] = 0.0
+        model, match = Model(M=M, K=m.K, C=None, dofs=m.dofs), "M is not positive definite .* give the model its C"
+    else:
+        model = Model(M=1e-300 * m.M, K=1e-300 * m.K, C=None, dofs=m.dofs)
+        match = "the model's response at these lines is not a finite number"
+    path = tmp_path / "model.h5"
+    write_model(path, model)
+    args = _parse(["--model", str(path), "--measured", str(d / "frf.h5"), "--json", str(tmp_path / "e.json")])
+    with pytest.raises(InputError, match=match):
+        args.run(args)
+
+
 def test_main_gives_one_line_and_status_2_on_bad_input(files, tmp_path, capsys):
     """Through ssidlab.cli.main, as the console command runs it."""
     d, _ = files

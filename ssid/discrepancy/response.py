@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ..errors import InputError
+from ..modal import MODAL_DAMPING_NEEDS_MASS
 from ..tam import normal_modes
 
 __all__ = [
@@ -160,7 +161,7 @@ def unit_modal_damping(M: np.ndarray, K: np.ndarray) -> np.ndarray:
     try:
         lam, phi = normal_modes(M, K)
     except np.linalg.LinAlgError:
-        raise InputError("model: M is not positive definite, no modal damping can be built") from None
+        raise InputError(MODAL_DAMPING_NEEDS_MASS) from None
     Mphi = M @ phi
     C1 = Mphi @ np.diag(2 * np.sqrt(np.abs(lam))) @ Mphi.T
     return (C1 + C1.T) / 2

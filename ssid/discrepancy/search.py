@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError
 from .effects import (
     ONE_DOF_EFFECTS,
     PARAMETER_KEYS,
@@ -192,9 +193,15 @@ def search_round(
     """
     nom = nominal_response(M, C, K, omega, out_idx, in_idx, T)
     valid = W > 0
-    R = np.where(valid, H_meas - nom.H, 0)
-    rss0 = float(np.sum(W**2 * np.abs(R) ** 2))
     n_valid = int(valid.sum())
+    with np.errstate(over="ignore", invalid="ignore"):
+        R = np.where(valid, H_meas - nom.H, 0)
+        rss0 = float(np.sum(W**2 * np.abs(R) ** 2))
+    # No weight left (the values' variances through the model are not finite), or a residual
+    # that is not a number: every gap and criterion would be NaN.
+    if not n_valid or not np.isfinite(rss0):
+        raise InputError("the model's response at these lines is not a finite number (its M and K so far from the "
+                         "data's scale that floating point overflows?)")
     singles = single_dof_locations(nom, W, R)
     pairs = _pairs(M, C, K, omega, nom, W, R, singles, n_top_pairs)
     n = len(dofs)

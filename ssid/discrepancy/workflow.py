@@ -31,6 +31,7 @@ from ..correlate_frf import frf_gap
 from ..errors import InputError
 from ..frf import AppliedLoads, FRFData, applied_loads, require_response
 from ..io import Model
+from ..modal import MODAL_DAMPING_NEEDS_MASS
 from ..reaction_loads import choose_reactions, model_frf_under_loads, weights_with_reaction_noise
 from ..rigid_body import semi_definite
 from .calibration import ModelParts, check_channel_gains, fit_channel_gains, model_parts, refit_gains_exact
@@ -91,7 +92,8 @@ def _check(model: Model, frf: FRFData) -> None:
 
 def check_model(model: Model) -> None:
     """Raise InputError unless ``model`` is the finite, square M, (C,) K of a physical
-    structure: M positive semi-definite and not zero, K and C positive semi-definite."""
+    structure: M positive semi-definite and not zero (positive definite without C: modal
+    damping stands in for it), K and C positive semi-definite."""
     for name in ("M", "K"):
         A = getattr(model, name)
         if A.shape != (model.n, model.n) or not np.isfinite(A).all():
@@ -105,6 +107,11 @@ def check_model(model: Model) -> None:
         if lam[-1] <= 0 or lam[0] < -1e-9 * lam[-1]:
             problem = "is zero" if lam[-1] <= 0 and lam[0] >= 0 else f"has the eigenvalue {lam[0]:.3g}"
             raise InputError(f"the model's {name} {problem}: not {what} of a physical structure")
+    if model.C is None:
+        try:  # modal damping stands in for the C the model lacks
+            np.linalg.cholesky(model.M)
+        except np.linalg.LinAlgError:
+            raise InputError(MODAL_DAMPING_NEEDS_MASS) from None
     # A C of zeros is an undamped model; one that feeds energy in would have effects fitted to
     # the peaks its negative damping makes.
     if model.C is not None and not semi_definite(model.C):

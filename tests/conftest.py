@@ -5,6 +5,8 @@ from __future__ import annotations
 import itertools
 import os
 import platform
+import signal
+import threading
 
 
 def _pin_openblas_kernels() -> None:
@@ -241,3 +243,22 @@ def one_error_line(err: str, command: str) -> str:
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"ssidlab {command}: error: "), err
     return lines[0]
+
+
+@pytest.fixture
+def ctrl_c_after():
+    """``schedule(delay_s)``: a Ctrl-C (SIGINT to this process) ``delay_s`` from now, taken by
+    Python's own handler, as in a user's script that drives the instruments; the main thread
+    only. Pending ones are cancelled at the test's end."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers belong to the main thread")
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    timers: list[threading.Timer] = []
+
+    def schedule(delay_s: float) -> None:
+        timers.append(threading.Timer(delay_s, os.kill, (os.getpid(), signal.SIGINT)))
+        timers[-1].start()
+
+    yield schedule
+    for t in timers:
+        t.cancel()

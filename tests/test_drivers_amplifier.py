@@ -278,30 +278,22 @@ def test_sync_facade(sim):
     assert not sim.model.enabled
 
 
-def test_a_ctrl_c_during_close_lets_the_safe_state_finish(sim):
+def test_a_ctrl_c_during_close_lets_the_safe_state_finish(sim, ctrl_c_after):
     """close() waits for the amplifier to confirm it is disabled. A Ctrl-C (Python's own
     handler, as in a user's script) landing in that wait cancelled the safe state and stopped
     the event loop: the amplifier stayed enabled (its own watchdog off here), and a second
     close() had no loop to do it with. The interrupt is now raised once close() has ended."""
-    import os
-    import signal
-
-    if threading.current_thread() is not threading.main_thread():
-        pytest.skip("signal handlers belong to the main thread")
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     amp = SyncShakerAmplifier("127.0.0.1", sim.port, **{**FAST, "heartbeat_timeout_s": 5.0}, watchdog_ms=0)
     amp.set_gain(5.0)
     amp.enable()
     sim.inject("delay", count=1, delay_s=1.0)  # the next request (a monitor poll) answered 1 s late
     time.sleep(0.12)  # that poll is in flight: close()'s disable waits behind it
-    timer = threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGINT))
-    timer.start()
+    ctrl_c_after(0.2)
     try:
         with pytest.raises(KeyboardInterrupt):
             amp.close()
             time.sleep(2.0)  # the old code: the interrupt comes in close(), or here at the latest
     finally:
-        timer.cancel()
         amp.close()
     assert not sim.model.enabled
     assert not any(t.is_alive() and t.name.startswith("amp-") for t in threading.enumerate())

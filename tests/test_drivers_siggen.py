@@ -65,32 +65,21 @@ def test_amplitude_is_ramped_while_on_and_exit_switches_off(sim, world):
     assert not ch1.output_on and not world.generators[0].channels[1].output_on
 
 
-def test_a_ctrl_c_while_close_ramps_down_leaves_every_output_off(sim, world):
+def test_a_ctrl_c_while_close_ramps_down_leaves_every_output_off(sim, world, ctrl_c_after):
     """close() ramps each output down in turn. A Ctrl-C (Python's own handler, as in a user's
     script) landing in the first ramp stopped the safe state there: the first output was
     switched off by its ramp's ``finally``, the second stayed on at full level. It is now
     raised once close() has ended."""
-    import os
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        pytest.skip("signal handlers belong to the main thread")
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     chans = world.generators[0].channels
     gen = SignalGenerator(sim.url, **FAST)
     gen.output_on(1, vpp=9.0)
     gen.output_on(2, vpp=9.0)
     # safe_state ramps each output down over 0.1 s per 10 Vpp: the first ramp, from 9 Vpp,
     # takes some 45 ms here, and the Ctrl-C lands in it.
-    timer = threading.Timer(0.015, os.kill, (os.getpid(), signal.SIGINT))
-    timer.start()
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            gen.close()
-            time.sleep(1.0)  # the old code: the interrupt comes in close(), or here at the latest
-    finally:
-        timer.cancel()
+    ctrl_c_after(0.015)
+    with pytest.raises(KeyboardInterrupt):
+        gen.close()
+        time.sleep(1.0)  # the old code: the interrupt comes in close(), or here at the latest
     assert not chans[0].output_on and not chans[1].output_on
 
 

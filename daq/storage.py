@@ -40,6 +40,7 @@ renames it over the run file - so the finished file replaces the running one ato
 
 from __future__ import annotations
 
+import errno
 import glob
 import json
 import os
@@ -86,8 +87,8 @@ def peek_run_file(path: str | Path) -> tuple[str | None, int] | None:
 
 
 def _finishing(final: Path) -> bool:
-    """Whether the process named in a replacement's name (``.RUN.h5.<pid>.final`` or
-    ``.edit``, :func:`_temp_name`) still runs: between closing the run file (its lock gone) and
+    """Whether the process named in a replacement's name (``.RUN.h5.<pid>.final``, ``.edit``
+    or ``.new``, :func:`_temp_name`) still runs: between closing the run file (its lock gone) and
     renaming its replacement over it, a run is still writing, and a resume that opened the run
     file then must not delete its copy (the run then failed on its rename)."""
     pid = final.name.rsplit(".", 2)[-2]
@@ -144,9 +145,25 @@ def _remove_stale(path: Path, what: str) -> None:
             stale.unlink(missing_ok=True)
 
 
+def _link_new(tmp: Path, path: Path) -> None:
+    """Give the whole new file ``tmp`` its name ``path``. A link, not a rename: another run
+    that created the same name in the meantime must make this one fail (FileExistsError), not
+    lose its file. A file system without hard links gets a rename after a last check."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.ENOSYS):
+            raise
+        if path.exists():
+            raise FileExistsError(errno.EEXIST, "exists", str(path)) from None
+        os.rename(tmp, path)
+
+
 def _temp_name(path: Path, pid: int | str, what: str) -> Path:
-    """The name of a file that replaces the run file ``path`` when it is whole: the compact
-    file (``what`` "final") or an edited copy ("edit"), by process ``pid``."""
+    """The name of a file that becomes the run file ``path`` when it is whole: the new file
+    (``what`` "new"), the compact file ("final") or an edited copy ("edit"), by process ``pid``."""
     return path.with_name(f".{path.name}.{pid}.{what}")
 
 
@@ -224,9 +241,7 @@ class RunFile:
                        *((f["H_reaction"], f["H_reaction_var"]) if nr else ())):
                 ds[...] = ds.fillvalue
             f.close()
-            # A link, not a rename: another run that created the same name in the meantime
-            # must make this one fail, not lose its file.
-            os.link(tmp, path)
+            _link_new(tmp, path)
         except FileExistsError:
             raise InputError(exists) from None
         except OSError as exc:

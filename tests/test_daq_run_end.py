@@ -301,6 +301,26 @@ def _kill_at_write(run: Path, nth_write: int, args: list[str], cwd: Path) -> Non
     assert _state(run) == "running"  # killed mid-run, not after it
 
 
+def test_a_run_file_is_created_on_a_file_system_without_hard_links(tmp_path, monkeypatch):
+    """The new file is built under another name and linked to its own; where the file system
+    refuses links (EPERM, as some network and FAT mounts do) it is renamed instead."""
+    import errno
+
+    from daq.storage import RunFile
+
+    def no_links(src, dst):
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "link", no_links)
+    out = tmp_path / "run.h5"
+    kw = dict(kind="stepped_sine", setup_text="", setup_sha256="", freq_hz=np.ones(2), outputs=["1+Z"],
+              inputs=["1+Z"], reactions=[], channel_names=["a"], meta={}, attrs={})
+    RunFile.create(out, **kw).close()
+    assert [p.name for p in tmp_path.iterdir()] == ["run.h5"] and _state(out) == "running"
+    with pytest.raises(InputError, match="exists already"):
+        RunFile.create(out, **kw)
+
+
 @pytest.mark.skipif(shutil.which("strace") is None, reason="needs strace to kill the run inside a write")
 @pytest.mark.parametrize("nth_write", [20, 47, 100, 200, 300])
 def test_a_run_killed_inside_a_lines_flush_can_be_resumed(tmp_path, nth_write):

@@ -333,6 +333,7 @@ class ShakerAmplifier:
                 await self._write(REG["ENABLE"], 0)
                 if not (await self.read_status()).enabled:
                     return
+                last = InstrumentError("it acknowledged ENABLE = 0 but still reads enabled")
             except InstrumentError as exc:
                 last = exc
             if attempt == 0 and self.client is not None:

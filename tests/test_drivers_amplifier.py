@@ -278,6 +278,28 @@ def test_sync_facade(sim):
     assert not sim.model.enabled
 
 
+def test_an_amplifier_that_stays_enabled_is_reported_with_why():
+    """An amplifier that acknowledges ENABLE = 0 and stays on (a stuck contactor): the safe
+    state's error said "could not confirm the amplifier disabled: None"."""
+
+    class StuckOn(SimAmplifier):
+        def _write(self, addr, value):
+            if addr == amp_sim.REG["ENABLE"] and value == 0:
+                return None  # acknowledged, not done
+            return super()._write(addr, value)
+
+    host = AmpServerThread()
+    stuck = StuckOn(AmplifierModel(), host).start()
+    try:
+        amp = SyncShakerAmplifier("127.0.0.1", stuck.port, **FAST)
+        amp.enable()
+        with pytest.raises(InstrumentError, match="acknowledged ENABLE = 0 but still reads enabled"):
+            amp.close()
+    finally:
+        stuck.stop()
+        host.stop()
+
+
 def test_a_ctrl_c_during_close_lets_the_safe_state_finish(sim, ctrl_c_after):
     """close() waits for the amplifier to confirm it is disabled. A Ctrl-C (Python's own
     handler, as in a user's script) landing in that wait cancelled the safe state and stopped

@@ -272,6 +272,12 @@ def run_file_choice(out: str | Path) -> tuple[str | None, bool]:
     kept, ``ssidlab acquire --resume``); a complete run or a file that is not a run file is
     never overwritten, nor is a path whose directory does not exist. ``refusal`` is a
     one-line reason naming the file, or None."""
+    try:
+        # The app resolves the path to start the run: a NUL byte typed in the field (or a
+        # symbolic-link loop) must be refused here, in words, not crash the app there.
+        Path(out).resolve()
+    except (OSError, RuntimeError, ValueError) as exc:
+        return naming(str(out), exc), False
     path = Path(out)
     if not path.parent.is_dir():
         return f"{out}: directory {str(path.parent)!r} does not exist", False

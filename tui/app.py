@@ -297,7 +297,9 @@ class LabApp(SetupTabActions, App):
         if live is None:
             return
         kind = live.feed(ev)
-        if kind in ("line", "spectrum"):
+        # A stepped-sine sub-line is on the plot too (a shaker's response per unit force,
+        # until every shaker has measured the line): the first shaker's sweep left it empty.
+        if kind in ("line", "spectrum", "sub_line"):
             self._plot_dirty = True
         if kind == "instruments":
             self._fill_instruments(instruments_in_use_rows(ev, self.setup))

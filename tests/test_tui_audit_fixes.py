@@ -204,7 +204,11 @@ def test_f5_resets_the_line_and_instrument_panels_and_the_check_verdict(tmp_path
             assert "earlier run" in shown(app, "#line-status") and "amp0 on" in shown(app, "#inst-status")
             app.query_one("#check-status", Static).update("instruments: all 4 answered and ready (simulated lab)")
             await pilot.press("f5")
-            assert shown(app, "#line-status") == NO_LINE and shown(app, "#inst-status") == NO_INSTRUMENTS
+            # The refusal may have ended the run already (a loaded machine), and then the
+            # panel says so: either way the earlier run's "amp0 on" is gone.
+            ended = app.outcome is not None
+            assert shown(app, "#line-status") == NO_LINE
+            assert shown(app, "#inst-status") == (app.live.ended_text(app.outcome) if ended else NO_INSTRUMENTS)
             assert shown(app, "#check-status") == CHECK_PROMPT
             await wait_for(pilot, lambda: app.outcome is not None, 60, "the refusal")
             status = shown(app, "#run-status")
@@ -212,6 +216,7 @@ def test_f5_resets_the_line_and_instrument_panels_and_the_check_verdict(tmp_path
             assert app.outcome.returncode == 2 and "F5" not in status
             assert "/proc/ssidlab-cannot-create.h5: cannot write in directory '/proc'" in status, status
             assert shown(app, "#line-status") == NO_LINE
+            assert shown(app, "#inst-status") == "run ended before it reported the instruments"
 
     asyncio.run(go())
 

@@ -13,10 +13,10 @@ import pytest
 pytest.importorskip("textual")
 
 from textual.widgets import Static, TabbedContent
-from tui_helpers import SIZE, small_setup
+from tui_helpers import SIZE, abort_after_first_line, log_text, small_setup
 
 from tui.app import LabApp
-from tui.session import LiveRun
+from tui.session import LiveRun, RunOutcome
 from tui.widgets import FrfPlot
 
 
@@ -65,5 +65,52 @@ def test_the_live_plot_shows_the_first_shakers_sub_lines(tmp_path):
                             "force_n": 1.0, "thd_max": 0.001, "reason": "", "Y_abs": y})
             app._redraw_live()
             assert titles and titles[-1].endswith(": 2 lines"), titles
+
+    asyncio.run(go())
+
+
+# ---------------------------------------------------------------------- 3: the amplifier panel at the end
+AMP_ON = {"amplifiers": {"amp0": {"enabled": True, "interlock_closed": True, "fault": ""}}}
+
+
+def test_after_an_abort_the_amplifier_panel_says_drives_off_not_on(tmp_path):
+    """A simulated run aborted after its first line: its end confirmed the safe state (file
+    state "interrupted"), and the panel says so instead of the last "amp0 on" read mid-run."""
+    setup = small_setup(tmp_path, n_lines=40)
+
+    async def go() -> None:
+        app = LabApp(str(setup), out=str(tmp_path / "cut.h5"), sim=True)
+        async with app.run_test(size=SIZE) as pilot:
+            await abort_after_first_line(pilot, app)
+            assert app.outcome.state == "interrupted", log_text(app)
+            panel = shown(app, "#inst-status")
+            assert panel.startswith("run ended: drives off") and " on," not in panel, panel
+
+    asyncio.run(go())
+
+
+@pytest.mark.parametrize(("outcome", "expected"), [
+    (RunOutcome(3, False, "r.h5", "stopped: amp0: heartbeat lost; safe state not confirmed: amp0: no reply"),
+     "run ended: SAFE STATE NOT CONFIRMED - check the generators and amplifiers"),
+    (RunOutcome(-9, True, "r.h5", "running"),  # killed: the file says nothing of its end
+     "run ended: amplifier state unknown (its end did not confirm the safe state)"),
+    (RunOutcome(0, False, "r.h5", "complete"),
+     "run ended: drives off (outputs off, amplifiers disabled: confirmed at its end)"),
+])
+def test_the_amplifier_panel_claims_no_more_than_the_runs_end_reported(tmp_path, outcome, expected):
+    """The panel after the run's last "amp0 on": confirmed off, not confirmed, or unknown."""
+    setup = small_setup(tmp_path, n_lines=4)
+
+    async def go() -> None:
+        app = LabApp(str(setup), out=str(tmp_path / "r.h5"), sim=True)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.pause()
+            app.live = LiveRun(app.setup.outputs, app.setup.inputs)
+            app._event({"event": "instruments", "simulated": True, "identities": {}})
+            app._event({"event": "sub_line", "shaker": 0, "freq_hz": 20.0, "drive_vpp": 0.2, "ok": False,
+                        "reason": "limit", "instruments": AMP_ON})
+            assert "amp0 on" in shown(app, "#inst-status")
+            app._finished(outcome, None)
+            assert shown(app, "#inst-status") == expected
 
     asyncio.run(go())

@@ -376,6 +376,8 @@ class LabApp(SetupTabActions, App):
         text = outcome.summary() if error is None else f"could not start the run: {error}"
         self._status(text)
         self._log(text)
+        if self.live is not None:  # the amplifiers' last state read during the run holds no more
+            self.query_one("#inst-status", Static).update(self.live.ended_text(outcome))
         if outcome.complete:
             self._progress(1.0)
         else:

@@ -45,6 +45,9 @@ EXIT_TEXT = {0: "complete", EXIT_BAD_INPUT: "refused (bad input)", 3: "stopped s
 NO_LINE = "no line measured yet"
 NO_INSTRUMENTS = "instruments: waiting for the run"
 
+#: ``daq.run`` stores a run's state cut to this many characters.
+RUN_STATE_MAX = 500
+
 # The one line a refused or failed command writes (ssidlab/cli.py): "ssidlab acquire: error: ..."
 _ERROR_LINE = re.compile(r"^ssidlab\b[^:]*: ((?:internal )?error: .*\S)\s*$")
 
@@ -246,6 +249,17 @@ class RunOutcome:
         (the setup file, the switch) has changed: its error says which."""
         return bool(self.state) and self.state != "complete" and self.returncode != EXIT_BAD_INPUT
 
+    @property
+    def safe_state_confirmed(self) -> bool:
+        """Whether the run's end confirmed the safe state (every generator output off, every
+        amplifier disabled), as the run file says: ``daq.run`` writes the file's last state
+        after that safe state, with "safe state not confirmed" when an instrument did not
+        confirm it. A file still "running" or "paused" (a run killed) or none at all confirms
+        nothing, nor does a state cut at its 500 characters (its "not confirmed" may be lost)."""
+        state = self.state
+        return (bool(state) and state not in ("running", "paused") and "not confirmed" not in state
+                and len(state) < RUN_STATE_MAX)
+
     def summary(self) -> str:
         what = EXIT_TEXT.get(self.returncode, f"failed (exit status {self.returncode})")
         if self.state and "safe state not confirmed" in self.state:
@@ -372,6 +386,24 @@ class LiveRun:
         use = ev.get("limit_use") or {}
         lim = ", ".join(f"{k} {100 * v:.0f} %" for k, v in use.items() if v is not None)
         return head + ("\nof limits: " + lim if lim else "")
+
+    @property
+    def reported_instruments(self) -> bool:
+        """Whether the run said it had its instruments (the ``instruments`` event, sent once
+        they answer and before anything is driven)."""
+        return self.simulated is not None or bool(self.identities) or bool(self.instruments)
+
+    def ended_text(self, outcome: RunOutcome) -> str:
+        """The amplifier panel once the run has ended: only what its end reported. The last
+        state read before a line ("amp0 on") is no longer true, and a run that stopped is not
+        known to have left the amplifiers off unless its end confirmed the safe state."""
+        if outcome.state and "not confirmed" in outcome.state:
+            return "run ended: SAFE STATE NOT CONFIRMED - check the generators and amplifiers"
+        if not self.reported_instruments:
+            return "run ended before it reported the instruments"
+        if outcome.safe_state_confirmed:
+            return "run ended: drives off (outputs off, amplifiers disabled: confirmed at its end)"
+        return "run ended: amplifier state unknown (its end did not confirm the safe state)"
 
     def instrument_text(self) -> str:
         """Amplifier interlock / enable / fault state for the status panel."""

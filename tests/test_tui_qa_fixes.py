@@ -12,8 +12,8 @@ import pytest
 
 pytest.importorskip("textual")
 
-from textual.widgets import Static, TabbedContent
-from tui_helpers import SIZE, abort_after_first_line, log_text, small_setup
+from textual.widgets import Input, Static, TabbedContent
+from tui_helpers import SIZE, abort_after_first_line, log_text, small_setup, wait_for
 
 from tui.app import LabApp
 from tui.session import LiveRun, RunOutcome
@@ -112,5 +112,61 @@ def test_the_amplifier_panel_claims_no_more_than_the_runs_end_reported(tmp_path,
             assert "amp0 on" in shown(app, "#inst-status")
             app._finished(outcome, None)
             assert shown(app, "#inst-status") == expected
+
+    asyncio.run(go())
+
+
+# ---------------------------------------------------------------------- 4: an old run's results
+def test_an_old_runs_results_are_dropped_once_a_new_run_has_started(tmp_path, monkeypatch):
+    """Run 1 completes; its analysis is held while F5 starts run 2 (refused at once: its run
+    file cannot be created). Run 1's results, released then, must not show: run 2's "no
+    results" stays, and the Run tab with it (they popped up and switched to Results). Four
+    lines are too few to identify: run 1's "results" are its identification failure, which
+    takes the same way to the screen as identified modes, in a fraction of the time."""
+    import threading
+
+    import tui.app
+
+    setup = small_setup(tmp_path, n_lines=4)
+    release, analysed, delivered = threading.Event(), threading.Event(), threading.Event()
+    real_analyse = tui.app.analyse_run
+
+    def held_analyse(*args, **kw):
+        release.wait(30)
+        try:
+            return real_analyse(*args, **kw)
+        finally:
+            analysed.set()
+
+    monkeypatch.setattr(tui.app, "analyse_run", held_analyse)
+
+    async def go() -> None:
+        app = LabApp(str(setup), out=str(tmp_path / "run1.h5"), sim=True)
+        real_call = app.call_from_thread
+
+        def call_from_thread(*args, **kw):
+            # The worker's next hand-over after its analysis: once it returns, the UI has
+            # run (or dropped) the update with the results.
+            was_analysed = analysed.is_set()
+            try:
+                return real_call(*args, **kw)
+            finally:
+                if was_analysed:
+                    delivered.set()
+
+        app.call_from_thread = call_from_thread
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("f5")
+            await wait_for(pilot, lambda: "identifying" in shown(app, "#results-status"), 60, "run 1's analysis")
+            assert app.outcome.complete, log_text(app)
+            app.query_one("#out-path", Input).value = "/proc/ssidlab-cannot-create.h5"
+            await pilot.press("f5")
+            await wait_for(pilot, lambda: app.outcome is not None, 60, "run 2's refusal")
+            refused = shown(app, "#results-status")
+            assert refused.startswith("no results: run refused"), refused
+            release.set()
+            await wait_for(pilot, delivered.is_set, 60, "run 1's results handed to the UI")
+            assert app.results is None and shown(app, "#results-status") == refused
+            assert app.query_one(TabbedContent).active == "run"
 
     asyncio.run(go())

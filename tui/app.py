@@ -337,6 +337,17 @@ class LabApp(SetupTabActions, App):
         except RuntimeError:  # the app has stopped: no event loop to run it on
             pass
 
+    def _from_run(self, acq: Acquisition, update, *args) -> None:
+        """As :meth:`_from_worker`, for the worker of the run ``acq``: dropped once another run
+        has started. F5 is offered as soon as a run's process has ended, while its worker
+        still hands on its last lines and computes its results (seconds): an old run's
+        results then showed during the new run, over its panels and its status."""
+        def if_current() -> None:
+            if self.acquisition is acq:
+                update(*args)
+
+        self._from_worker(if_current)
+
     @work(thread=True, exclusive=True, group="acquire")
     def _watch(self, acq: Acquisition, parser: ProgressParser, setup, sim: bool, model_path: str) -> None:
         """Worker thread: owns the acquisition subprocess until it has ended."""
@@ -344,31 +355,31 @@ class LabApp(SetupTabActions, App):
             if not acq.start():  # the app is closing: nothing started, nothing to stop
                 return
         except OSError as exc:
-            self._from_worker(self._finished, RunOutcome(-1, False, acq.out, None), one_line(exc))
+            self._from_run(acq, self._finished, RunOutcome(-1, False, acq.out, None), one_line(exc))
             return
         error = None
         for line in acq.lines():
             ev = parse_event(line)
             if ev is not None:
-                self._from_worker(self._event, ev)
+                self._from_run(acq, self._event, ev)
                 continue
-            self._from_worker(self._log, line)
+            self._from_run(acq, self._log, line)
             error = error_text(line) or error
             frac = parser.feed(line)
             if frac is not None:
-                self._from_worker(self._progress, frac)
+                self._from_run(acq, self._progress, frac)
         code = acq.wait()
         outcome = RunOutcome(code, acq.abort_requested, acq.out, run_file_state(acq.out), error)
-        self._from_worker(self._finished, outcome, None)
-        if outcome.complete:
-            self._from_worker(self._results_status, "identifying M, C, K (SSID), correlating, "
-                                                    "looking for the discrepancy...")
+        self._from_run(acq, self._finished, outcome, None)
+        if outcome.complete and self.acquisition is acq:  # no results for a run no longer shown
+            self._from_run(acq, self._results_status, "identifying M, C, K (SSID), correlating, "
+                                                      "looking for the discrepancy...")
             try:
                 results = analyse_run(acq.out, setup, sim=sim, model_path=model_path or None)
             except Exception as exc:  # noqa: BLE001 -- any identification failure is one line; the file is fine
-                self._from_worker(self._show_results, None, f"identification failed: {one_line(exc)}")
+                self._from_run(acq, self._show_results, None, f"identification failed: {one_line(exc)}")
             else:
-                self._from_worker(self._show_results, results, results.description)
+                self._from_run(acq, self._show_results, results, results.description)
 
     def _finished(self, outcome: RunOutcome, error: str | None) -> None:
         self.outcome = outcome

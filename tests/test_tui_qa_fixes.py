@@ -8,14 +8,16 @@ from __future__ import annotations
 
 import asyncio
 
+import numpy as np
 import pytest
 
 pytest.importorskip("textual")
 
-from textual.widgets import Input, Static, TabbedContent
+from textual.widgets import Input, Select, Static, TabbedContent
 from tui_helpers import SIZE, abort_after_first_line, log_text, small_setup, wait_for
 
 from tui.app import LabApp
+from tui.results import RunResults
 from tui.session import LiveRun, RunOutcome
 from tui.widgets import FrfPlot
 
@@ -168,5 +170,57 @@ def test_an_old_runs_results_are_dropped_once_a_new_run_has_started(tmp_path, mo
             await wait_for(pilot, delivered.is_set, 60, "run 1's results handed to the UI")
             assert app.results is None and shown(app, "#results-status") == refused
             assert app.query_one(TabbedContent).active == "run"
+
+    asyncio.run(go())
+
+
+# ---------------------------------------------------------------------- 5: Results channels after another setup
+def _results_of(setup_path, run_path) -> RunResults:
+    """Results of a run of ``setup_path`` without a run: the simulated lab's exact FRF on 8
+    lines, the SSID model's FRF taken as the measured one (what the overlay and PNG need)."""
+    from daq.setup import load_setup
+    from daq.simlab import build_world
+
+    setup = load_setup(setup_path)
+    frf = build_world(setup).frf(np.geomspace(20.0, 1500.0, 8), outputs=setup.outputs, inputs=setup.inputs)
+    return RunResults(run_path, frf, None, [], "run.h5: the old run", predicted=frf.H.copy())
+
+
+def _labels(app: LabApp, selector: str) -> list[str]:
+    return [str(label) for label, value in app.query_one(selector, Select)._options if isinstance(value, tuple)]
+
+
+def test_the_results_channel_list_names_the_results_frf_not_a_setup_loaded_since(tmp_path):
+    """Results shown, then another setup loaded whose first two responses are swapped: the
+    Results list keeps the FRF's own labels, the overlay and the PNG follow the FRF's DOFs,
+    and a choice there picks the same DOFs in the live list (indices of the new setup)."""
+    setup = small_setup(tmp_path, n_lines=4)
+    text = setup.read_text(encoding="utf-8")
+    swapped = tmp_path / "swapped.toml"  # acc 1+Z now reads 2+Z and the other way round
+    swapped.write_text(text.replace('dof = "1+Z"', 'dof = "@"').replace('dof = "2+Z"', 'dof = "1+Z"')
+                       .replace('dof = "@"', 'dof = "2+Z"'), encoding="utf-8")
+    results = _results_of(setup, tmp_path / "run.h5")
+    frf = results.frf
+
+    async def go() -> None:
+        app = LabApp(str(setup), out=str(tmp_path / "next.h5"), sim=True)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.pause()
+            titles: list[str] = []
+            overlay = app.query_one("#overlay", FrfPlot)
+            real = overlay.show_overlay
+            overlay.show_overlay = lambda title, *args: (titles.append(title), real(title, *args))
+            app._show_results(results, results.description)
+            app.query_one("#setup-path", Input).value = str(swapped)
+            await pilot.press("f1", "ctrl+l")
+            assert app.setup.outputs[:2] == ["2+Z", "1+Z"] and frf.outputs[:2] == ["1+Z", "2+Z"]
+            assert _labels(app, "#result-channel") == [f"{o} / {i}" for i in frf.inputs for o in frf.outputs]
+            assert _labels(app, "#channel")[0] == f"2+Z / {frf.inputs[0]}"  # the live list: the new setup
+            app.query_one("#result-channel", Select).value = (0, 0)  # "1+Z / 11+Z" of the FRF
+            await pilot.pause()
+            assert titles[-1] == f"1+Z / {frf.inputs[0]}", titles
+            assert app.channel == (1, 0)  # 1+Z of the new setup, in the live list
+            await pilot.press("f3", "p")
+            assert (tmp_path / "run_frf_1_Z_11_Z.png").is_file(), shown(app, "#export-status")
 
     asyncio.run(go())

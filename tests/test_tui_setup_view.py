@@ -43,3 +43,11 @@ def test_instruments_in_use_name_real_addresses_or_simulated():
                     ("daq", "daq", "socketcan:can0", "in use by the run", "serial 7, fw_version 1.2")]
     sim = instruments_in_use_rows({**ev, "simulated": True}, s)
     assert {r[2] for r in sim} == {"simulated"}
+
+
+def test_same_pair_passes_a_channel_on_by_its_dofs():
+    from tui.setup_view import pair_options, same_pair
+
+    assert pair_options(["a", "b"], ["a"]) == [("a / a", (0, 0)), ("b / a", (1, 0))]
+    assert same_pair((1, 0), ["a", "b"], ["a"], ["b", "a"], ["a"]) == (0, 0)
+    assert same_pair((1, 0), ["a", "b"], ["a"], ["a"], ["a"]) is None  # "b" not there

@@ -61,8 +61,8 @@ from .session import (
     run_file_choice,
     run_file_state,
 )
-from .setup_tab import CHECK_PROMPT, SetupTabActions, typed_path
-from .setup_view import instruments_in_use_rows
+from .setup_tab import CHECK_PROMPT, SetupTabActions, first_drive_point, set_choices, typed_path
+from .setup_view import instruments_in_use_rows, pair_options, same_pair
 from .widgets import FrfPlot
 
 __all__ = ["LabApp"]
@@ -109,7 +109,8 @@ class LabApp(SetupTabActions, App):
         self.results: RunResults | None = None
         self.results_message = ""
         self.pause_pending = False
-        self.channel: tuple[int, int] | None = None  # (output, input) in the plots; set by loading a setup
+        self.channel: tuple[int, int] | None = None  # (output, input) of the setup in the live plot; set at load
+        self.result_channel: tuple[int, int] | None = None  # (output, input) of the results' FRF
         self._plot_dirty = False
 
     # ------------------------------------------------------------------ layout
@@ -228,15 +229,49 @@ class LabApp(SetupTabActions, App):
             self.action_export(bid.removeprefix("export-"))
 
     def on_select_changed(self, event: Select.Changed) -> None:
+        """A channel chosen in one list: its plot, and the same DOFs in the other list. The
+        live list indexes the loaded setup's DOFs, the Results list the results' FRF: after
+        another setup is loaded the same indices may name other DOFs (passed on by name)."""
         if not isinstance(event.value, tuple):  # nothing chosen (Select.NULL) while options are set
             return
-        self.channel = tuple(event.value)
-        for sel_id in ("#channel", "#result-channel"):
-            sel = self.query_one(sel_id, Select)
-            if sel.value != event.value:
-                sel.value = event.value
-        self._plot_dirty = True
-        self.query_one(ResultsPane).draw_overlay(self.results, self.channel)
+        if not event.select.is_attached:
+            # Results shown just before a quit choose their channel: the choice is handled
+            # while the app closes, its widgets gone (NoMatches crashed the quit).
+            return
+        value = tuple(event.value)
+        frf = self.results.frf if self.results is not None else None
+        setup = self.setup
+        if event.select.id == "result-channel":
+            self.result_channel = value
+            self.query_one(ResultsPane).draw_overlay(self.results, value)
+            if frf is not None and setup is not None:
+                self._choose("#channel", same_pair(value, frf.outputs, frf.inputs, setup.outputs, setup.inputs))
+        else:
+            self.channel = value
+            self._plot_dirty = True
+            if frf is not None and setup is not None:
+                self._choose("#result-channel",
+                             same_pair(value, setup.outputs, setup.inputs, frf.outputs, frf.inputs))
+
+    def _choose(self, selector: str, value: tuple[int, int] | None) -> None:
+        """Choose ``value`` in a channel list, unless it is chosen already or None (not there)."""
+        sel = self.query_one(selector, Select)
+        if value is not None and sel.value != value:
+            sel.value = value
+
+    def _set_result_channels(self, results: RunResults | None) -> None:
+        """The Results channel list from the FRF the results index (its own DOFs, whatever
+        setup is loaded now), on the live plot's DOFs where the FRF has them."""
+        sel = self.query_one("#result-channel", Select)
+        if results is None:
+            self.result_channel = None
+            set_choices(sel, [], None)
+            return
+        frf, setup = results.frf, self.setup
+        live = (same_pair(self.channel, setup.outputs, setup.inputs, frf.outputs, frf.inputs)
+                if setup is not None and self.channel is not None else None)
+        self.result_channel = live or first_drive_point(frf.outputs, frf.inputs)
+        set_choices(sel, pair_options(frf.outputs, frf.inputs), self.result_channel)
 
     def _status(self, text: str) -> None:
         self.query_one("#run-status", Static).update(text)
@@ -269,6 +304,7 @@ class LabApp(SetupTabActions, App):
         self.results_message = ""
         self.pause_pending = False
         self.live = LiveRun(self.setup.outputs, self.setup.inputs)
+        self._set_result_channels(None)  # the last run's FRF is no longer shown
         # The side panels said what the last run's last line and instruments did.
         self.query_one("#line-status", Static).update(NO_LINE)
         self.query_one("#inst-status", Static).update(NO_INSTRUMENTS)
@@ -317,9 +353,15 @@ class LabApp(SetupTabActions, App):
         if not self._plot_dirty or self.live is None or self.setup is None:
             return
         self._plot_dirty = False
+        live, setup = self.live, self.setup
         o, i = self.channel
-        f, h, c = self.live.curve(o, i)
-        name = f"{self.setup.outputs[o]} / {self.setup.inputs[i]}" if o < len(self.setup.outputs) else ""
+        name = f"{setup.outputs[o]} / {setup.inputs[i]}" if o < len(setup.outputs) and i < len(setup.inputs) else ""
+        # The curves index the run's setup, the list the setup loaded since (the same by name).
+        pair = same_pair(self.channel, setup.outputs, setup.inputs, live.outputs, live.inputs)
+        if pair is None:
+            self.query_one("#live-plot", FrfPlot).show_live(f"{name}: not measured in the last run", [], [], [])
+            return
+        f, h, c = live.curve(*pair)
         self.query_one("#live-plot", FrfPlot).show_live(f"{name}: {len(f)} lines", f, h, c)
 
     def _from_worker(self, update, *args) -> None:
@@ -418,7 +460,8 @@ class LabApp(SetupTabActions, App):
     def _show_results(self, results: RunResults | None, message: str) -> None:
         self.results = results
         self.results_message = message
-        self.query_one(ResultsPane).show(results, message, self.channel)
+        self._set_result_channels(results)
+        self.query_one(ResultsPane).show(results, message, self.result_channel)
         self._refresh_controls()
         self.action_show_tab("results")
 
@@ -455,7 +498,7 @@ class LabApp(SetupTabActions, App):
             self.notify("no results to export yet", severity="warning")
             return
         try:
-            paths = export_results(self.results, kind, *self.channel)
+            paths = export_results(self.results, kind, *(self.result_channel or (0, 0)))
         except Exception as exc:  # noqa: BLE001 -- an export failure is one line; nothing else is lost
             self.query_one(ResultsPane).export_status(f"export {kind} failed: {one_line(exc)}")
             return

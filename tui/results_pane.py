@@ -65,6 +65,7 @@ class ResultsPane(VerticalScroll):
         for t in ("#modes", "#mac"):
             self.query_one(t, DataTable).clear()
         self.query_one("#discrepancy", Static).update("")
+        self.query_one("#overlay", FrfPlot).show_message("FRF overlay: after a run")
         self.export_status("")
         self.status(text)
 

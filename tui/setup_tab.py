@@ -28,7 +28,7 @@ from .setup_view import (
     describe_setup,
 )
 
-__all__ = ["CHECK_PROMPT", "SetupTabActions", "typed_path"]
+__all__ = ["CHECK_PROMPT", "SetupTabActions", "first_drive_point", "set_choices", "typed_path"]
 
 #: The instrument check's line before a check (F4) of the setup as loaded.
 CHECK_PROMPT = "instruments (F4 checks the connections):"
@@ -38,6 +38,18 @@ def typed_path(value: str) -> str:
     """A path as typed in a field: stripped, a leading ``~`` expanded; "" for an empty field."""
     text = value.strip()
     return os.path.expanduser(text) if text else ""
+
+
+def first_drive_point(outputs: list[str], inputs: list[str]) -> tuple[int, int]:
+    """The channel a plot shows first: the first input's own response, else the first pair."""
+    return (list(outputs).index(inputs[0]), 0) if inputs and inputs[0] in outputs else (0, 0)
+
+
+def set_choices(select: Select, options: list[tuple[str, tuple[int, int]]], value: tuple[int, int] | None) -> None:
+    """Fill a channel list and choose ``value`` (None: nothing chosen)."""
+    select.set_options([(Text(label), v) for label, v in options])  # DOF names, not markup
+    if value is not None:
+        select.value = value
 
 
 def plain_cells(row: tuple[str, ...]) -> tuple[str, ...]:
@@ -121,12 +133,11 @@ class SetupTabActions:
         self.query_one("#setup-error", Static).update(f"error: {self.model_error}" if self.model_error else "")
 
     def _set_channels(self, options: list[tuple[str, tuple[int, int]]], setup) -> None:
+        """The live plot's channel list, from the setup. Not the Results list: the results
+        shown index their run's FRF, whose channels this setup may list otherwise."""
         if self.channel not in {v for _, v in options}:  # keep the engineer's choice across reloads
-            self.channel = (setup.outputs.index(setup.inputs[0]), 0) if setup.inputs[0] in setup.outputs else (0, 0)
-        for sel_id in ("#channel", "#result-channel"):
-            sel = self.query_one(sel_id, Select)
-            sel.set_options([(Text(label), value) for label, value in options])  # DOF names, not markup
-            sel.value = self.channel
+            self.channel = first_drive_point(setup.outputs, setup.inputs)
+        set_choices(self.query_one("#channel", Select), options, self.channel)
 
     def action_new(self) -> None:
         """Create the setup file in the path field from the simulated lab's example, then load it."""

@@ -7,7 +7,7 @@ kept out of the app so that the widgets only place them.
 from __future__ import annotations
 
 __all__ = ["channel_options", "channel_rows", "checked_instrument_rows", "configured_instrument_rows",
-           "describe_setup", "instruments_in_use_rows"]
+           "describe_setup", "instruments_in_use_rows", "pair_options", "same_pair"]
 
 #: One instrument table row: name, kind, address, state, identity.
 InstrumentRow = tuple[str, str, str, str, str]
@@ -39,7 +39,27 @@ def channel_rows(setup) -> list[tuple[str, ...]]:
 
 def channel_options(setup) -> list[tuple[str, tuple[int, int]]]:
     """The (output, input) pairs a plot can show, as ``(label, (output index, input index))``."""
-    return [(f"{o} / {i}", (k, j)) for j, i in enumerate(setup.inputs) for k, o in enumerate(setup.outputs)]
+    return pair_options(setup.outputs, setup.inputs)
+
+
+def pair_options(outputs: list[str], inputs: list[str]) -> list[tuple[str, tuple[int, int]]]:
+    """The (output, input) pairs of FRFs with these DOFs, as ``(label, (output index, input
+    index))``: a setup's (the live plot) or a measured FRF's own (the results)."""
+    return [(f"{o} / {i}", (k, j)) for j, i in enumerate(inputs) for k, o in enumerate(outputs)]
+
+
+def same_pair(channel: tuple[int, int], outputs: list[str], inputs: list[str], to_outputs: list[str],
+              to_inputs: list[str]) -> tuple[int, int] | None:
+    """The (output, input) indices in ``to_outputs`` / ``to_inputs`` of the DOFs that
+    ``channel`` indexes in ``outputs`` / ``inputs``, or None where they are not all there.
+
+    The live plot indexes the loaded setup's DOFs, the results the run's FRF: after another
+    setup is loaded the same indices may name other DOFs, so a choice is passed on by name."""
+    o, i = channel
+    try:
+        return list(to_outputs).index(outputs[o]), list(to_inputs).index(inputs[i])
+    except (IndexError, ValueError):
+        return None
 
 
 def _instruments(setup) -> list[tuple[str, str, str]]:

@@ -104,6 +104,11 @@ def test_outside_text_is_shown_literally_and_never_crashes(tmp_path, monkeypatch
             assert any("created n[/].toml" in n for n in notes(app))
             field.value = str(odd)
             await pilot.press("ctrl+l")
+            # Its DOF "1+Z[/]" is not on the simulated payload: refused with the switch on, as
+            # `ssidlab acquire --sim` refuses it, and the error names it as written.
+            assert "'1+Z[/]'" in shown(app, "#setup-error") and app.setup is None, shown(app, "#setup-error")
+            app.query_one("#sim", Switch).value = False  # a lab's own setup: loaded again
+            await pilot.pause()
             assert shown(app, "#excitation").startswith("[/][b]payload simulator")
             channels = app.query_one("#channels", DataTable)
             rows = [channels.get_row_at(i) for i in range(channels.row_count)]

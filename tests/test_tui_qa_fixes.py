@@ -13,7 +13,7 @@ import pytest
 
 pytest.importorskip("textual")
 
-from textual.widgets import Input, Select, Static, TabbedContent
+from textual.widgets import Input, Select, Static, Switch, TabbedContent
 from tui_helpers import SIZE, abort_after_first_line, log_text, small_setup, wait_for
 
 from tui.app import LabApp
@@ -222,5 +222,56 @@ def test_the_results_channel_list_names_the_results_frf_not_a_setup_loaded_since
             assert app.channel == (1, 0)  # 1+Z of the new setup, in the live list
             await pilot.press("f3", "p")
             assert (tmp_path / "run_frf_1_Z_11_Z.png").is_file(), shown(app, "#export-status")
+
+    asyncio.run(go())
+
+
+# ---------------------------------------------------------------------- 6: a bad [sim] table; a failed check
+def test_a_bad_sim_table_is_refused_at_load_when_the_run_will_use_the_simulated_lab(tmp_path):
+    """With the switch on, F5 and F4 would use the simulated lab, which ``ssidlab acquire
+    --sim`` refuses to build from this ``[sim]`` table: one error line at load (it loaded, and
+    F4 then stood at "checking instruments..." for good). With the switch off the table is
+    not used, and the setup loads."""
+    good = small_setup(tmp_path, n_lines=4)
+    bad = tmp_path / "badsim.toml"
+    bad.write_text(good.read_text(encoding="utf-8").replace('structure = "payload"', "structure = 3"),
+                   encoding="utf-8")
+    error = f"error: {bad}: [sim] structure: must be a non-empty string, got 3"
+
+    async def go() -> None:
+        app = LabApp(str(bad), out=str(tmp_path / "run.h5"), sim=True)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.pause()
+            assert app.setup is None and shown(app, "#setup-error") == error
+            await pilot.press("f5")
+            assert app.acquisition is None and shown(app, "#setup-error") == error
+            app.query_one("#sim", Switch).value = False  # the setup's real instruments
+            await pilot.pause()
+            assert app.setup is not None and shown(app, "#setup-error") == ""
+            app.query_one("#sim", Switch).value = True
+            await pilot.pause()
+            assert app.setup is None and shown(app, "#setup-error") == error
+
+    asyncio.run(go())
+
+
+def test_a_check_that_fails_as_a_whole_says_so_on_the_check_line(tmp_path, monkeypatch):
+    """F4 whose check raises (here the simulated lab failing to start): the check line no
+    longer says "checking instruments..." for good."""
+    import tui.setup_tab
+
+    def failing_check(*args, **kw):
+        raise OSError("simulated lab: port 5025 in use")
+
+    monkeypatch.setattr(tui.setup_tab, "check_lab", failing_check)
+    setup = small_setup(tmp_path, n_lines=4)
+
+    async def go() -> None:
+        app = LabApp(str(setup), out=str(tmp_path / "run.h5"), sim=True)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("f4")
+            await wait_for(pilot, lambda: "port 5025" in shown(app, "#setup-error"), 10, "the check's error")
+            await pilot.pause()
+            assert shown(app, "#check-status") == "instruments: the check failed (error above); nothing checked"
 
     asyncio.run(go())

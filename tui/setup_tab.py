@@ -28,10 +28,13 @@ from .setup_view import (
     describe_setup,
 )
 
-__all__ = ["CHECK_PROMPT", "SetupTabActions", "first_drive_point", "set_choices", "typed_path"]
+__all__ = ["CHECK_FAILED", "CHECK_PROMPT", "SetupTabActions", "first_drive_point", "set_choices", "typed_path"]
 
 #: The instrument check's line before a check (F4) of the setup as loaded.
 CHECK_PROMPT = "instruments (F4 checks the connections):"
+
+#: The instrument check's line after a check that failed as a whole (its error is on the line above).
+CHECK_FAILED = "instruments: the check failed (error above); nothing checked"
 
 
 def typed_path(value: str) -> str:
@@ -50,6 +53,15 @@ def set_choices(select: Select, options: list[tuple[str, tuple[int, int]]], valu
     select.set_options([(Text(label), v) for label, v in options])  # DOF names, not markup
     if value is not None:
         select.value = value
+
+
+def simulated_lab_refusal(setup) -> None:
+    """Raise ``InputError`` (one line naming the file and key) where the simulated lab cannot
+    be built for ``setup`` - a bad ``[sim]`` table, a generator driving no shaker - as
+    ``ssidlab acquire --sim`` does before it creates the run file (``daq.run.run_test``)."""
+    from daq.simlab import build_world
+
+    build_world(setup)
 
 
 def plain_cells(row: tuple[str, ...]) -> tuple[str, ...]:
@@ -81,6 +93,10 @@ class SetupTabActions:
     def on_switch_changed(self, event: Switch.Changed) -> None:
         if event.switch.id == "sim":
             self.query_one("#sim-state", Static).update(self._sim_text(event.value))
+            # Whether the [sim] table counts (and which lab a check's verdict was of) goes
+            # with the switch: the setup is loaded again for the lab it now names.
+            if not self.running and typed_path(self.query_one("#setup-path", Input).value):
+                self.action_load()
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         if event.input.id not in ("setup-path", "out-path", "model-path"):
@@ -91,7 +107,8 @@ class SetupTabActions:
         self.action_load()
 
     def action_load(self) -> None:
-        """Load the setup file in the path field and check the model file against it."""
+        """Load the setup file in the path field and check the model file against it; with the
+        switch on, also its ``[sim]`` table, which F4 and F5 then use."""
         from daq.setup import load_setup
         from ssid.errors import InputError
 
@@ -101,6 +118,8 @@ class SetupTabActions:
             return
         try:
             setup = load_setup(path)
+            if self.query_one("#sim", Switch).value:
+                simulated_lab_refusal(setup)
         except (InputError, OSError, ValueError) as exc:
             self._show_no_setup(f"error: {naming(path, exc)}")
             return
@@ -192,8 +211,10 @@ class SetupTabActions:
     def _check(self, setup, sim: bool, reset_faults: bool = False) -> None:
         try:
             states = check_lab(setup, sim, reset_faults=reset_faults)
-        except Exception as exc:  # noqa: BLE001 -- e.g. a setup the simulated lab cannot build
+        except Exception as exc:  # noqa: BLE001 -- e.g. the simulated lab failing to start
             self._from_worker(self._show_line, "#setup-error", f"error: {one_line(exc)}")
+            # The check has ended: "checking instruments..." stayed for good.
+            self._from_worker(self._show_line, "#check-status", CHECK_FAILED)
             return
         rows, msg = checked_instrument_rows(states, sim)
         self._from_worker(self._fill_instruments, rows)

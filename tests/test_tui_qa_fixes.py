@@ -275,3 +275,64 @@ def test_a_check_that_fails_as_a_whole_says_so_on_the_check_line(tmp_path, monke
             assert shown(app, "#check-status") == "instruments: the check failed (error above); nothing checked"
 
     asyncio.run(go())
+
+
+# ---------------------------------------------------------------------- 7: the status at 80x24
+LINK_DOWN = ("stopped: instrument lost (link down): gen0: cannot open serial port 'socket://127.0.0.1:1': "
+             "Could not open port socket://127.0.0.1:1: [Errno 111] Connection refused")
+
+
+def screen_lines(app: LabApp) -> list[str]:
+    """The screen as text, one string a row."""
+    return [strip.text for strip in app.screen._compositor.render_strips()]
+
+
+def squeezed(text: str) -> str:
+    """``text`` without whitespace: the words as they read, wherever the lines wrap."""
+    return "".join(text.split())
+
+
+def test_a_stops_whole_remedy_is_on_the_screen_at_80x24(tmp_path):
+    """The status after a stop on an instrument not reached (five lines at 80 columns) ends
+    with the remedy's last words, on screen with the log below it (it was cut at four)."""
+    setup = small_setup(tmp_path, n_lines=4)
+
+    async def go() -> None:
+        app = LabApp(str(setup), out=str(tmp_path / "run.h5"), sim=False)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("f2")
+            app.live = LiveRun(app.setup.outputs, app.setup.inputs)
+            app._finished(RunOutcome(3, False, str(tmp_path / "run.h5"), LINK_DOWN), None)
+            await pilot.pause()
+            status = shown(app, "#run-status")
+            assert status.endswith(f"put that in {setup} first)"), status
+            screen = "\n".join(screen_lines(app))
+            assert squeezed(status) in squeezed(screen), screen  # every word, wrapped as it may
+            log = app.query_one("#log").region
+            assert log.height >= 3 and log.bottom <= SIZE[1] - 1, log  # above the footer
+            assert "run ended before it reported" in screen  # the side panel still shown
+
+    asyncio.run(go())
+
+
+def test_a_status_longer_than_its_room_scrolls_by_keyboard(tmp_path):
+    """A stop's status longer than the room it has scrolls: Tab reaches it, End shows its end."""
+    setup = small_setup(tmp_path, n_lines=4)
+
+    async def go() -> None:
+        app = LabApp(str(setup), out=str(tmp_path / "run.h5"), sim=False)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("f2")
+            app.live = LiveRun(app.setup.outputs, app.setup.inputs)
+            long_state = LINK_DOWN + "".join(f"; detail {k}: the instrument said more" for k in range(20))
+            app._finished(RunOutcome(3, False, str(tmp_path / "run.h5"), long_state), None)
+            await pilot.pause()
+            status = app.query_one("#run-status").parent  # what scrolls it
+            assert status.max_scroll_y > 0
+            status.focus()
+            await pilot.press("end")
+            await pilot.pause()
+            assert status.scroll_y == status.max_scroll_y
+            assert squeezed(f"{setup} first)") in squeezed("\n".join(screen_lines(app)))
+
+    asyncio.run(go())

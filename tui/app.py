@@ -141,7 +141,9 @@ class LabApp(SetupTabActions, App):
                     yield Button("Pause F6", id="pause", disabled=True)
                     yield Button("Resume F7", id="resume", disabled=True)
                     yield Button("Abort F8", id="abort", variant="error", disabled=True)
-                yield Static("idle", id="run-status", markup=False)
+                # In a scroll container (focusable: Tab, arrows, End) for a stop's long remedy.
+                with VerticalScroll(id="run-status-box"):
+                    yield Static("idle", id="run-status", markup=False)
                 yield ProgressBar(total=1.0, show_eta=True, id="progress")
                 with Horizontal(id="live"):
                     yield FrfPlot(id="live-plot")
@@ -310,6 +312,7 @@ class LabApp(SetupTabActions, App):
         self.query_one("#inst-status", Static).update(NO_INSTRUMENTS)
         self.query_one(ResultsPane).clear("run in progress...")
         self.query_one("#log", RichLog).clear()
+        self.query_one("#run", TabPane).remove_class("-stopped")  # the status is short again
         self.query_one("#progress", ProgressBar).update(total=1.0, progress=0.0)
         self.acquisition = Acquisition(self.setup.source, Path(out).resolve(), sim=sim, resume=resume,
                                        new_instruments=new_instruments)
@@ -452,6 +455,9 @@ class LabApp(SetupTabActions, App):
             self.query_one(ResultsPane).status(f"no results: {text}" + (f"; {how}" if resumable else ""))
             if resumable:
                 self._status(f"{text} - {how}")
+            # A stop's why and remedy run to several lines: the status takes room from the
+            # log (its lines are in the status) and scrolls beyond (tui/app.tcss).
+            self.query_one("#run", TabPane).add_class("-stopped")
         self._refresh_controls()
 
     def _results_status(self, text: str) -> None:

@@ -336,3 +336,41 @@ def test_a_status_longer_than_its_room_scrolls_by_keyboard(tmp_path):
             assert squeezed(f"{setup} first)") in squeezed("\n".join(screen_lines(app)))
 
     asyncio.run(go())
+
+
+# ---------------------------------------------------------------------- 8: the ETA after the run
+def eta_text(app: LabApp) -> str:
+    """What the progress bar's ETA shows."""
+    return str(app.query_one("#progress #eta").render())
+
+
+async def eta_after(pilot, app: LabApp, seconds: float) -> str:
+    """The ETA after ``seconds``: the bar recomputes it once a second."""
+    await pilot.pause(seconds)
+    return eta_text(app)
+
+
+def test_the_eta_stands_still_while_paused_and_after_the_run_ends(tmp_path):
+    """Progress 10 % then 20 % a second apart gives an ETA; it must not count down through a
+    pause nor after the run's end (an abort), and counts on after the resume."""
+    setup = small_setup(tmp_path, n_lines=4)
+
+    async def go() -> None:
+        app = LabApp(str(setup), out=str(tmp_path / "run.h5"), sim=True)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("f2")
+            app.live = LiveRun(app.setup.outputs, app.setup.inputs)
+            app._progress(0.1)
+            await pilot.pause(1.1)
+            app._progress(0.2)
+            await pilot.pause()
+            app._event({"event": "paused"})
+            paused = await eta_after(pilot, app, 0.1)
+            assert paused != "--:--:--" and await eta_after(pilot, app, 2.1) == paused
+            app._event({"event": "resumed"})
+            assert await eta_after(pilot, app, 2.1) < paused  # counting down again ("00:00:06" < "00:00:09")
+            app._finished(RunOutcome(130, True, str(tmp_path / "run.h5"), "interrupted"), None)
+            ended = await eta_after(pilot, app, 0.1)
+            assert await eta_after(pilot, app, 2.1) == ended
+
+    asyncio.run(go())

@@ -63,7 +63,7 @@ from .session import (
 )
 from .setup_tab import CHECK_PROMPT, SetupTabActions, first_drive_point, set_choices, typed_path
 from .setup_view import instruments_in_use_rows, pair_options, same_pair
-from .widgets import FrfPlot
+from .widgets import FrfPlot, RunProgress
 
 __all__ = ["LabApp"]
 
@@ -144,7 +144,7 @@ class LabApp(SetupTabActions, App):
                 # In a scroll container (focusable: Tab, arrows, End) for a stop's long remedy.
                 with VerticalScroll(id="run-status-box"):
                     yield Static("idle", id="run-status", markup=False)
-                yield ProgressBar(total=1.0, show_eta=True, id="progress")
+                yield RunProgress(total=1.0, show_eta=True, id="progress")
                 with Horizontal(id="live"):
                     yield FrfPlot(id="live-plot")
                     with Vertical(id="side"):
@@ -313,7 +313,9 @@ class LabApp(SetupTabActions, App):
         self.query_one(ResultsPane).clear("run in progress...")
         self.query_one("#log", RichLog).clear()
         self.query_one("#run", TabPane).remove_class("-stopped")  # the status is short again
-        self.query_one("#progress", ProgressBar).update(total=1.0, progress=0.0)
+        progress = self.query_one("#progress", RunProgress)
+        progress.update(total=1.0, progress=0.0)
+        progress.go()
         self.acquisition = Acquisition(self.setup.source, Path(out).resolve(), sim=sim, resume=resume,
                                        new_instruments=new_instruments)
         parser = ProgressParser.for_setup(self.setup)
@@ -343,9 +345,11 @@ class LabApp(SetupTabActions, App):
         if kind == "instruments":
             self._fill_instruments(instruments_in_use_rows(ev, self.setup))
         if kind == "paused":
+            self.query_one("#progress", RunProgress).hold()  # nothing measured until F7
             self.pause_pending = True
             self._status("PAUSED: generator outputs off, amplifiers disabled - F7 resumes, F8 aborts")
         elif kind == "resumed":
+            self.query_one("#progress", RunProgress).go()
             self.pause_pending = False
             self._status("running (resumed)")
         self.query_one("#line-status", Static).update(live.line_text())
@@ -428,6 +432,7 @@ class LabApp(SetupTabActions, App):
 
     def _finished(self, outcome: RunOutcome, error: str | None) -> None:
         self.outcome = outcome
+        self.query_one("#progress", RunProgress).hold()  # nothing more to count down to
         self.pause_pending = False
         text = outcome.summary() if error is None else f"could not start the run: {error}"
         self._status(text)

@@ -9,12 +9,15 @@ resize or tab switch).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from time import monotonic
 
 import numpy as np
+from textual.clock import Clock
+from textual.widgets import ProgressBar
 from textual_plotext import PlotextPlot
 
-__all__ = ["FrfPlot", "log_ticks"]
+__all__ = ["FrfPlot", "HoldableClock", "RunProgress", "log_ticks"]
 
 
 def log_ticks(lo: float, hi: float, max_ticks: int = 6) -> tuple[list[float], list[str]]:
@@ -87,3 +90,59 @@ class FrfPlot(PlotextPlot):
                 shown.append(m[ok])
         self._log_axes(f, np.concatenate(shown) if shown else np.zeros(0))
         self.refresh()
+
+
+class HoldableClock(Clock):
+    """A clock that stops while held: its time does not advance between :meth:`hold` and
+    :meth:`go`, and the held span never counts."""
+
+    def __init__(self, *, get_time: Callable[[], float] = monotonic) -> None:
+        super().__init__(get_time=get_time)
+        self._held_at: float | None = None
+
+    @property
+    def held(self) -> bool:
+        return self._held_at is not None
+
+    def hold(self) -> None:
+        if self._held_at is None:
+            self._held_at = self._get_time()
+
+    def go(self) -> None:
+        if self._held_at is not None:
+            self._start_time += self._get_time() - self._held_at  # the held span is skipped
+            self._held_at = None
+
+    def reset(self) -> None:
+        super().reset()
+        self._held_at = None
+
+    @property
+    def time(self) -> float:
+        now = self._get_time() if self._held_at is None else self._held_at
+        return now - self._start_time
+
+
+class RunProgress(ProgressBar):
+    """The run's progress bar with its ETA, which counts down only while the run measures.
+
+    The bar's ETA extrapolates from its last progress on its own clock, once a second: it
+    went on counting down after an abort and through a pause. Its clock is held instead (the
+    ETA stays at what remained when the run paused or ended), and a resumed run counts on
+    from there, the pause not taken for slow progress.
+    """
+
+    def __init__(self, *, total: float | None = None, show_eta: bool = True, id: str | None = None,
+                 clock: HoldableClock | None = None) -> None:
+        self.run_clock = clock or HoldableClock()
+        super().__init__(total=total, show_eta=show_eta, id=id, clock=self.run_clock)
+
+    def hold(self) -> None:
+        """Stop the ETA: the run paused or ended."""
+        self.run_clock.hold()
+        self.update()  # shown now at the held time, not at the next tick (up to 1 s later)
+
+    def go(self) -> None:
+        """Count the ETA down again: the run measures."""
+        self.run_clock.go()
+        self.update()

@@ -374,3 +374,35 @@ def test_the_eta_stands_still_while_paused_and_after_the_run_ends(tmp_path):
             assert await eta_after(pilot, app, 2.1) == ended
 
     asyncio.run(go())
+
+
+# ---------------------------------------------------------------------- 9: F8 before the run file exists
+def test_an_abort_before_the_run_file_exists_does_not_say_it_is_kept(tmp_path, monkeypatch):
+    """F8 while the run has not created its file yet (held there: its process only sleeps,
+    as ``ssidlab acquire`` importing would): the log does not say the run file is kept
+    resumable, and none is there. F8 after a measured line still says so."""
+    import sys
+
+    from tui.session import Acquisition
+
+    setup = small_setup(tmp_path, n_lines=20)
+    out = tmp_path / "run.h5"
+
+    async def go() -> None:
+        app = LabApp(str(setup), out=str(out), sim=True)
+        async with app.run_test(size=SIZE) as pilot:
+            with monkeypatch.context() as m:
+                m.setattr(Acquisition, "argv", property(lambda self: [sys.executable, "-c",
+                                                                      "import time; time.sleep(30)"]))
+                await pilot.press("f5")
+                await wait_for(pilot, lambda: app.running, 30, "the run's process")
+                await pilot.press("f8")
+                await wait_for(pilot, lambda: app.outcome is not None, 30, "the run to stop")
+            log = log_text(app)
+            assert "abort requested: instruments to the safe state, no run file created yet" in log, log
+            assert "resumable" not in log and not out.exists()
+            await abort_after_first_line(pilot, app)
+            assert "abort requested: instruments to the safe state, run file kept resumable" in log_text(app)
+            assert app.outcome.state == "interrupted"
+
+    asyncio.run(go())

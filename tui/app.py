@@ -497,9 +497,12 @@ class LabApp(SetupTabActions, App):
         self._refresh_controls()
 
     def action_abort(self) -> None:
-        if self.acquisition is not None and self.acquisition.abort():
+        acq = self.acquisition
+        if acq is not None and acq.abort():
             self._status("abort requested: stopping safely (SIGINT)...")
-            self._log("abort requested: instruments to the safe state, run file kept resumable")
+            # Right after F5 the run may not have created its file yet: none to keep then.
+            kept = "run file kept resumable" if Path(acq.out).exists() else "no run file created yet"
+            self._log(f"abort requested: instruments to the safe state, {kept}")
             self.query_one("#abort", Button).disabled = True
         else:
             self.notify("no run in progress", severity="warning")

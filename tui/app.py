@@ -357,7 +357,9 @@ class LabApp(SetupTabActions, App):
         self._refresh_controls()
 
     def _redraw_live(self) -> None:
-        if not self._plot_dirty or self.live is None or self.setup is None:
+        # The timer may tick once more while the app closes, its widgets gone: a line that
+        # arrived just before a quit then made the redraw raise NoMatches.
+        if not self._plot_dirty or self.live is None or self.setup is None or not self.query("#live-plot"):
             return
         self._plot_dirty = False
         live, setup = self.live, self.setup

@@ -46,6 +46,7 @@ from textual.widgets import (
 
 from daq.safety import resume_remedy
 
+from .channel_lists import ChannelListActions
 from .results import RunResults, analyse_run, export_results
 from .results_pane import ResultsPane
 from .session import (
@@ -61,14 +62,14 @@ from .session import (
     run_file_choice,
     run_file_state,
 )
-from .setup_tab import CHECK_PROMPT, SetupTabActions, first_drive_point, set_choices, typed_path
-from .setup_view import instruments_in_use_rows, pair_options, same_pair
+from .setup_tab import CHECK_PROMPT, SetupTabActions, typed_path
+from .setup_view import instruments_in_use_rows, same_pair
 from .widgets import FrfPlot, RunProgress
 
 __all__ = ["LabApp"]
 
 
-class LabApp(SetupTabActions, App):
+class LabApp(SetupTabActions, ChannelListActions, App):
     """The lab-run TUI. ``setup_path``, ``out``, ``model`` and ``sim`` pre-fill the Setup tab."""
 
     ENABLE_COMMAND_PALETTE = False  # every action has its key; the footer needs the room
@@ -229,51 +230,6 @@ class LabApp(SetupTabActions, App):
             getattr(self, f"action_{bid}")()
         elif bid.startswith("export-"):
             self.action_export(bid.removeprefix("export-"))
-
-    def on_select_changed(self, event: Select.Changed) -> None:
-        """A channel chosen in one list: its plot, and the same DOFs in the other list. The
-        live list indexes the loaded setup's DOFs, the Results list the results' FRF: after
-        another setup is loaded the same indices may name other DOFs (passed on by name)."""
-        if not isinstance(event.value, tuple):  # nothing chosen (Select.NULL) while options are set
-            return
-        if not event.select.is_attached:
-            # Results shown just before a quit choose their channel: the choice is handled
-            # while the app closes, its widgets gone (NoMatches crashed the quit).
-            return
-        value = tuple(event.value)
-        frf = self.results.frf if self.results is not None else None
-        setup = self.setup
-        if event.select.id == "result-channel":
-            self.result_channel = value
-            self.query_one(ResultsPane).draw_overlay(self.results, value)
-            if frf is not None and setup is not None:
-                self._choose("#channel", same_pair(value, frf.outputs, frf.inputs, setup.outputs, setup.inputs))
-        else:
-            self.channel = value
-            self._plot_dirty = True
-            if frf is not None and setup is not None:
-                self._choose("#result-channel",
-                             same_pair(value, setup.outputs, setup.inputs, frf.outputs, frf.inputs))
-
-    def _choose(self, selector: str, value: tuple[int, int] | None) -> None:
-        """Choose ``value`` in a channel list, unless it is chosen already or None (not there)."""
-        sel = self.query_one(selector, Select)
-        if value is not None and sel.value != value:
-            sel.value = value
-
-    def _set_result_channels(self, results: RunResults | None) -> None:
-        """The Results channel list from the FRF the results index (its own DOFs, whatever
-        setup is loaded now), on the live plot's DOFs where the FRF has them."""
-        sel = self.query_one("#result-channel", Select)
-        if results is None:
-            self.result_channel = None
-            set_choices(sel, [], None)
-            return
-        frf, setup = results.frf, self.setup
-        live = (same_pair(self.channel, setup.outputs, setup.inputs, frf.outputs, frf.inputs)
-                if setup is not None and self.channel is not None else None)
-        self.result_channel = live or first_drive_point(frf.outputs, frf.inputs)
-        set_choices(sel, pair_options(frf.outputs, frf.inputs), self.result_channel)
 
     def _status(self, text: str) -> None:
         self.query_one("#run-status", Static).update(text)

@@ -113,7 +113,8 @@ def test_an_unstable_model_is_refused_naming_its_file(files, tmp_path):
         args.run(args)
 
 
-@pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning", "ignore:invalid value:RuntimeWarning")  # the input's point
+# The overflow is the 1e-300 model's point, not a warning about the test.
+@pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
 @pytest.mark.parametrize("kind", ["massless DOF without C", "scaled beyond floating point"])
 def test_a_model_the_analysis_cannot_compute_with_is_refused_naming_its_file(files, tmp_path, kind):
     """A DOF without mass and no C: the modal damping put in C's place needs a mass at every

@@ -292,6 +292,14 @@ def squeezed(text: str) -> str:
     return "".join(text.split())
 
 
+async def _stopped(app: LabApp, pilot, tmp_path, state: str) -> None:
+    """On the Run tab, the end of a run that stopped with exit 3 and the run file's ``state``."""
+    await pilot.press("f2")
+    app.live = LiveRun(app.setup.outputs, app.setup.inputs)
+    app._finished(RunOutcome(3, False, str(tmp_path / "run.h5"), state), None)
+    await pilot.pause()
+
+
 def test_a_stops_whole_remedy_is_on_the_screen_at_80x24(tmp_path):
     """The status after a stop on an instrument not reached (five lines at 80 columns) ends
     with the remedy's last words, on screen with the log below it (it was cut at four)."""
@@ -300,10 +308,7 @@ def test_a_stops_whole_remedy_is_on_the_screen_at_80x24(tmp_path):
     async def go() -> None:
         app = LabApp(str(setup), out=str(tmp_path / "run.h5"), sim=False)
         async with app.run_test(size=SIZE) as pilot:
-            await pilot.press("f2")
-            app.live = LiveRun(app.setup.outputs, app.setup.inputs)
-            app._finished(RunOutcome(3, False, str(tmp_path / "run.h5"), LINK_DOWN), None)
-            await pilot.pause()
+            await _stopped(app, pilot, tmp_path, LINK_DOWN)
             status = shown(app, "#run-status")
             assert status.endswith(f"put that in {setup} first)"), status
             screen = "\n".join(screen_lines(app))
@@ -322,11 +327,8 @@ def test_a_status_longer_than_its_room_scrolls_by_keyboard(tmp_path):
     async def go() -> None:
         app = LabApp(str(setup), out=str(tmp_path / "run.h5"), sim=False)
         async with app.run_test(size=SIZE) as pilot:
-            await pilot.press("f2")
-            app.live = LiveRun(app.setup.outputs, app.setup.inputs)
             long_state = LINK_DOWN + "".join(f"; detail {k}: the instrument said more" for k in range(20))
-            app._finished(RunOutcome(3, False, str(tmp_path / "run.h5"), long_state), None)
-            await pilot.pause()
+            await _stopped(app, pilot, tmp_path, long_state)
             status = app.query_one("#run-status").parent  # what scrolls it
             assert status.max_scroll_y > 0
             status.focus()

@@ -267,7 +267,8 @@ class ShakerAmplifier:
         await self._write(REG["ENABLE"], 0)
 
     async def set_gain(self, gain_v_per_v: float) -> None:
-        """Set the voltage gain; ramped in 10 % steps while the output is enabled."""
+        """Set the voltage gain; ramped in 10 % steps while the output is enabled, then read back
+        (``DeviceError`` if the amplifier holds another)."""
         if not (math.isfinite(gain_v_per_v) and 0 <= gain_v_per_v <= self.max_gain_v_per_v):
             raise RangeError(f"{self.name}: gain {gain_v_per_v!r} V/V outside [0, {self.max_gain_v_per_v:g}]")
         self.check()
@@ -281,6 +282,12 @@ class ShakerAmplifier:
                     await asyncio.sleep(self.gain_ramp_step_s)
         else:
             await self._write(REG["GAIN"], target)
+        # An amplifier acknowledges a gain it then limits: read back, the drive's volts per
+        # volt are what the level control and the drive limits count on.
+        got = (await self._read(REG["GAIN"], 1))[0]
+        if got != target:
+            raise DeviceError(f"{self.name}: gain set to {gain_v_per_v:g} V/V reads back {got / 100:g} V/V "
+                              "(does the amplifier limit it?)")
 
     async def reset_fault(self) -> None:
         """Clear a latched fault in the amplifier and in the driver (the cause must be gone)."""

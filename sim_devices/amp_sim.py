@@ -241,6 +241,8 @@ class SimAmplifier:
                     return err
                 if address + k == REG["FAULT_RESET"]:
                     set_values[k] = 0  # a command, not a setting: it reads back 0
+                elif address + k == REG["GAIN"]:  # reads back the gain the amplifier holds
+                    set_values[k] = int(round(self.model.gain_v_per_v * 100))
         # Refresh live values so that this very read (and the next) sees the present state.
         s = REG["STATUS"] - start_address
         registers[s : s + N_STATUS] = self._status_words()

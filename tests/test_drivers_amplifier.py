@@ -278,6 +278,28 @@ def test_sync_facade(sim):
     assert not sim.model.enabled
 
 
+def test_a_gain_the_amplifier_limits_is_an_error():
+    """An amplifier that acknowledges a gain and clamps it (here to 20 V/V): set_gain(40)
+    returned as if set, and the drive was half what the run counted on."""
+
+    class Clamping(SimAmplifier):
+        def _write(self, addr, value):
+            if addr == amp_sim.REG["GAIN"]:
+                value = min(value, 2000)
+            return super()._write(addr, value)
+
+    host = AmpServerThread()
+    clamping = Clamping(AmplifierModel(), host).start()
+    try:
+        with SyncShakerAmplifier("127.0.0.1", clamping.port, **FAST) as amp:
+            amp.set_gain(10.0)
+            with pytest.raises(DeviceError, match="gain set to 40 V/V reads back 20 V/V"):
+                amp.set_gain(40.0)
+    finally:
+        clamping.stop()
+        host.stop()
+
+
 def test_an_amplifier_that_stays_enabled_is_reported_with_why():
     """An amplifier that acknowledges ENABLE = 0 and stays on (a stuck contactor): the safe
     state's error said "could not confirm the amplifier disabled: None"."""

@@ -27,7 +27,7 @@ import numpy as np
 from drivers.interrupts import hold_interrupt
 from ssid.jsonutil import to_jsonable
 
-from .safety import RunStopped
+from .safety import SAFE_STATE_NOT_CONFIRMED, RunStopped
 
 __all__ = ["EVENT_PREFIX", "RunControl", "RunEvents", "clear_interrupts", "event_line", "hold_if_paused",
            "latching_interrupt_handler", "parse_event_line", "raise_if_interrupted"]
@@ -165,7 +165,7 @@ def hold_if_paused(control: RunControl | None, rig, runfile, echo: Callable[[str
         return False
     problems = rig.safe_state()
     if problems:
-        raise RunStopped(f"pause: safe state not confirmed: {'; '.join(problems)}")
+        raise RunStopped(f"pause: {SAFE_STATE_NOT_CONFIRMED}: {'; '.join(problems)}")
     control.paused = True
     runfile.set_state("paused")
     echo(f"paused {where}: generator outputs off, amplifiers disabled; waiting for resume")

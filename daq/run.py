@@ -34,7 +34,7 @@ from ssid.errors import InputError
 from .control import RunControl, RunEvents, clear_interrupts, latching_interrupt_handler
 from .resume import instruments_not_the_same, range_changes, setup_changes_on_resume, setup_in_effect
 from .rig import InstrumentRig, Rig
-from .safety import NOT_THE_SAME_INSTRUMENTS, RunStopped, describe_fault
+from .safety import NOT_THE_SAME_INSTRUMENTS, SAFE_STATE_NOT_CONFIRMED, STATE_MAX_CHARS, RunStopped, describe_fault
 from .setup import TestSetup
 from .storage import RunFile
 from .thread_stacks import thread_stacks, write_to_stderr
@@ -337,8 +337,8 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
                 rf.finalize(frf)
             else:
                 if problems:
-                    state = f"{state}; safe state not confirmed: {'; '.join(problems)}"
-                rf.set_state(state[:500])
+                    state = f"{state}; {SAFE_STATE_NOT_CONFIRMED}: {'; '.join(problems)}"
+                rf.set_state(state[:STATE_MAX_CHARS])
                 rf.close()
             if problems:
                 # Whatever ended the run (a fault, Ctrl-C, an error), an unconfirmed safe state

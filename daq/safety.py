@@ -107,6 +107,11 @@ _FAULT_WORDS = (
 )
 #: How a resume that met other instruments than the run's last session stops.
 NOT_THE_SAME_INSTRUMENTS = "not the instruments of the run's last session"
+#: What a run's state says when an instrument did not confirm the safe state (at a pause or
+#: at the run's end): the UI and the remedy read it from the run file.
+SAFE_STATE_NOT_CONFIRMED = "safe state not confirmed"
+#: A run's state is kept in its file cut to this many characters.
+STATE_MAX_CHARS = 500
 
 
 def describe_fault(exc: BaseException) -> str:
@@ -139,7 +144,7 @@ def resume_remedy(state: str | None, sim: bool) -> str | None:
     Decided from the state text, so that a UI that has only the run file gives the same
     advice as the command line that saw the fault.
     """
-    if not state or not state.startswith("stopped: ") or "safe state not confirmed" in state:
+    if not state or not state.startswith("stopped: ") or SAFE_STATE_NOT_CONFIRMED in state:
         return None
     fault = state.removeprefix("stopped: ")
     if fault.startswith(_words(SensorOverload)):

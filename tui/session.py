@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from daq.control import parse_event_line as parse_event  # the run's event lines (ssidlab acquire --events)
+from daq.safety import SAFE_STATE_NOT_CONFIRMED, STATE_MAX_CHARS
 
 __all__ = ["EXIT_BAD_INPUT", "NO_INSTRUMENTS", "NO_LINE", "Acquisition", "LiveRun", "ProgressParser", "RunOutcome",
            "error_text", "naming", "one_line", "parse_event", "printable", "run_file_choice", "run_file_state"]
@@ -44,9 +45,6 @@ EXIT_TEXT = {0: "complete", EXIT_BAD_INPUT: "refused (bad input)", 3: "stopped s
 #: The Run tab's side panels before a run's first line, and before its first instrument state.
 NO_LINE = "no line measured yet"
 NO_INSTRUMENTS = "instruments: waiting for the run"
-
-#: ``daq.run`` stores a run's state cut to this many characters.
-RUN_STATE_MAX = 500
 
 # The one line a refused or failed command writes (ssidlab/cli.py): "ssidlab acquire: error: ..."
 _ERROR_LINE = re.compile(r"^ssidlab\b[^:]*: ((?:internal )?error: .*\S)\s*$")
@@ -258,11 +256,11 @@ class RunOutcome:
         nothing, nor does a state cut at its 500 characters (its "not confirmed" may be lost)."""
         state = self.state
         return (bool(state) and state not in ("running", "paused") and "not confirmed" not in state
-                and len(state) < RUN_STATE_MAX)
+                and len(state) < STATE_MAX_CHARS)
 
     def summary(self) -> str:
         what = EXIT_TEXT.get(self.returncode, f"failed (exit status {self.returncode})")
-        if self.state and "safe state not confirmed" in self.state:
+        if self.state and SAFE_STATE_NOT_CONFIRMED in self.state:
             what = "stopped, SAFE STATE NOT CONFIRMED: check the generators and amplifiers"
         if self.aborted and self.returncode != 0:
             what = f"aborted: {what}"

@@ -487,8 +487,7 @@ class CanFdDaq:
         if (quiet_s < min(END_WAIT_S, self.stream_timeout_s / 2) or all(s.finished for s in streams)
                 or not any(s.saw_end for s in streams)):
             return False
-        for s in streams:
-            self._errors.extend(s.end())
+        self._all_sent(streams)
         return True
 
     def _ended_by_status(self, streams: list[ChannelStream]) -> bool:
@@ -505,9 +504,13 @@ class CanFdDaq:
         except InstrumentError:
             return False  # no answer either: the node is silent, as the caller reports
         if finished:
-            for s in streams:
-                self._errors.extend(s.end())
+            self._all_sent(streams)
         return finished
+
+    def _all_sent(self, streams: list[ChannelStream]) -> None:
+        """The node has sent every frame of the acquisition: the ones missing are lost."""
+        for s in streams:
+            self._errors.extend(s.end())
 
     def _raise_errors(self) -> None:
         for err in list(self._errors):

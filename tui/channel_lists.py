@@ -9,14 +9,26 @@ Kept apart so that ``tui/app.py`` stays the screen's wiring. The methods use the
 
 from __future__ import annotations
 
+from rich.text import Text
 from textual.widgets import Select
 
 from .results import RunResults
 from .results_pane import ResultsPane
-from .setup_tab import first_drive_point, set_choices
 from .setup_view import pair_options, same_pair
 
-__all__ = ["ChannelListActions"]
+__all__ = ["ChannelListActions", "first_drive_point", "set_choices"]
+
+
+def first_drive_point(outputs: list[str], inputs: list[str]) -> tuple[int, int]:
+    """The channel a plot shows first: the first input's own response, else the first pair."""
+    return (list(outputs).index(inputs[0]), 0) if inputs and inputs[0] in outputs else (0, 0)
+
+
+def set_choices(select: Select, options: list[tuple[str, tuple[int, int]]], value: tuple[int, int] | None) -> None:
+    """Fill a channel list and choose ``value`` (None: nothing chosen)."""
+    select.set_options([(Text(label), v) for label, v in options])  # DOF names, not markup
+    if value is not None:
+        select.value = value
 
 
 class ChannelListActions:

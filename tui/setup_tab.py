@@ -12,12 +12,12 @@ from __future__ import annotations
 import os
 
 from rich.markup import escape
-from rich.text import Text
 from textual import work
 from textual.widgets import DataTable, Input, Select, Static, Switch
 
 from daq.check import check_lab
 
+from .channel_lists import first_drive_point, set_choices
 from .results import model_refusal
 from .session import naming, one_line, printable
 from .setup_view import (
@@ -28,7 +28,7 @@ from .setup_view import (
     describe_setup,
 )
 
-__all__ = ["CHECK_FAILED", "CHECK_PROMPT", "SetupTabActions", "first_drive_point", "set_choices", "typed_path"]
+__all__ = ["CHECK_FAILED", "CHECK_PROMPT", "SetupTabActions", "typed_path"]
 
 #: The instrument check's line before a check (F4) of the setup as loaded.
 CHECK_PROMPT = "instruments (F4 checks the connections):"
@@ -41,27 +41,6 @@ def typed_path(value: str) -> str:
     """A path as typed in a field: stripped, a leading ``~`` expanded; "" for an empty field."""
     text = value.strip()
     return os.path.expanduser(text) if text else ""
-
-
-def first_drive_point(outputs: list[str], inputs: list[str]) -> tuple[int, int]:
-    """The channel a plot shows first: the first input's own response, else the first pair."""
-    return (list(outputs).index(inputs[0]), 0) if inputs and inputs[0] in outputs else (0, 0)
-
-
-def set_choices(select: Select, options: list[tuple[str, tuple[int, int]]], value: tuple[int, int] | None) -> None:
-    """Fill a channel list and choose ``value`` (None: nothing chosen)."""
-    select.set_options([(Text(label), v) for label, v in options])  # DOF names, not markup
-    if value is not None:
-        select.value = value
-
-
-def simulated_lab_refusal(setup) -> None:
-    """Raise ``InputError`` (one line naming the file and key) where the simulated lab cannot
-    be built for ``setup`` - a bad ``[sim]`` table, a generator driving no shaker - as
-    ``ssidlab acquire --sim`` does before it creates the run file (``daq.run.run_test``)."""
-    from daq.simlab import build_world
-
-    build_world(setup)
 
 
 def plain_cells(row: tuple[str, ...]) -> tuple[str, ...]:
@@ -110,6 +89,7 @@ class SetupTabActions:
         """Load the setup file in the path field and check the model file against it; with the
         switch on, also its ``[sim]`` table, which F4 and F5 then use."""
         from daq.setup import load_setup
+        from daq.simlab import build_world
         from ssid.errors import InputError
 
         path = typed_path(self.query_one("#setup-path", Input).value)
@@ -119,7 +99,9 @@ class SetupTabActions:
         try:
             setup = load_setup(path)
             if self.query_one("#sim", Switch).value:
-                simulated_lab_refusal(setup)
+                # Refused as `ssidlab acquire --sim` refuses it before it creates the run file
+                # (a bad [sim] table, a generator driving no shaker): one line naming the key.
+                build_world(setup)
         except (InputError, OSError, ValueError) as exc:
             self._show_no_setup(f"error: {naming(path, exc)}")
             return

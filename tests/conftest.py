@@ -191,6 +191,17 @@ def driven_world(**kw):
     return w
 
 
+def two_shaker_world():
+    """The example structure, noise-free, with shakers at 1+Z (generator channel 1) and 5+Z
+    (channel 2): the world of the signal generator driver tests."""
+    from sim_devices.components import ShakerSpec
+    from sim_devices.world import World
+    from ssid.models import example_system
+
+    M, C, K, dofs = example_system()
+    return World(M, C, K, dofs, shakers=[ShakerSpec("1+Z"), ShakerSpec("5+Z", channel=2)], noise=False)
+
+
 _daq_channels = itertools.count()
 
 

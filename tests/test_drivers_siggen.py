@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import two_shaker_world
 
 from drivers.errors import (
     ConnectionLost,
@@ -16,18 +17,14 @@ from drivers.errors import (
     RangeError,
 )
 from drivers.siggen import SignalGenerator
-from sim_devices.components import ShakerSpec
 from sim_devices.siggen_sim import SimSignalGenerator
-from sim_devices.world import World
-from ssid.models import example_system
 
 FAST = dict(timeout_s=0.25, ramp_time_s=0.05, ramp_step_s=0.005)
 
 
 @pytest.fixture
 def world():
-    M, C, K, dofs = example_system()
-    return World(M, C, K, dofs, shakers=[ShakerSpec("1+Z"), ShakerSpec("5+Z", channel=2)], noise=False)
+    return two_shaker_world()
 
 
 @pytest.fixture(params=["pty", "tcp"])

@@ -12,16 +12,14 @@ import time
 
 import can
 import pytest
-from conftest import driven_world
+from conftest import driven_world, two_shaker_world
 
 from drivers.daq import CanFdDaq, DaqChannel
 from drivers.errors import ConnectionLost, DeviceError, InstrumentError, InstrumentTimeout, ProtocolError
 from drivers.siggen import SignalGenerator
-from sim_devices.components import ShakerSpec
 from sim_devices.daq_sim import CMD_STATUS, RSP_ID, SimDaq
 from sim_devices.siggen_sim import SimSignalGenerator
 from sim_devices.world import World
-from ssid.models import example_system
 
 FS = 5120
 FAST = dict(timeout_s=0.25, ramp_time_s=0.05, ramp_step_s=0.005)
@@ -132,8 +130,7 @@ class MisbehavingGenerator(SimSignalGenerator):
 
 @pytest.fixture
 def gen_world() -> World:
-    M, C, K, dofs = example_system()
-    return World(M, C, K, dofs, shakers=[ShakerSpec("1+Z"), ShakerSpec("5+Z", channel=2)], noise=False)
+    return two_shaker_world()
 
 
 @pytest.fixture(params=["pty", "tcp"])

@@ -51,6 +51,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from daq.h5_safe import extend_allocation_to_file_end
 from ssid.errors import InputError
 from ssid.frf import FRFData
 from ssid.io import read_frf, write_frf
@@ -260,6 +261,7 @@ class RunFile:
             raise InputError(f"{path}: no such run file")
         if not h5py.is_hdf5(path):
             raise InputError(f"{path}: not an HDF5 file")
+        extend_allocation_to_file_end(path)  # a kill inside a flush: before HDF5 cuts the file at its old end
         try:
             f = h5py.File(path, "r+")
         except OSError as exc:

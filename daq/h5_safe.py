@@ -1,0 +1,64 @@
+"""HDF5 below h5py's reach, for a run file that a ``kill -9`` must not damage.
+
+A run file's end of allocation after a kill inside a flush. An HDF5 file's superblock
+holds the address where the file's allocated space ends (its EOA), and HDF5 refuses to
+read at or past it ("addr overflow"). A line that appends raw samples allocates new chunks
+past the EOA. At the flush, HDF5 writes the chunks, then the headers and chunk indexes that
+point to them, and the superblock with the new EOA last: a kill just before that last write
+left a file whose indexes point past its EOA. The committed lines lie below the old EOA and
+are whole, but a resume reads the raw samples' last row, and a resumed session's first
+append reads the chunk it continues: both failed, and the file was refused as damaged.
+Worse, closing a file opened for writing cuts it to its EOA, which lost those chunks for
+good.
+
+HDF5's own repair is ``h5clear --increment`` (``H5Fincrement_filesize``): the EOA set to
+the file's end. h5py offers neither, so :func:`extend_allocation_to_file_end` writes the
+superblock's 8 bytes itself, for the superblock versions 0 and 1 (the HDF5 file format
+specification, "Superblock") that run files are written with.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import struct
+from pathlib import Path
+
+__all__ = ["extend_allocation_to_file_end"]
+
+_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+#: Byte offset of the end-of-file address in superblock versions 0 and 1 (version 1 adds 4
+#: bytes of indexed-storage settings before the addresses), with 8-byte addresses.
+_EOA_AT = {0: 40, 1: 44}
+
+
+def extend_allocation_to_file_end(path: str | Path) -> bool:
+    """Set the superblock's end of allocation to the file's size where it is smaller.
+
+    Bytes past the old end are what the killed process wrote and the file's indexes may
+    point to; where nothing points to them, taking them in costs their space only. Files
+    with another superblock version, a user block or addresses other than 8 bytes are left
+    as they are, as is a file another process holds open for writing (HDF5's lock).
+
+    Returns
+    -------
+    bool
+        Whether the superblock was changed.
+    """
+    with open(path, "r+b") as fh:
+        try:  # the lock HDF5 takes for writing: a live run's file is not touched
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return False
+        head = fh.read(64)
+        if len(head) < 64 or head[:8] != _SIGNATURE or head[8] not in _EOA_AT or head[13] != 8:
+            return False
+        at = _EOA_AT[head[8]]
+        (base,) = struct.unpack_from("<Q", head, at - 16)
+        (eoa,) = struct.unpack_from("<Q", head, at)
+        size = os.fstat(fh.fileno()).st_size
+        if base != 0 or eoa >= size:
+            return False
+        fh.seek(at)
+        fh.write(struct.pack("<Q", size))
+        return True

@@ -1,6 +1,9 @@
-"""HDF5 below h5py's reach, for a run file that a ``kill -9`` must not damage.
+"""HDF5 details that keep a run file whole through a ``kill -9``.
 
-A run file's end of allocation after a kill inside a flush. An HDF5 file's superblock
+:func:`index_chunks` builds a dataset's chunk index before anything is measured.
+
+:func:`extend_allocation_to_file_end` restores a run file's end of allocation after a kill
+inside a flush. An HDF5 file's superblock
 holds the address where the file's allocated space ends (its EOA), and HDF5 refuses to
 read at or past it ("addr overflow"). A line that appends raw samples allocates new chunks
 past the EOA. At the flush, HDF5 writes the chunks, then the headers and chunk indexes that
@@ -24,7 +27,10 @@ import os
 import struct
 from pathlib import Path
 
-__all__ = ["extend_allocation_to_file_end"]
+import h5py
+import numpy as np
+
+__all__ = ["extend_allocation_to_file_end", "index_chunks"]
 
 _SIGNATURE = b"\x89HDF\r\n\x1a\n"
 #: Byte offset of the end-of-file address in superblock versions 0 and 1 (version 1 adds 4
@@ -62,3 +68,14 @@ def extend_allocation_to_file_end(path: str | Path) -> bool:
         fh.seek(at)
         fh.write(struct.pack("<Q", size))
         return True
+
+
+def index_chunks(ds: h5py.Dataset) -> None:
+    """Build the chunk index of a dataset of no rows now, while nothing is measured: HDF5
+    builds it at the first write, as several writes in the first line's flush (the index's
+    nodes, the dataset's header), and a ``kill -9`` between them left a file that could not
+    be resumed. A row written and cut again leaves the (empty) index in place; later lines
+    add their chunks to it."""
+    ds.resize(1, axis=0)
+    ds[0] = np.zeros(ds.shape[1:], ds.dtype)
+    ds.resize(0, axis=0)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+import math
 import os
 import platform
 import signal
@@ -115,6 +116,14 @@ def _stall_report(after_s: float = SAFE_STATE_STALL_S):
         watchdog.join(1.0)
 
 
+def _raw_rows_expected(setup: TestSetup, n_lines: int) -> int:
+    """Raw sample rows a stepped-sine run keeps at most: every shaker's sub-line at every
+    line dwelling its longest (``max_dwell_s``); 0 for other runs."""
+    if setup.sine is None:
+        return 0
+    return n_lines * len(setup.shakers) * math.ceil(setup.sine.max_dwell_s * setup.daq.sample_rate_hz)
+
+
 def _create_runfile(setup: TestSetup, path: Path) -> RunFile:
     if setup.excitation == "stepped_sine":
         from .stepped_sine import sine_grid
@@ -133,7 +142,8 @@ def _create_runfile(setup: TestSetup, path: Path) -> RunFile:
     return RunFile.create(path, kind=setup.excitation, setup_text=setup.text, setup_sha256=setup.sha256,
                           freq_hz=freq, outputs=setup.outputs, inputs=setup.inputs, reactions=setup.reactions,
                           channel_names=[c.name for c in setup.channels], meta=meta, attrs=attrs,
-                          raw_time=setup.raw_time and setup.excitation == "stepped_sine")
+                          raw_time=setup.raw_time and setup.excitation == "stepped_sine",
+                          raw_rows_expected=_raw_rows_expected(setup, len(freq)))
 
 
 def _ctrl_c_latched(fn: Callable) -> Callable:

@@ -29,7 +29,8 @@ average, so they are kept in two sets, written in turn (``daq.random_run``). Raw
 are stored without compression: a compressed chunk is rewritten whole, at a new place in the
 file, when a line appends to it, and a kill inside that write lost the samples of lines
 committed before (HDF5 "filter returned failure during read"); an uncompressed chunk is
-rewritten in place with the same bytes where it holds them. This holds against a killed
+rewritten in place with the same bytes where it holds them; they are kept in segments
+whose chunk indexes never split (:mod:`daq.raw_store`). This holds against a killed
 process (what it wrote is in the operating system's cache); it does not order writes against
 a power cut, for which nothing here calls ``fsync``.
 
@@ -51,7 +52,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from daq.h5_safe import extend_allocation_to_file_end
+from daq.h5_safe import extend_allocation_to_file_end, index_chunks
+from daq.raw_store import add_segments, append_raw, create_raw, segments_missing
 from ssid.errors import InputError
 from ssid.frf import FRFData
 from ssid.io import read_frf, write_frf
@@ -59,6 +61,11 @@ from ssid.io import read_frf, write_frf
 __all__ = ["RunFile", "STATUS_ABORTED", "STATUS_OK", "SINE_FIELDS", "peek_run_file"]
 
 STATUS_OK, STATUS_ABORTED = 0, 1
+#: Rows of one chunk of a stepped-sine record field. HDF5's chunk index holds 64 chunks in a
+#: node, and the chunk after a full one splits it in writes a kill can come between
+#: (:mod:`daq.raw_store`): 1024-row chunks put the first split past 65536 sub-lines (64-row
+#: ones, before, at 4096), at a flush of at most one chunk per field a line.
+RECORD_CHUNK_ROWS = 1024
 
 #: Per-sub-line record of a stepped-sine run: name -> (dtype, per channel?).
 SINE_FIELDS = {
@@ -119,24 +126,6 @@ def _check_compact(path: Path, frf: FRFData, run_path: Path) -> None:
                       f"and `ssidlab acquire --resume {run_path}` finishes it (a full disk?)") from exc
 
 
-def _index_chunks(ds: h5py.Dataset) -> None:
-    """Build the chunk index of a dataset of no rows now, while nothing is measured: HDF5
-    builds it at the first write, as several writes in the first line's flush (the index's
-    nodes, the dataset's header), and a ``kill -9`` between them left a file that could not
-    be resumed. A row written and cut again leaves the (empty) index in place; later lines
-    add their chunks to it."""
-    ds.resize(1, axis=0)
-    ds[0] = np.zeros(ds.shape[1:], ds.dtype)
-    ds.resize(0, axis=0)
-
-
-def _create_raw(acq: h5py.Group, nch: int) -> None:
-    """``/acq/raw``: the dwell records' samples (n, nch) and each line's first row."""
-    raw = acq.create_group("raw")
-    _index_chunks(raw.create_dataset("samples", shape=(0, nch), maxshape=(None, nch), chunks=(4096, nch), dtype="f4"))
-    _index_chunks(raw.create_dataset("offset", shape=(0,), maxshape=(None,), chunks=(256,), dtype="i8"))
-
-
 def _remove_stale(path: Path, what: str) -> None:
     """Remove the replacements of ``path`` (:func:`_temp_name`) a killed run left half-written.
     One whose process still runs is that process's, renamed over the run file after it closed
@@ -184,9 +173,11 @@ class RunFile:
     @classmethod
     def create(cls, path: str | Path, *, kind: str, setup_text: str, setup_sha256: str,
                freq_hz: np.ndarray, outputs: list[str], inputs: list[str], reactions: list[str],
-               channel_names: list[str], meta: dict, attrs: dict, raw_time: bool = False) -> RunFile:
+               channel_names: list[str], meta: dict, attrs: dict, raw_time: bool = False,
+               raw_rows_expected: int = 0) -> RunFile:
         """A new run file with the contract view over ``freq_hz`` (nothing measured yet), and
-        ``/acq/raw`` where the run keeps its dwell records (``raw_time``)."""
+        ``/acq/raw`` where the run keeps its dwell records (``raw_time``), with room for
+        ``raw_rows_expected`` rows (:mod:`daq.raw_store`)."""
         path = Path(path)
         exists = f"{path}: exists already (use --resume to continue it, or another name)"
         if path.exists():
@@ -231,11 +222,11 @@ class RunFile:
             rec = acq.create_group("records")
             if kind == "stepped_sine":
                 for name, (dt, per_ch) in SINE_FIELDS.items():
-                    shape, chunks = ((0, nch), (64, nch)) if per_ch else ((0,), (256,))
-                    _index_chunks(rec.create_dataset(name, shape=shape, maxshape=(None,) + shape[1:],
-                                                     chunks=chunks, dtype=dt))
+                    shape = (0, nch) if per_ch else (0,)
+                    index_chunks(rec.create_dataset(name, shape=shape, maxshape=(None,) + shape[1:],
+                                                    chunks=(RECORD_CHUNK_ROWS,) + shape[1:], dtype=dt))
             if raw_time:
-                _create_raw(acq, nch)
+                create_raw(acq, nch, raw_rows_expected)
             # HDF5 gives a dataset of fill values its space at the first write: written
             # now, so that the first line's flush does not change the file's layout.
             for ds in (f["H"], f["valid"], f["coherence"], f["H_var"], acq["line_done"],
@@ -400,8 +391,9 @@ class RunFile:
         for name, (dt, per_ch) in SINE_FIELDS.items():
             if name not in rec:  # a file from before the field existed: unknown so far (NaN)
                 nch = rec["X"].shape[1]
-                rec.create_dataset(name, shape=(n, nch) if per_ch else (n,), maxshape=(None, nch) if per_ch else (None,),
-                                   chunks=(64, nch) if per_ch else (256,), dtype=dt, fillvalue=np.nan)
+                shape = (n, nch) if per_ch else (n,)
+                rec.create_dataset(name, shape=shape, maxshape=(None,) + shape[1:],
+                                   chunks=(RECORD_CHUNK_ROWS,) + shape[1:], dtype=dt, fillvalue=np.nan)
             ds = rec[name]
             ds.resize(n + 1, axis=0)
             v = row.get(name, np.nan if name == "X_transient" else 0)  # NaN: not known
@@ -465,16 +457,15 @@ class RunFile:
 
     def append_raw(self, data: np.ndarray) -> None:
         """Raw time samples (n_ch, n) of the line just measured (float32, not compressed: see
-        the module's docstring) into ``/acq/raw``, which :meth:`create` made (``raw_time``)."""
+        the module's docstring) into ``/acq/raw`` (:mod:`daq.raw_store`), which :meth:`create`
+        made (``raw_time``); what it lacks is added in an edited copy."""
         nch, n = data.shape
         if "raw" not in self.acq:  # a session resumed with raw_time, or a file from before
-            self._edit_in_copy(lambda f: _create_raw(f["acq"], nch))
-        s, o = self.acq["raw/samples"], self.acq["raw/offset"]
-        k = self.n_done
-        o.resize(k + 1, axis=0)
-        o[k] = s.shape[0]
-        s.resize(s.shape[0] + n, axis=0)
-        s[-n:] = data.T
+            self._edit_in_copy(lambda f: create_raw(f["acq"], nch, n))
+        missing = segments_missing(self.acq["raw"], n)
+        if missing:
+            self._edit_in_copy(lambda f: add_segments(f["acq/raw"], nch, missing))
+        append_raw(self.acq["raw"], self.n_done, data)
 
     def commit(self, n_done: int) -> None:
         """Mark everything written so far as complete and push it to disk: what is counted

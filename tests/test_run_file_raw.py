@@ -11,9 +11,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 
+from daq.raw_store import CHUNK_ROWS, SEGMENT_ROWS, raw_rows
 from daq.storage import RunFile
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -23,6 +25,7 @@ NCH = 3
 #: samples each, ``step PATH N ROWS`` reopens it and commits N more.
 CHILD = """
 import sys
+import h5py
 import numpy as np
 from daq.storage import RunFile, SINE_FIELDS, STATUS_OK
 
@@ -91,8 +94,7 @@ def _superblock_eoa(path: Path) -> int:
 
 
 def _raw_rows(rf: RunFile, k: int, rows: int) -> np.ndarray:
-    start = int(rf.acq["raw/offset"][k])
-    return rf.acq["raw/samples"][start:start + rows]
+    return raw_rows(rf.acq["raw"], int(rf.acq["raw/offset"][k]), rows)
 
 
 @pytest.mark.skipif(shutil.which("strace") is None, reason="needs strace to kill the child inside a write")
@@ -125,5 +127,83 @@ def test_a_kill_before_the_superblocks_new_end_keeps_the_run_resumable(tmp_path)
     try:
         assert rf.n_done == 3
         np.testing.assert_array_equal(_raw_rows(rf, 2, rows), _expected(2, rows))
+    finally:
+        rf.close()
+
+
+@pytest.mark.skipif(shutil.which("strace") is None, reason="needs strace to kill the child inside a write")
+def test_a_kill_while_the_chunk_index_would_split_keeps_the_committed_samples(tmp_path):
+    """HDF5's chunk index holds 64 chunks in a node; the next chunk split it, and the flush
+    wrote the rewritten node before the new one. Killed between (in the line that passes
+    64 chunks, after its samples' writes), the index of the samples committed before was
+    lost and the run could not be resumed. Raw samples are now kept in segments of 64
+    chunks, whose index never splits."""
+    rows = 40000
+    run = tmp_path / "run.h5"
+    before = SEGMENT_ROWS // rows  # lines committed before the one that passes 64 chunks
+    assert _child(tmp_path, "prep", str(run), str(before), str(rows)).returncode == 0
+    base = tmp_path / "base.h5"
+    shutil.copy(run, base)
+    writes = _writes(tmp_path, run, "step", "1", str(rows))
+    # The flush's metadata: the writes after the line's last chunk, up to the superblock.
+    last_chunk = max(i for i, (size, _) in enumerate(writes) if size == CHUNK_ROWS * NCH * 4)
+    superblock = next(i for i, w in enumerate(writes) if w == (96, 0) and i > last_chunk)
+    for nth in range(last_chunk + 2, superblock + 2):
+        shutil.copy(base, run)
+        _kill_at(tmp_path, run, nth, "step", "1", str(rows))
+        rf = RunFile.open(run)
+        try:
+            for k in range(rf.n_done):
+                np.testing.assert_array_equal(_raw_rows(rf, k, rows), _expected(k, rows), err_msg=f"kill at {nth}")
+        finally:
+            rf.close()
+
+
+def test_raw_samples_beyond_the_files_segments_are_kept_in_more(tmp_path):
+    """A run whose records outgrow the segments the file was made with gets more in an
+    edited copy; every dataset of samples stays within one index node (64 chunks), and the
+    records read back whole across segment boundaries."""
+    run = tmp_path / "run.h5"
+    rf = RunFile.create(run, kind="stepped_sine", setup_text="", setup_sha256="", freq_hz=np.arange(1.0, 5.0),
+                        outputs=["1+Z"], inputs=["1+Z"], reactions=[], channel_names=["a", "b", "c"], meta={},
+                        attrs={}, raw_time=True)
+    rows = SEGMENT_ROWS * 3 // 4 + 1  # lines straddle segment boundaries
+    try:
+        for k in range(4):
+            rf.append_raw(_expected(k, rows).T)
+            rf.commit(k + 1)
+        raw = rf.acq["raw"]
+        chunks = {name: ds.id.get_num_chunks() for name, ds in raw.items() if name != "offset"}
+        assert max(chunks.values()) <= 64 and sum(chunks.values()) == -(-4 * rows // CHUNK_ROWS), chunks
+        for k in range(4):
+            np.testing.assert_array_equal(_raw_rows(rf, k, rows), _expected(k, rows))
+    finally:
+        rf.close()
+
+
+def test_a_stepped_sine_run_keeps_every_dwell_record_in_segments(tmp_path):
+    """``raw_time = true``, end to end on the simulated lab: the file is made with the
+    segments the run's longest dwells could fill, each sub-line's record is the length of
+    its dwell, and the finished file keeps them."""
+    from test_daq_helpers import cli, sine_setup
+
+    setup = tmp_path / "s.toml"
+    setup.write_text(sine_setup(n_lines=2, refine=1).replace('file = "run.h5"', 'file = "run.h5"\nraw_time = true'))
+    run = tmp_path / "run.h5"
+    status, err = cli([str(setup), "--out", str(run), "--sim", "--quiet"])
+    assert status == 0, err
+    rf = RunFile(run, h5py.File(run, "r"))
+    try:
+        raw, rec = rf.acq["raw"], rf.records()
+        segments = [name for name in raw if name.startswith("samples_")]
+        # 2 lines x 1 shaker x 10 s (max_dwell_s's default) x 4096 samples/s, 262144 rows a segment
+        assert len(segments) == 1 and "samples" not in raw
+        ok = rec["status"] == 0
+        assert ok.any()
+        offsets = raw["offset"][()]
+        lengths = np.diff(np.append(offsets[ok], sum(raw[s].shape[0] for s in segments)))
+        np.testing.assert_array_equal(lengths, np.round(rec["dwell_s"][ok] * 4096).astype(int))
+        for k, n in zip(np.flatnonzero(ok), lengths):
+            assert np.isfinite(raw_rows(raw, int(offsets[k]), int(n))).all()
     finally:
         rf.close()

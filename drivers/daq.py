@@ -203,6 +203,7 @@ class CanFdDaq:
         self._responses: dict[int, dict | Exception] = {}
         self._waiting: int | None = None  # token of the request waiting for its response
         self._streams: dict[int, ChannelStream] = {}
+        self._stale_frames = 0  # sample frames dropped for want of a stream (see start())
         self._errors: list[InstrumentError] = []
         self._last_data = time.monotonic()
         self.channels: tuple[DaqChannel, ...] = ()
@@ -253,6 +254,11 @@ class CanFdDaq:
                     self._errors.append(gap)
             else:
                 dispatch(msg)
+                if msg.arbitration_id == RSP_ID and not msg.is_error_frame:
+                    # A response ends the poll: the frames behind it may depend on it. Those
+                    # behind START's are the new acquisition's, whose streams start() makes
+                    # only once START is answered; taken here they would be dropped.
+                    break
             n_frames += 1
             msg = recv(0.0) if n_frames < MAX_FRAMES_PER_POLL else None
         if n_data:
@@ -273,6 +279,8 @@ class CanFdDaq:
                 self._errors.append(gap)
         elif aid == RSP_ID:
             self._on_response(bytes(msg.data))
+        elif aid >= DATA_ID0:
+            self._stale_frames += 1  # an input not streaming now: a frame of an earlier acquisition
 
     def _on_response(self, data: bytes) -> None:
         """Keep the response the waiting request waits for, drop any other.
@@ -392,13 +400,43 @@ class CanFdDaq:
 
     # ------------------------------------------------------------------ acquisition
     def start(self, n_scans: int = 0) -> None:
-        """Start acquiring ``n_scans`` scans (0: until :meth:`stop`)."""
+        """Start a new acquisition of ``n_scans`` scans (0: until :meth:`stop`).
+
+        The new acquisition takes no frame of an earlier one. An acquisition not stopped
+        (a continuous one still running, a finite one not read to its end) is stopped
+        first, and its scans not read yet are discarded: calling ``start`` says "acquire
+        anew from here", as a finite ``start(n)``/``read(n)`` loop does without a
+        :meth:`stop` between, and refusing would only make the user add the STOP the
+        driver can send itself (the node itself refuses START while acquiring, with a
+        "busy" that does not say what to do).
+
+        Sample frames carry no acquisition number: every acquisition's streams start at
+        seq 0, tick 0, so a frame of the earlier one still queued would pass for the new
+        one's (and the new one's own frame be dropped as its duplicate). The node answers
+        START only once the earlier acquisition is over, so the response is the boundary:
+        every sample frame received before it is dropped, and the streams are made only
+        once it is in.
+        """
         if not self.channels:
             raise InstrumentError(f"{self.name}: configure channels first")
         total = int(n_scans) or None
-        self._streams = {c.input: ChannelStream(c.name, self.reorder_window, total) for c in self.channels}
+        # A finite acquisition whose every last frame is in has ended at the node: no STOP
+        # (a round trip per acquisition of a stepped-sine run) is needed.
+        unfinished = self.running and not (self._streams and all(s.finished for s in self._streams.values()))
+        # Cleared in place: a poll in progress holds this dict, and must drop the earlier
+        # acquisition's frames from now on.
+        self._streams.clear()
         self._errors.clear()
+        self._stale_frames = 0
+        self.running = False
+        if unfinished:
+            log.info("%s: the acquisition not stopped is stopped before a new one starts", self.name)
+            self.request("STOP")
         self.request("START", n_scans=int(n_scans))
+        if self._stale_frames:
+            log.debug("%s: %d sample frame(s) of an earlier acquisition dropped at START", self.name,
+                      self._stale_frames)
+        self._streams.update({c.input: ChannelStream(c.name, self.reorder_window, total) for c in self.channels})
         self.running = True
         self._last_data = time.monotonic()
 

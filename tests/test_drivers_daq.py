@@ -335,3 +335,57 @@ def test_a_can_bus_that_cannot_be_opened_is_an_instrument_not_reached():
     as a bad-input error that names neither."""
     with pytest.raises(ConnectionLost, match=r"daq: cannot open the CAN bus socketcan:ssidlab-no-such-can: "):
         CanFdDaq(interface="socketcan", channel="ssidlab-no-such-can", timeout_s=0.2)
+
+
+def _wait_finished(sim, timeout_s: float = 5.0) -> None:
+    """Until the simulated node has sent every frame of its finite acquisition."""
+    t0 = time.monotonic()
+    while sim.state != 2:
+        assert time.monotonic() - t0 < timeout_s, "the simulated DAQ did not finish"
+        time.sleep(0.01)
+
+
+def world_from(first: int, n: int) -> np.ndarray:
+    """What the three CHANNELS should read for scans ``first .. first + n`` of the world."""
+    return reference(first + n)[:, first:]
+
+
+def test_a_new_acquisition_takes_no_frame_of_the_one_before(rig):
+    """start() after a finite acquisition that was not read to its end (a read that raised, a
+    script that took only what it needed) and not stopped: the frames still queued from it
+    are not the new one's. Before, they were taken as the new stream's first frames (both
+    start at seq 0, tick 0), the new acquisition's own frames were dropped as duplicates,
+    and its first scans were the old acquisition's."""
+    _, sim, daq = rig
+    daq.configure(CHANNELS, FS)
+    n1 = 4 * FS  # more frames than one poll of the bus takes: most are still queued after the read
+    daq.start(n1)
+    daq.read(19 * 5)
+    _wait_finished(sim)  # every frame of the first acquisition is queued at the driver
+    daq.start(19 * 40)
+    blk = daq.read(19 * 40)
+    assert blk.first_index == 0
+    assert all(s["lost"] == s["duplicates"] == 0 for s in daq.stats.values()), daq.stats
+    # The node went on from where its world was: scans n1.. of the world, not 0.. again.
+    lsb = np.array([c.range_volt / 2**23 * 1000 / c.sensitivity_mv_per_unit for c in CHANNELS])[:, None]
+    assert np.max(np.abs(blk.data - world_from(n1, 19 * 40)) / lsb) <= 0.51
+
+
+def test_start_during_an_acquisition_stops_it_first(rig):
+    """start() while a continuous acquisition runs: the driver stops it and starts anew
+    (before, the node refused START as "busy (acquiring)" and the driver was left with
+    fresh streams for an acquisition that never started); nothing of the first is taken."""
+    _, sim, daq = rig
+    daq.configure(CHANNELS, FS)
+    daq.start()
+    daq.read(FS // 4)
+    n = 19 * 40
+    daq.start(n)
+    blk = daq.read(n)
+    _wait_finished(sim)
+    assert blk.first_index == 0
+    assert all(s["lost"] == s["duplicates"] == 0 for s in daq.stats.values()), daq.stats
+    # The world ran on through the first acquisition; the second is its last n scans.
+    first = sim.world.sample_index - n
+    lsb = np.array([c.range_volt / 2**23 * 1000 / c.sensitivity_mv_per_unit for c in CHANNELS])[:, None]
+    assert np.max(np.abs(blk.data - world_from(first, n)) / lsb) <= 0.51

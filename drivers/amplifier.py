@@ -41,6 +41,25 @@ __all__ = ["FAULT_NAMES", "MODEL_ID", "REG", "AmpStatus", "ShakerAmplifier", "Sy
 
 log = logging.getLogger(__name__)
 
+
+def _modbus_log_to_the_application() -> None:
+    """Give pymodbus's logger a NullHandler, as the logging HOWTO asks of a library.
+
+    pymodbus adds no handler of its own, so with none configured Python's last-resort
+    handler wrote its errors to the user's stderr, each with a dump of the last 20 frames
+    (after a reply that came late, or a call interrupted). The driver raises its own
+    error for the same failure, with pymodbus's exception as the cause. Nothing is
+    disabled: the level and propagation stay, so an application that configures logging
+    (``logging.basicConfig``) still sees pymodbus's lines; the driver's own logger is not
+    touched.
+    """
+    modbus = logging.getLogger("pymodbus")
+    if not any(isinstance(h, logging.NullHandler) for h in modbus.handlers):
+        modbus.addHandler(logging.NullHandler())
+
+
+_modbus_log_to_the_application()
+
 REG = {
     "ENABLE": 0, "GAIN": 1, "FAULT_RESET": 2, "WATCHDOG_MS": 3,
     "STATUS": 16, "FAULT_CODE": 17, "CURRENT_MA": 18, "TRAVEL_UM": 19,

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import socket
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -389,3 +393,69 @@ def test_close_ends_the_monitor_when_its_cancel_lands_as_a_poll_finishes():
 
     closed, monitor_running = asyncio.run(scenario())
     assert closed and not monitor_running
+
+
+# A user's own script: the simulated amplifier answers one request late, so the call fails
+# ("late") or is interrupted by Ctrl-C ("interrupted") and its reply comes after it. Run as
+# a process of its own: under pytest the root logger has pytest's handlers, and pymodbus's
+# lines would never reach Python's last-resort handler, the one that wrote them to stderr.
+USER_SCRIPT = """
+import _thread, logging, sys, threading, time
+from drivers.amplifier import SyncShakerAmplifier
+from drivers.errors import InstrumentError
+from sim_devices.amp_sim import AmpServerThread, SimAmplifier
+from sim_devices.components import AmplifierModel
+
+mode, with_logging = sys.argv[1], sys.argv[2] == "logging"
+if with_logging:
+    logging.basicConfig(level=logging.WARNING)
+host = AmpServerThread()
+sim = SimAmplifier(AmplifierModel(), host).start()
+amp = SyncShakerAmplifier("127.0.0.1", sim.port, timeout_s=0.2, retries=1, poll_interval_s=5.0,
+                          heartbeat_timeout_s=30.0)
+sim.inject("delay", count=1, delay_s=0.6)
+if mode == "interrupted":
+    threading.Timer(0.1, _thread.interrupt_main).start()
+try:
+    amp.read_status()
+except InstrumentError as exc:
+    print(f"{type(exc).__name__}: {exc} | cause: {exc.__cause__}")
+except KeyboardInterrupt:
+    print("interrupted")
+time.sleep(0.8)  # the late reply comes in meanwhile
+amp.read_status()
+amp.close()
+sim.stop()
+host.stop()
+"""
+
+
+def _user_script(mode: str, logging_on: bool) -> subprocess.CompletedProcess:
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
+    return subprocess.run([sys.executable, "-c", USER_SCRIPT, mode, "logging" if logging_on else "plain"],
+                          capture_output=True, text=True, env=env, timeout=60)
+
+
+@pytest.mark.parametrize("mode", ["late", "interrupted"])
+def test_pymodbus_writes_nothing_to_a_user_scripts_stderr(mode):
+    """A failed or interrupted amplifier call leaves the user's stderr clean: before, pymodbus
+    wrote "No response received ..." or "received pdu without a corresponding request" there,
+    each with a dump of its last 20 frames (">>>>> send: 0x0 0x1 ..."). The driver's error
+    still says what failed and carries pymodbus's exception as its cause."""
+    p = _user_script(mode, logging_on=False)
+    assert p.returncode == 0, p.stderr
+    assert p.stderr == ""
+    if mode == "late":
+        assert p.stdout.startswith("InstrumentTimeout: amp: no valid Modbus reply in 2 tries of 0.2 s")
+        assert "| cause: Modbus Error: [Input/Output] No response received after 1 retries" in p.stdout
+    else:
+        assert p.stdout.strip() == "interrupted"
+
+
+def test_pymodbus_lines_show_when_the_application_enables_logging():
+    """The driver holds pymodbus's log back only from Python's last resort, not from the
+    application: with logging configured, its lines are there as before."""
+    p = _user_script("late", logging_on=True)
+    assert p.returncode == 0, p.stderr
+    assert "No response received after 1 retries" in p.stderr

@@ -154,6 +154,49 @@ def test_a_bad_model_file_is_refused_at_load_and_f5(tmp_path):
     asyncio.run(go())
 
 
+def test_a_model_that_is_not_physical_is_refused_at_load(tmp_path):
+    """A model whose M has a negative mass, or is zero, or is singular with no C to damp it:
+    one line naming the file and the reason at load, F5 refused (before, it was taken and the
+    run ended with "MAC: ..." and "discrepancy workflow: ..." notes instead of results). The
+    check is the discrepancy workflow's own (``ssid.discrepancy.check_model``): massless DOFs
+    with a C are a usable model (lumped rotations), and are taken."""
+    from daq.setup import load_setup
+
+    setup = small_setup(tmp_path, n_lines=4)
+    dofs = list(load_setup(setup).outputs)
+    n = len(dofs)
+    K, C = 1e6 * np.eye(n), 10.0 * np.eye(n)
+    negative, massless = np.eye(n), np.eye(n)
+    negative[1, 1], massless[1, 1] = -2.0, 0.0
+    files = {}
+    for name, M, damping in (("negative", negative, None), ("zero", np.zeros((n, n)), C),
+                             ("massless_undamped", massless, None), ("massless_damped", massless, C)):
+        files[name] = tmp_path / f"{name}.h5"
+        write_model(files[name], Model(M, K, damping, dofs))
+    refused = {
+        "negative": "the model's M has the eigenvalue -2: not a mass matrix of a physical structure",
+        "zero": "the model's M is zero: not a mass matrix of a physical structure",
+        "massless_undamped": "M is not positive definite (a DOF without mass?), and modal damping, which "
+                             "stands in for a model without C, needs a mass at every DOF: give the model its C",
+    }
+
+    async def go():
+        app = LabApp(str(setup), out=str(tmp_path / "run.h5"), model=str(files["negative"]))
+        async with app.run_test(size=SIZE) as pilot:
+            model_field = app.query_one("#model-path", Input)
+            for name, why in refused.items():
+                model_field.value = str(files[name])
+                await pilot.press("ctrl+l")
+                assert shown(app, "#setup-error") == f"error: {files[name]}: {why}"
+                await pilot.press("f5")
+                assert app.acquisition is None and "fix or clear the model file first" in notes(app)
+            model_field.value = str(files["massless_damped"])
+            await pilot.press("ctrl+l")
+            assert app.model_error is None and shown(app, "#setup-error") == ""
+
+    asyncio.run(go())
+
+
 def test_the_discrepancy_note_is_not_prefixed_twice(tmp_path):
     note = "discrepancy workflow: FRF output '1+Z' is not among the analysis model's DOFs"
     res = RunResults(tmp_path / "r.h5", None, None, [], "", notes=["MAC: x", note])

@@ -69,8 +69,13 @@ def model_refusal(model_path: str, setup) -> str | None:
     """Why the model file cannot serve a run of ``setup``, as one line naming the file, or None.
 
     Read as the Results tab will read it (``ssid.matrix_io.read_analysis_model``), so that a
-    file which is no model, or a model without the setup's response DOFs (MAC and the
-    discrepancy workflow both need every one), is refused before the run, not after it.
+    file which is no model, a model that is not a physical structure, or a model without the
+    setup's response DOFs (MAC and the discrepancy workflow both need every one), is refused
+    before the run, not after it. Physical is what ``ssidlab discrepancy`` takes
+    (``ssid.discrepancy.check_model``): M positive semi-definite and not zero, K and C positive
+    semi-definite, and M positive definite when there is no C. Massless DOFs with a C (a
+    lumped model's rotations) pass: the discrepancy workflow takes them, and only the MAC
+    (which needs normal modes) then says it cannot.
 
     Parameters
     ----------
@@ -81,10 +86,14 @@ def model_refusal(model_path: str, setup) -> str | None:
     """
     if not model_path:
         return None
+    from ssid.discrepancy import check_model
     from ssid.matrix_io import read_analysis_model
 
     try:
         model = read_analysis_model(model_path)
+        # A negative or absent mass is not found by reading (the file's layout is fine); the
+        # run would end with notes in place of the MAC and the discrepancy finding.
+        check_model(model)
     except Exception as exc:  # noqa: BLE001 -- whatever the reader says is the one line
         return naming(model_path, exc)
     missing = [d for d in setup.outputs if d not in set(model.dofs)]

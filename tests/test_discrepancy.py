@@ -294,9 +294,13 @@ def test_json_follows_the_contract_and_the_updated_model_is_valid(tmp_path):
     assert data["gap_metric"] == "rms_noise_normalised_residual"
     assert data["gap_after"] < data["gap_before"]
     assert {c["effect"] for c in data["candidates"]} == set(EFFECT_NAMES)  # best of each listed
-    for c in data["candidates"]:
+    for c in data["candidates"]:  # "each with the same keys" (the contract)
         assert set(PARAMETER_KEYS[c["effect"]]) == set(c["parameters"])
-        assert list(c)[:3] == ["effect", "dofs", "parameters"]
+        assert list(c)[:6] == CONTRACT_KEYS[:6]
+        assert c["gap_metric"] == data["gap_metric"]
+        assert c["gap_before"] == pytest.approx(data["gap_before"], rel=1e-9)  # one round: the nominal's
+    none = next(c for c in data["candidates"] if c["effect"] == "none")
+    assert none["gap_after"] == pytest.approx(none["gap_before"], rel=1e-9)
     json.dumps(data, allow_nan=False)
     write_model(tmp_path / "updated.h5", res.updated_model)
     back = read_model(tmp_path / "updated.h5")

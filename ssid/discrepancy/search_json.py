@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..correlate_frf import frf_gap
+from .report import GAP_METRIC
 from .search import Candidate, SearchResult, candidate_frf
 
 __all__ = ["N_LISTED", "candidate_json", "listed_candidates", "localisation_json", "round_json"]
@@ -17,11 +18,14 @@ N_LISTED = 20
 
 
 def candidate_json(search: SearchResult, cand: Candidate, H_meas: np.ndarray, valid: np.ndarray) -> dict:
+    """One candidate: the contract's keys (those of the result itself), then the search's."""
     return {
         "effect": cand.name,
         "dofs": list(cand.effect.dofs),
         "parameters": dict(cand.effect.parameters),
+        "gap_before": search.gap(search.rss0),
         "gap_after": search.gap(cand.rss),
+        "gap_metric": GAP_METRIC,
         "gap_after_log_ratio": frf_gap(H_meas, candidate_frf(search, cand), valid),
         "criterion": cand.criterion,
         "delta_criterion": cand.delta_criterion,

@@ -329,6 +329,14 @@ def difference_flat_levels(
     return a2 * scale * scale, rho
 
 
+def silent_frfs(H: np.ndarray, valid: np.ndarray, rtol: float = 1e-12) -> np.ndarray:
+    """Which FRFs (n, n_in) hold no signal: every valid value within ``rtol`` of the largest
+    valid value of all (rounding), e.g. the cross FRFs of directions nothing couples in
+    simulated data. ``H``, ``valid``: (n_freq, n, n_in)."""
+    mag = np.where(valid, np.abs(H), 0.0)
+    return mag.max(axis=0) <= rtol * mag.max()
+
+
 def roughness_weights(H: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Noise weights ``1/sigma`` of each FRF from its roughness along frequency, with no model.
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import IdentificationError
-from .noise import difference_flat_levels, fit_additive_proportional, roughness_weights
+from .noise import difference_flat_levels, fit_additive_proportional, roughness_weights, silent_frfs
 from .step1 import (
     Step1Data,
     Step1Estimate,
@@ -197,4 +197,14 @@ def _residual_weights(d: Step1Data, est: Step1Estimate, valid: np.ndarray,
             model_error = (a2 > MODEL_ERROR_FACTOR * a2_dif) & (rho < NOISE_LIKE_RHO)
         a2 = np.where(model_error, a2_dif, a2)
     var = a2[None] + b2[None, None] * h2
+    # An FRF that holds no signal (two directions nothing couples, in simulated data) leaves
+    # residuals of rounding only, and weighted so (1e32 against 1e15 on three uncoupled
+    # oscillators) the rounding in the modes' cross terms set step 2's scale factors: M came
+    # out 1e17 off. Such an FRF is as well known as the best-known FRF that holds one: its
+    # variance is that FRF's typical (median) one.
+    silent = silent_frfs(d.H, valid)
+    if silent.any() and not silent.all():
+        with np.errstate(invalid="ignore"):
+            typical = np.nanmedian(np.where(valid, var, np.nan), axis=0)
+        var = np.where(silent[None], np.nanmin(np.where(silent, np.nan, typical)), var)
     return np.where(valid, 1.0 / np.sqrt(var), 0.0)

@@ -216,12 +216,13 @@ def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:
         valid = _boolean(src, "valid", frf.valid)
         _require_shape(src, "valid", valid, shape, origin)
     # A blanked value carries no information, so acquisition may leave NaN there.
+    blanked = None if valid is None else ~valid
     _require_finite(
         src,
         "H",
         H,
         at_output,
-        nan_ok=None if valid is None else ~valid,
+        nan_ok=blanked,
         hint="NaN is allowed only where valid is False",
     )
 
@@ -229,7 +230,11 @@ def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:
     if frf.coherence is not None:
         coherence = _real(src, "coherence", frf.coherence)
         _require_shape(src, "coherence", coherence, shape, origin)
-        _require_finite(src, "coherence", coherence, at_output)
+        # A blanked value's coherence and variance are skipped with it (as NaN in H is):
+        # read as 0, "no estimate".
+        _require_finite(src, "coherence", coherence, at_output, nan_ok=blanked,
+                        hint="NaN is allowed only where valid is False")
+        coherence = np.nan_to_num(coherence, nan=0.0)
         outside = (coherence < -COHERENCE_SLACK) | (coherence > 1 + COHERENCE_SLACK)
         if outside.any():
             idx = _first(outside)
@@ -243,7 +248,9 @@ def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:
     if frf.H_var is not None:
         H_var = _real(src, "H_var", frf.H_var)
         _require_shape(src, "H_var", H_var, shape, origin)
-        _require_finite(src, "H_var", H_var, at_output)
+        _require_finite(src, "H_var", H_var, at_output, nan_ok=blanked,
+                        hint="NaN is allowed only where valid is False")
+        H_var = np.nan_to_num(H_var, nan=0.0)
         if (H_var < 0).any():
             idx = _first(H_var < 0)
             raise _error(

@@ -133,8 +133,9 @@ def validate_model(model: Model, source: str = "model") -> Model:
     """Check a :class:`Model` against the model-file layout and return a normalised copy.
 
     Checks: ``dofs`` are unique strings; ``M``, ``K`` and (if present) ``C`` are real, finite,
-    ``(n, n)`` with ``n = len(dofs)``; ``M`` and ``K`` are symmetric to a relative 1e-8 of
-    their largest entry. ``C`` need not be symmetric.
+    ``(n, n)`` with ``n = len(dofs)``; ``M`` and ``K`` are symmetric to a relative 1e-6 of
+    their largest entry (an exporter's rounding), and returned exactly symmetric. ``C`` need
+    not be symmetric.
 
     Parameters
     ----------
@@ -182,6 +183,7 @@ def validate_model(model: Model, source: str = "model") -> Model:
                 f"({dofs[i]!r}, {dofs[j]!r}) exceeds {SYMMETRY_RTOL:g} x max|{name}| "
                 f"= {SYMMETRY_RTOL * scale:.3g}",
             )
+    M, K = (M + M.T) / 2, (K + K.T) / 2
     attrs = _extra_attrs(src, model.attrs, _MODEL_RESERVED_ATTRS)
     return Model(M=M, K=K, C=C, dofs=dofs, attrs=attrs)
 

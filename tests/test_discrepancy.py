@@ -362,6 +362,25 @@ def test_the_residual_line_says_whose_noise_it_is_within():
     assert "within" not in residual_statement(second, first, 3.0, stated=False)["text"]
 
 
+def test_an_effect_that_leaves_a_large_gap_is_not_said_to_close_it():
+    """An effect found and nothing more that pays: with the gap after well above the noise
+    the line said "closes the gap (gap after 36.6, 1 = noise level)" (a contract check's
+    nearly undamped chain); it now says the library does not describe what is left."""
+    from types import SimpleNamespace
+
+    from ssid.discrepancy.verdict import residual_statement
+
+    nothing = SimpleNamespace(name="none", rss=0.0, effect=Effect("none", (), {}))
+    second = SimpleNamespace(best=nothing, n_valid=100, none=lambda: nothing,
+                             gap=lambda rss: float(np.sqrt(rss / 100)))
+    first = [Effect("coupling_spring", ("2", "3"), {"stiffness_n_per_m": 16.6})]
+    closed = residual_statement(second, first, 0.9)
+    assert closed["closed"] is True and "closes the gap" in closed["text"]
+    left = residual_statement(second, first, 36.6)
+    assert left["closed"] is False and "closes" not in left["text"]
+    assert "36.6" in left["text"] and "does not describe" in left["text"]
+
+
 @pytest.mark.parametrize("mass_kg, named", [(1e-5, False), (3e-4, True)])
 def test_an_effect_the_data_show_but_too_small_to_matter_is_not_named(mass_kg, named):
     """Noise of 1e-6 of each value (complex Gaussian, seeded, stated as H_var): a 10 mg mass

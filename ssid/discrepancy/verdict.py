@@ -76,6 +76,14 @@ def residual_statement(second: SearchResult | None, effects: list[Effect], gap_a
                 "not describe")
     elif not effects:
         text = f"the data agree with the nominal model within noise: no effect {nothing_pays}"
+    elif closed and gap_after > GAP_WITHIN_NOISE:
+        # Nothing more pays, but the gap it leaves is the data's, not noise: as with no effect
+        # at all (above), the model differs in a way the library does not describe. Said
+        # "closes the gap (gap after 36.6)", the line contradicted itself.
+        closed = False
+        text = (f"{effects[0].describe()} found, and a second search finds no further effect that "
+                f"{nothing_pays}, yet the gap after is {gap_after:.3g} (1 = noise level): the model "
+                "differs from the test in a way the library does not describe")
     elif closed:
         text = (f"{effects[0].describe()} closes the gap: a second search finds no further effect "
                 f"(gap after {gap_after:.3g}, 1 = noise level)")

@@ -319,6 +319,10 @@ def find_discrepancy(
                         "noise level: the model "
                         "differs from the test in a way the library does not describe"
                         + negligible_text(negligible))
+    elif effects and not residual["closed"] and residual["next_effect"] is None:
+        warnings.append(f"{effects[-1].describe()} leaves a gap of {gap_after:.3g} (1 = noise level) that no "
+                        "further effect of the library lowers: the model differs from the test in a way the "
+                        "library does not describe")
     updated.attrs = {**updated.attrs, "discrepancy_effects": "; ".join(e.describe() for e in effects) or "none"}
 
     info = {

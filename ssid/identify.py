@@ -82,7 +82,9 @@ def _rigid_body_note(n_rigid: int, rigid: dict) -> str:
     return (f"{n_rigid} rigid-body mode(s) (free-free structure): K is singular by design, its null space "
             f"the rigid-body shapes, and C is zero on them; the {2 * n_rigid} roots nearest 0 "
             f"(|lambda| <= {max(test['roots_abs_rad_per_s']):.3g} rad/s, below the lowest line at "
-            f"{f_line:.4g} Hz) fit the data as well as rigid-body motion does, and are taken as such")
+            f"{f_line:.4g} Hz) fit the data as well as rigid-body motion does, and are taken as such; "
+            "on a structure held to ground, a mode no input excites or a DOF without mass (which "
+            "the identified M cannot hold) shows the same way")
 
 
 def _real_roots_warning(real_roots: np.ndarray, m: int, n: int, n_rigid: int, rigid: dict) -> str:

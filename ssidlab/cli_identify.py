@@ -16,7 +16,7 @@ import argparse
 import math
 from typing import Any
 
-from ssid.errors import InputError
+from ssid.errors import IdentificationError, InputError
 from ssid.io import read_measured_frf, write_model
 from ssidlab.argtypes import check_output_paths, frequency_hz, say, write_json
 
@@ -82,17 +82,20 @@ def run_identify(args: argparse.Namespace) -> int:
     # when it cannot be imported.
     from ssid.identify import identify_mck
 
-    if args.select_band:
-        from ssid.band_select import identify_mck_band_select
+    try:
+        if args.select_band:
+            from ssid.band_select import identify_mck_band_select
 
-        lo = float(frf.freq_hz[0]) if args.fmin is None else args.fmin
-        hi = float(frf.freq_hz[-1]) if args.fmax is None else args.fmax
-        result = identify_mck_band_select(frf.band(lo, hi), damping=args.damping)
-    else:
-        result = identify_mck(
-            frf, solver=args.solver or "ml", f_min_hz=args.fmin, f_max_hz=args.fmax,
-            damping=args.damping,
-        )
+            lo = float(frf.freq_hz[0]) if args.fmin is None else args.fmin
+            hi = float(frf.freq_hz[-1]) if args.fmax is None else args.fmax
+            result = identify_mck_band_select(frf.band(lo, hi), damping=args.damping)
+        else:
+            result = identify_mck(
+                frf, solver=args.solver or "ml", f_min_hz=args.fmin, f_max_hz=args.fmax,
+                damping=args.damping,
+            )
+    except IdentificationError as exc:  # what the data cannot give: say which data
+        raise IdentificationError(f"{args.frf}: {exc}") from None
     if list(result.dofs) != frf.outputs:
         raise RuntimeError(
             f"identified model DOFs {list(result.dofs)!r} differ from the FRF outputs "

@@ -267,7 +267,8 @@ def test_identification_error_is_bad_input(tmp_path, good_file, fake_identify, c
                "--json", str(tmp_path / "r.json")])
     err = capsys.readouterr().err
     assert rc == 2
-    assert err == "ssidlab identify: error: too few valid lines for 18 unknowns\n"
+    # The file it was said of (a contract check's one-line FRF had the reason only).
+    assert err == f"ssidlab identify: error: {good_file}: too few valid lines for 18 unknowns\n"
 
 
 def test_unexpected_exception_is_internal_error(tmp_path, good_file, fake_identify, capsys):
@@ -339,7 +340,7 @@ def test_library_warnings_are_dropped_when_the_command_fails(
                "--json", str(tmp_path / "r.json")])
     err = capsys.readouterr().err
     assert rc == 2
-    assert err == "ssidlab identify: error: no equation-error start could be computed\n"
+    assert err == f"ssidlab identify: error: {good_file}: no equation-error start could be computed\n"
 
 
 def test_an_ignored_sigint_is_taken_from_the_first_line():

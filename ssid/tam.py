@@ -328,16 +328,19 @@ def irs_reduce(M: np.ndarray, K: np.ndarray, retained: Sequence[int]) -> Reduced
 
 def _target_modes(
     M: np.ndarray, K: np.ndarray, targets: Sequence[int] | None, n_default: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Mass-normalised full-model modes at 0-based ``targets`` (default: the lowest n)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mass-normalised full-model modes at 0-based ``targets`` (default: the lowest n), and
+    their 1-based mode numbers (for messages)."""
     lam, phi = normal_modes(M, K)
     t = np.arange(n_default) if targets is None else np.asarray(targets, dtype=int)
     if t.size == 0 or t.min() < 0 or t.max() >= lam.size or np.unique(t).size != t.size:
         raise InputError(f"target modes must be distinct mode numbers between 1 and {lam.size}")
-    return lam[t], phi[:, t]
+    return lam[t], phi[:, t], t + 1
 
 
-def serep_transform(phi_t: np.ndarray, retained: Sequence[int]) -> np.ndarray:
+def serep_transform(
+    phi_t: np.ndarray, retained: Sequence[int], mode_numbers: Sequence[int] | None = None
+) -> np.ndarray:
     """Modal (SEREP) transformation ``T = Phi_t Phi_ta^g``, Eqs. 4.7-4.8.
 
     Parameters
@@ -345,16 +348,31 @@ def serep_transform(phi_t: np.ndarray, retained: Sequence[int]) -> np.ndarray:
     phi_t : (n, n_t)
         Target modes (any scaling: ``T`` does not depend on it).
     retained : sequence of int, (n_a,), with ``n_a >= n_t``
+    mode_numbers : sequence of int, (n_t,), optional
+        1-based full-model numbers of the target modes, to name them in an error (default:
+        their columns in ``phi_t``).
 
     Returns
     -------
     T : (n, n_a)
         Reproduces every target mode exactly from its retained partition.
 
+    Raises
+    ------
+    InputError
+        More target modes than retained DOFs; a target mode not observable at the retained
+        DOFs; target modes not independent there.
+
     Notes
     -----
     The generalised inverse ``(Phi_ta^T Phi_ta)^-1 Phi_ta^T`` of Eq. 4.8 is computed by a
     least-squares solve, which does not square the condition number as the normal equations do.
+
+    The retained partition is judged with each mode scaled to unit norm over the full model,
+    not relative to its own largest singular value: a target mode with a node at every retained
+    DOF has a partition of round-off (1e-16 of the mode), and when every target is such a mode
+    all singular values are round-off alike, their ratio near 1, and ``T`` (~1e16) and the TAM
+    mass (~1e32) garbage.
     """
     phi_t = np.asarray(phi_t, dtype=float)
     a = np.asarray(retained, dtype=int)
@@ -364,8 +382,24 @@ def serep_transform(phi_t: np.ndarray, retained: Sequence[int]) -> np.ndarray:
             f"{phi_t.shape[1]} target modes but only {a.size} retained DOFs: SEREP needs at "
             "most as many target modes as retained DOFs"
         )
-    s = np.linalg.svd(phi_ta, compute_uv=False)
-    if s[-1] <= s[0] * _MODE_RCOND:
+    size = np.linalg.norm(phi_t, axis=0)
+    seen = np.linalg.norm(phi_ta, axis=0) / np.where(size > 0, size, 1.0)
+    blind = np.flatnonzero(seen <= _MODE_RCOND)
+    if blind.size:
+        names = (np.arange(1, phi_t.shape[1] + 1) if mode_numbers is None
+                 else np.asarray(mode_numbers, dtype=int))[blind]
+        one = blind.size == 1
+        what = ("target mode" if one else "target modes") + ("" if mode_numbers is not None else
+                                                             " (columns of phi_t)")
+        raise InputError(
+            f"{what} {', '.join(str(k) for k in names)} {'is' if one else 'are'} not observable at "
+            f"the retained DOFs: {'its' if one else 'their'} motion there is "
+            f"{'' if one else 'at most '}{seen[blind].max():.1g} of {'its' if one else 'their'} "
+            "norm over the model (a node at every retained DOF); retain a DOF where "
+            f"{'it moves' if one else 'each moves'}, or choose other target modes"
+        )
+    s = np.linalg.svd(phi_ta / size, compute_uv=False)
+    if s[-1] <= _MODE_RCOND:
         raise InputError(
             "the target modes are not linearly independent at the retained DOFs "
             "(choose other retained DOFs or target modes)"
@@ -394,13 +428,14 @@ def serep_reduce(
         With fewer target modes ``M_a`` and ``K_a`` have rank ``n_t`` only (use
         :func:`hybrid_tam` for a full-rank TAM that still keeps the targets exact).
     """
-    _, phi_t = _target_modes(M, K, targets, len(retained))
-    T = serep_transform(phi_t, retained)
+    _, phi_t, numbers = _target_modes(M, K, targets, len(retained))
+    T = serep_transform(phi_t, retained, numbers)
     return ReducedModel(reduce_by_transform(M, T), reduce_by_transform(K, T), T)
 
 
 def hybrid_transform(
-    M: np.ndarray, K: np.ndarray, retained: Sequence[int], phi_t: np.ndarray
+    M: np.ndarray, K: np.ndarray, retained: Sequence[int], phi_t: np.ndarray,
+    mode_numbers: Sequence[int] | None = None,
 ) -> np.ndarray:
     """Kammer's hybrid TAM transformation, Eqs. 4.9-4.10.
 
@@ -416,6 +451,8 @@ def hybrid_transform(
     retained : sequence of int, (n_a,)
     phi_t : (n, n_t)
         Target modes, any scaling (they are mass-normalised here).
+    mode_numbers : sequence of int, (n_t,), optional
+        Their 1-based full-model numbers, for messages (:func:`serep_transform`).
 
     Returns
     -------
@@ -427,7 +464,7 @@ def hybrid_transform(
     # Eq. 4.9 needs unit modal mass; rescaling here makes the result scaling-free.
     phi_t = phi_t / np.sqrt(np.einsum("ij,ik,kj->j", phi_t, M, phi_t))
     Ts = guyan_transform(K, a)
-    Tm = serep_transform(phi_t, a)
+    Tm = serep_transform(phi_t, a, mode_numbers)
     Mm = reduce_by_transform(M, Tm)
     phi_ta = phi_t[a]
     P = phi_ta @ (phi_ta.T @ Mm)  # Eq. 4.9
@@ -446,8 +483,8 @@ def hybrid_tam(
         TAM equals SEREP, since ``P = I``). Give fewer to gain Guyan's robustness for the
         residual modes.
     """
-    _, phi_t = _target_modes(M, K, targets, len(retained))
-    T = hybrid_transform(M, K, retained, phi_t)
+    _, phi_t, numbers = _target_modes(M, K, targets, len(retained))
+    T = hybrid_transform(M, K, retained, phi_t, numbers)
     return ReducedModel(reduce_by_transform(M, T), reduce_by_transform(K, T), T)
 
 

@@ -223,3 +223,24 @@ def test_a_test_model_that_is_not_stable_is_correlated_with_a_warning(files):
                          "--json", str(out), "--quiet"])
     assert status == 0
     assert all(f < 0 for f in json.loads(out.read_text())["test_natural_freq_hz"])
+
+
+@pytest.mark.parametrize("tam", ["serep", "hybrid"])
+def test_a_target_mode_the_test_dofs_do_not_see_is_refused(tmp_path, tam):
+    """Fixed-fixed 7-mass chain measured at masses 2, 4 and 6, the nodes of its mode 4: with
+    --targets 4 the SEREP and hybrid TAMs were ~1e16 and the run ended with status 0, an
+    orthogonality matrix of +-1 and only a warning that the TAM mass is singular (QA)."""
+    n = 7
+    K = np.zeros((n, n))
+    for i in range(n - 1):
+        K[np.ix_([i, i + 1], [i, i + 1])] += 1e4 * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    K[0, 0] += 1e4
+    K[-1, -1] += 1e4
+    write_model(tmp_path / "an.h5", Model(np.eye(n), K, None, [f"{i}+Z" for i in range(1, n + 1)]))
+    K_test = 1e4 * np.array([[2.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 2.0]])
+    write_model(tmp_path / "test.h5", Model(np.diag([1.0, 1.1, 0.9]), K_test, None, ["2+Z", "4+Z", "6+Z"]))
+    status, err = run(["--model", str(tmp_path / "test.h5"), "--model", str(tmp_path / "an.h5"),
+                       "--tam", tam, "--targets", "4", "--json", str(tmp_path / "o.json")])
+    assert status == 2 and "\n" not in err, err
+    assert "target mode 4 is not observable at the retained DOFs" in err
+    assert not (tmp_path / "o.json").exists()

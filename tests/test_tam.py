@@ -140,6 +140,39 @@ def test_serep_refuses_dependent_targets(beam):
         serep_reduce(M, K, a, [0, 1])
 
 
+def _chain(n, fixed_ends):
+    """``n`` unit masses joined by 1e4 N/m springs, with a spring to ground at each end when
+    ``fixed_ends`` (fixed-fixed) or none (free-free)."""
+    K = np.zeros((n, n))
+    for i in range(n - 1):
+        K[np.ix_([i, i + 1], [i, i + 1])] += 1e4 * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    if fixed_ends:
+        K[0, 0] += 1e4
+        K[-1, -1] += 1e4
+    return np.eye(n), K
+
+
+@pytest.mark.parametrize("reduce", [serep_reduce, hybrid_tam])
+def test_a_target_mode_with_a_node_at_every_retained_dof_is_refused(reduce):
+    """Free-free 3-mass chain: mode 2 is (1, 0, -1), at rest at the middle mass. Fixed-fixed
+    7-mass chain: mode 4 is sin(4 pi j / 8), at rest at masses 2, 4 and 6. Retained there, the
+    mode's partition is round-off (~1e-16 of the mode): SEREP's T was ~1e16 and the TAM mass
+    ~1e32 instead of an error, as the singular values were only compared with each other."""
+    M, K = _chain(3, fixed_ends=False)
+    with pytest.raises(InputError, match="target mode 2 is not observable at the retained DOFs"):
+        reduce(M, K, [1], [1])
+    M, K = _chain(7, fixed_ends=True)
+    _, phi = normal_modes(M, K)
+    assert np.abs(phi[[1, 3, 5], 3]).max() < 1e-14 * np.abs(phi[:, 3]).max()  # the nodes
+    with pytest.raises(InputError, match="target mode 4 is not observable"):
+        reduce(M, K, [1, 3, 5], [3])
+    with pytest.raises(InputError, match="target mode 4 is not observable"):
+        reduce(M, K, [1, 3, 5], [0, 3])  # named among targets the DOFs see
+    # Modes 1-3 move there: the TAM holds them exactly (T rebuilds each from its partition).
+    red = reduce(M, K, [1, 3, 5], [0, 1, 2])
+    np.testing.assert_allclose(red.T @ phi[[1, 3, 5]][:, :3], phi[:, :3], atol=1e-12)
+
+
 def test_unknown_tam_name(beam):
     M, K, _ = beam
     with pytest.raises(ValueError, match="unknown TAM"):

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from .errors import InputError
+
 __all__ = [
     "CROSS_ORTHOGONALITY_DIAG_MIN",
     "ORTHOGONALITY_OFFDIAG_MAX",
@@ -47,18 +49,26 @@ def modal_assurance(phi_a: np.ndarray, phi_b: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    phi_a : (n, m_a), phi_b : (n, m_b)
-        Shapes over the same DOFs, real or complex, any scaling.
+    phi_a : (n, m_a) or (n,), phi_b : (n, m_b) or (n,)
+        Shapes over the same DOFs, real or complex, any scaling; a 1-D array is one shape.
 
     Returns
     -------
     (m_a, m_b) float in [0, 1]; unchanged when any shape is multiplied by any nonzero
-    (complex) number. A zero shape gives a zero row or column.
+    (complex) number. A zero shape gives a zero row or column: a mode at rest at every DOF
+    compared (a mode of another direction of a model whose directions do not couple, whose
+    shape is exactly zero there) correlates with nothing, and is no error.
+
+    Raises
+    ------
+    InputError
+        NaN or Inf in a shape (its MAC would be 0 with every shape, silently), shapes over
+        different numbers of DOFs, or an array of more than two dimensions.
     """
-    a = np.atleast_2d(np.asarray(phi_a))
-    b = np.atleast_2d(np.asarray(phi_b))
+    a = _mode_columns(phi_a, "phi_a")
+    b = _mode_columns(phi_b, "phi_b")
     if a.shape[0] != b.shape[0]:
-        raise ValueError(f"shapes have {a.shape[0]} and {b.shape[0]} DOFs")
+        raise InputError(f"MAC: the shapes have {a.shape[0]} and {b.shape[0]} DOFs")
     # Each shape to unit length first: the squares of the products below overflow or
     # underflow for shapes far from unit scale (1e+-100: a model in odd units), which
     # the MAC, a ratio, does not depend on.
@@ -70,6 +80,26 @@ def modal_assurance(phi_a: np.ndarray, phi_b: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         mac = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
     return np.clip(mac, 0.0, 1.0)
+
+
+def _mode_columns(phi: np.ndarray, name: str) -> np.ndarray:
+    """Shapes as an (n_dof, n_modes) array; a 1-D array is one shape (a column).
+
+    ``np.atleast_2d`` would make a 1-D shape a row: n modes of one DOF each, whose MACs are all
+    1 or 0 whatever the shapes.
+    """
+    a = np.asarray(phi)
+    if a.ndim == 1:
+        a = a[:, None]
+    if a.ndim != 2 or a.dtype.kind not in "biufc":
+        raise InputError(f"{name} must be a numeric shape vector or (n_dof, n_modes) array, got "
+                         f"{a.dtype} of shape {a.shape}")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        dof, mode = np.argwhere(bad)[0]
+        raise InputError(f"{name} holds NaN or Inf in {int(bad.sum())} value(s), first at DOF {dof + 1} "
+                         f"of mode {mode + 1}")
+    return a
 
 
 def _unit_columns(phi: np.ndarray) -> np.ndarray:
@@ -92,9 +122,10 @@ def real_mode_from_complex(phi: np.ndarray) -> np.ndarray:
 
     Each column is rotated in the complex plane so that its real part carries the most
     energy (the principal direction of the points ``(Re, Im)``), then the real part is kept.
-    For a normal mode (MPC = 1) this is exact up to scale.
+    For a normal mode (MPC = 1) this is exact up to scale. A 1-D array is one shape, returned
+    as one column.
     """
-    phi = np.atleast_2d(np.asarray(phi))
+    phi = _mode_columns(phi, "phi")
     if not np.iscomplexobj(phi):
         return phi.astype(float)
     # The angle maximising sum(Re(e^{-j a} phi)^2) is half the angle of sum(phi^2).

@@ -26,6 +26,7 @@ from ssid.correlate_frf import (
     frf_gap_db,
     refine_peak_frequencies,
 )
+from ssid.errors import InputError
 from ssid.frf import accelerance
 from ssid.modal import modal_damping_matrix
 from ssid.tam import guyan_reduce, natural_frequencies_hz, normal_modes
@@ -60,8 +61,28 @@ def test_mac_of_rescaled_shapes_is_unchanged():
 def test_mac_zero_shape_and_dof_mismatch():
     a = np.array([[1.0, 0.0], [0.0, 0.0]])
     assert modal_assurance(a, a)[1, 1] == 0.0
-    with pytest.raises(ValueError, match="DOFs"):
+    with pytest.raises(InputError, match="DOFs"):
         modal_assurance(np.ones((3, 1)), np.ones((4, 1)))
+
+
+def test_mac_of_1d_shapes_is_one_mode_and_non_finite_shapes_are_refused():
+    """A 1-D shape is one mode: MAC([1, 0, 0], [0.5, 1, 0]) = 0.5^2 / (1 * 1.25) = 0.2 (it was
+    read as 3 modes of 1 DOF: a 3 x 3 matrix of 1s and 0s). A NaN or Inf in a shape gave a MAC
+    of 0 without a word (QA)."""
+    a, b = np.array([1.0, 0.0, 0.0]), np.array([0.5, 1.0, 0.0])
+    mac = modal_assurance(a, b)
+    assert mac.shape == (1, 1) and mac[0, 0] == pytest.approx(0.2, abs=1e-15)
+    np.testing.assert_array_equal(modal_assurance(a, np.column_stack([b, a])), [[mac[0, 0], 1.0]])
+    assert auto_mac(b).shape == (1, 1)
+    r = real_mode_from_complex(b * np.exp(0.7j))  # one complex mode back to (n, 1)
+    assert r.shape == (3, 1) and modal_assurance(r, b)[0, 0] == pytest.approx(1.0, abs=1e-15)
+    for bad in (np.nan, np.inf, -np.inf):
+        with pytest.raises(InputError, match="phi_a holds NaN or Inf in 1 value\\(s\\), first at DOF 1 of mode 1"):
+            modal_assurance(np.array([[bad], [1.0], [0.0]]), b)
+        with pytest.raises(InputError, match="phi_b holds NaN or Inf"):
+            modal_assurance(b, np.array([0.0, bad, 1.0]))
+    with pytest.raises(InputError, match="shape vector or \\(n_dof, n_modes\\) array"):
+        modal_assurance(np.ones((3, 1, 1)), b)
 
 
 def test_cross_orthogonality_of_a_model_with_itself_is_identity(tam):

@@ -83,6 +83,10 @@ class CurveComparison:
         noise (NaN without variances).
     relative_residual : float
         ``||a - rho b|| / ||a||`` over the lines: how large what the gain leaves is.
+    both_zero : bool
+        Both curves are zero at every line: they agree exactly, with no gain or FRAC to state
+        (NaN). Two identically zero curves are the same curve: a cross FRF between DOFs that
+        do not couple, measured both ways.
     """
 
     n_lines: int
@@ -91,11 +95,12 @@ class CurveComparison:
     frac: float
     residual_ratio: float
     relative_residual: float
+    both_zero: bool = False
 
     @property
     def dead(self) -> bool:
-        """Either curve is zero at every line (a dead channel)."""
-        return not np.isfinite(self.gain)
+        """One curve is zero at every line and the other is not (a dead channel?)."""
+        return not self.both_zero and not np.isfinite(self.gain)
 
     @property
     def gain_ok(self) -> bool:
@@ -112,10 +117,12 @@ class CurveComparison:
 
     @property
     def agree(self) -> bool:
-        return not self.dead and self.gain_ok and self.shape_ok
+        return self.both_zero or (not self.dead and self.gain_ok and self.shape_ok)
 
     def describe(self) -> str:
         """``gain 1.0000 at +0.00 deg, FRAC 1.0000``: the numbers an engineer reads first."""
+        if self.both_zero:
+            return "both zero at every line"
         deg = round(math.degrees(np.angle(self.gain)), 2) + 0.0  # + 0.0: no "-0.00"
         g = abs(self.gain)
         # Four decimals near 1, where calibrations are judged; a scale error of decades
@@ -128,7 +135,7 @@ class CurveComparison:
         return {"n_lines": self.n_lines, "gain_abs": abs(self.gain),
                 "gain_phase_deg": float(np.degrees(np.angle(self.gain))), "gain_std": self.gain_std,
                 "frac": self.frac, "residual_ratio": self.residual_ratio,
-                "relative_residual": self.relative_residual, "agree": self.agree}
+                "relative_residual": self.relative_residual, "both_zero": self.both_zero, "agree": self.agree}
 
 
 def compare_curves(a: np.ndarray, b: np.ndarray, var_a: np.ndarray | None = None,
@@ -141,7 +148,7 @@ def compare_curves(a: np.ndarray, b: np.ndarray, var_a: np.ndarray | None = None
     a, b = np.asarray(a, complex), np.asarray(b, complex)
     nan = float("nan")
     if not (np.any(a) and np.any(b)):
-        return CurveComparison(a.size, complex(nan), nan, nan, nan, nan)
+        return CurveComparison(a.size, complex(nan), nan, nan, nan, nan, both_zero=not (np.any(a) or np.any(b)))
     # Each curve divided by a power of two at its largest magnitude before any product: FRAC
     # forms fourth powers of |H|, which leave float64 at |H| ~ 1e77 or 1e-77 (FRAC NaN, a
     # false "differ"), while the reader accepts |H| from 1e-100 to 1e100. Every quantity below

@@ -47,11 +47,16 @@ class ReciprocityPair:
         ``H_ab`` against ``H_ba`` over the lines where both are valid: the gain ``rho`` in
         ``H_ab ~ rho H_ba`` (1 for reciprocal data), its standard deviation, FRAC and the
         residual after the gain in units of the stated noise.
+    silent_drive_points : tuple of str
+        Those of the two DOFs whose drive-point FRF ``H_aa`` is zero at every one of those
+        lines as well (looked at only when both cross FRFs are zero): a channel that measured
+        nothing, rather than two DOFs that do not couple.
     """
 
     dof_a: str
     dof_b: str
     curves: CurveComparison
+    silent_drive_points: tuple[str, ...] = ()
 
     @property
     def reciprocal(self) -> bool:
@@ -62,6 +67,18 @@ class ReciprocityPair:
     def describe(self) -> str:
         """One line for a terminal: the pair, the gain, FRAC and the verdict."""
         c, a, b = self.curves, self.dof_a, self.dof_b
+        if c.both_zero:
+            # The same curve both ways: reciprocal. Where the drive points respond, the two
+            # DOFs do not couple (directions of a structure that move independently); a dead
+            # channel would be zero in its drive point too, and only then is there a doubt.
+            head = (f"reciprocity {a} <-> {b}: H({a},{b}) and H({b},{a}) are both zero at all "
+                    f"{c.n_lines} lines: reciprocal")
+            if not self.silent_drive_points:
+                return head + " (the two drive points do not couple)"
+            dead = self.silent_drive_points
+            return head + (f"; the drive point{'s' if len(dead) > 1 else ''} "
+                           + " and ".join(f"H({d},{d})" for d in dead)
+                           + f" {'are' if len(dead) > 1 else 'is'} zero too (a dead channel?)")
         if c.dead:
             return (f"reciprocity {a} <-> {b}: NOT RECIPROCAL: H({a},{b}) or H({b},{a}) is zero at all "
                     f"{c.n_lines} lines (a dead channel?)")
@@ -88,7 +105,16 @@ def _pair(frf: FRFData, a: int, b: int) -> ReciprocityPair | None:
     var_h = var_g = None
     if frf.H_var is not None:
         var_h, var_g = frf.H_var[ok, io[a], b], frf.H_var[ok, io[b], a]
-    return ReciprocityPair(frf.inputs[a], frf.inputs[b], compare_curves(h[ok], g[ok], var_h, var_g))
+    curves = compare_curves(h[ok], g[ok], var_h, var_g)
+    silent: tuple[str, ...] = ()
+    if curves.both_zero:
+        # Over the valid, finite values of each drive point: a blanked line is no response.
+        def responds(k: int) -> bool:
+            d = frf.H[:, io[k], k]
+            return bool(np.any(np.where(frf.valid_mask()[:, io[k], k] & np.isfinite(d), d, 0.0)))
+
+        silent = tuple(frf.inputs[k] for k in (a, b) if not responds(k))
+    return ReciprocityPair(frf.inputs[a], frf.inputs[b], curves, silent)
 
 
 def reciprocity_check(frf: FRFData) -> list[ReciprocityPair]:

@@ -17,7 +17,7 @@ from ssid.models import example_system
 from ssidlab.cli import main
 
 from test_daq_helpers import cli, sine_setup
-from test_reciprocity import _noisy
+from test_reciprocity import _noisy, _uncoupled_xz
 
 F = np.linspace(2.0, 400.0, 400)
 
@@ -44,6 +44,21 @@ def test_two_noisy_measurements_of_one_structure_agree_and_a_stiffer_one_does_no
     found = compare_frfs(_noisy(off, 0.01, seed), b).disagreeing()
     assert {i for _, i, _ in found} == {"7"} and len(found) == 14
     assert all(c.shape_ok and abs(c.gain - 1 / 1.05) < 0.005 for _, _, c in found)
+
+
+def test_an_frf_zero_in_both_records_agrees_and_one_zero_in_one_record_does_not():
+    """Directions that do not couple: the cross FRFs are zero in both runs, the same curve,
+    and were listed as disagreeing (a dead channel?) like the reciprocity check's (QA). Zero in
+    one run only is still a disagreement."""
+    a = _uncoupled_xz()
+    cmp = compare_frfs(a, _uncoupled_xz())
+    assert cmp.n_compared() == 8 and cmp.disagreeing() == []
+    c = cmp.curves[cmp.outputs.index("1+X")][cmp.inputs.index("1+Z")]
+    assert c.both_zero and c.agree and not c.dead and c.describe() == "both zero at every line"
+    b = _uncoupled_xz()
+    b.H[:, b.outputs.index("1+X"), b.inputs.index("1+Z")] = 1e-3  # responds in one record only
+    (found,) = compare_frfs(a, b).disagreeing()
+    assert found[:2] == ("1+X", "1+Z") and found[2].dead and not found[2].both_zero
 
 
 def test_a_shape_difference_must_matter_as_well_as_stand_out_of_the_noise():

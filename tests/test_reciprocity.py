@@ -116,3 +116,36 @@ def test_identify_warns_when_its_data_are_not_reciprocal():
     said = [w for w in identify_mck(frf, solver="ls").warnings if w.startswith("reciprocity")]
     assert len(said) == 2 and all("NOT RECIPROCAL" in w and "check these transducers" in w for w in said), said
     assert said[0].startswith("reciprocity 2 <-> 7: gain 0.9524")
+
+
+def _uncoupled_xz() -> FRFData:
+    """Two masses moving in X and in Z, directions that do not couple (block-diagonal M, C, K:
+    X springs 1e4 N/m, Z 1.7e4 N/m, unit masses, C = 1e-3 K + 0.2 M), driven at 1+X and 1+Z.
+    H(1+X, 1+Z) and H(1+Z, 1+X) are exactly zero at every line, the drive points respond."""
+    K1 = np.array([[2.0, -1.0], [-1.0, 1.0]])
+    M, K = np.eye(4), np.zeros((4, 4))
+    K[:2, :2], K[2:, 2:] = 1e4 * K1, 1.7e4 * K1
+    labels = ["1+X", "2+X", "1+Z", "2+Z"]
+    return accelerance_from_model(M, 1e-3 * K + 0.2 * M, K, labels, np.linspace(1.0, 60.0, 400), labels,
+                                  ["1+X", "1+Z"])
+
+
+def test_two_cross_frfs_that_are_both_zero_are_reciprocal():
+    """Uncoupled directions: both cross FRFs zero is the same curve both ways, reciprocal. It
+    was "NOT RECIPROCAL ... zero at all 400 lines (a dead channel?)", and ssidlab identify
+    warned to check the transducers of a perfect record (QA). A dead channel is zero in its
+    drive point as well: then the line still says so, as a question."""
+    from ssid.identify import identify_mck
+
+    frf = _uncoupled_xz()
+    assert not np.any(frf.H[:, 0, 1]) and not np.any(frf.H[:, 2, 0])
+    (p,) = reciprocity_check(frf)
+    assert p.reciprocal and p.curves.both_zero and not p.curves.dead and p.silent_drive_points == ()
+    assert p.describe() == ("reciprocity 1+X <-> 1+Z: H(1+X,1+Z) and H(1+Z,1+X) are both zero at all 400 "
+                            "lines: reciprocal (the two drive points do not couple)")
+    assert p.curves.to_json_dict()["agree"] and p.curves.to_json_dict()["both_zero"]
+    assert not any("reciprocity" in w for w in identify_mck(frf, solver="ls").warnings)
+    frf.H[:, 2, :] = 0.0  # the accelerometer at 1+Z measured nothing: its drive point is zero too
+    (p,) = reciprocity_check(frf)
+    assert p.reciprocal and p.silent_drive_points == ("1+Z",)
+    assert p.describe().endswith(": reciprocal; the drive point H(1+Z,1+Z) is zero too (a dead channel?)")

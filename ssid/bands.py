@@ -182,7 +182,7 @@ def process_bands(
     -------
     BandResult; ``selected`` holds one root per physical mode, ascending in frequency.
     """
-    require_response(frf)
+    frf = require_response(frf)
     require_frequency_dependence(frf)
     need = min_lines if min_lines is not None else band_min_lines(frf.n_out, frf.n_in, frf.n_react)
     roots: list[BandRoot] = []

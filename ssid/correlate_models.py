@@ -288,7 +288,7 @@ def correlate_with_frf(
     missing = [d for d in frf.outputs if d not in set(analysis.dofs)]
     if missing:
         raise InputError(f"FRF output {missing[0]!r} is not among the analysis model's DOFs")
-    require_response(frf)
+    frf = require_response(frf)
     lo = frf.freq_hz[0] if f_min_hz is None else f_min_hz
     hi = frf.freq_hz[-1] if f_max_hz is None else f_max_hz
     test = frf.band(lo, hi)

@@ -143,7 +143,7 @@ PLAUSIBLE_FREQUENCY_HZ = (1e-6, 1e9)
 _CONSTANT_RTOL = 1e-12
 
 
-def require_response(frf: FRFData, source: str = "FRF data") -> None:
+def require_response(frf: FRFData, source: str = "FRF data") -> FRFData:
     """Refuse FRFs that no analysis can use: not the FRF layout (:func:`ssid.io.validate_frf`),
     nothing valid, no response, a dead channel or load cell.
 
@@ -163,6 +163,14 @@ def require_response(frf: FRFData, source: str = "FRF data") -> None:
     source : str
         Name used at the start of the message (normally the file path).
 
+    Returns
+    -------
+    FRFData
+        The checked data, normalised (:func:`ssid.io.validate_frf`: numpy arrays of float64,
+        complex128 and bool, labels as lists of ``str``). An analysis goes on with this copy,
+        not with ``frf``: FRFData built in Python may hold lists, which the checks accept and
+        the analyses cannot use (``frf.H.shape``).
+
     Raises
     ------
     InputError
@@ -172,7 +180,7 @@ def require_response(frf: FRFData, source: str = "FRF data") -> None:
     # not among the outputs or a NaN not marked invalid would end in an internal error.
     from ssid.io.frf_file import validate_frf  # here: ssid.io imports this module
 
-    validate_frf(frf, source)
+    frf = validate_frf(frf, source)
     valid = frf.valid_mask()
     if not valid.any():
         raise InputError(f"{source}: every H value is marked invalid: nothing to analyse")
@@ -209,6 +217,7 @@ def require_response(frf: FRFData, source: str = "FRF data") -> None:
             raise InputError(f"{source}: {_named('reaction', dead)} zero at every line: a load cell "
                              "that measured nothing (unwired or dead?); re-measure it, or write the "
                              "file without reactions if the support is free there")
+    return frf
 
 
 def require_frequency_dependence(frf: FRFData, source: str | None = None) -> None:

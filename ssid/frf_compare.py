@@ -251,8 +251,8 @@ def compare_frfs(a: FRFData, b: FRFData) -> FRFComparison:
         lines in common, or no FRF with that many valid values in common (the common values
         blanked or non-finite in one of the two).
     """
-    require_response(a, "first FRF data")
-    require_response(b, "second FRF data")
+    a = require_response(a, "first FRF data")
+    b = require_response(b, "second FRF data")
     outputs = [o for o in a.outputs if o in b.outputs]
     inputs = [i for i in a.inputs if i in b.inputs]
     if not outputs or not inputs:

@@ -256,7 +256,7 @@ def identify_mck(
         raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
     if damping not in DAMPING_OPTIONS:
         raise ValueError(f"unknown damping option {damping!r}; choose {', '.join(DAMPING_OPTIONS)}")
-    require_response(frf)
+    frf = require_response(frf)
     lo = float(frf.freq_hz[0]) if f_min_hz is None else float(f_min_hz)
     hi = float(frf.freq_hz[-1]) if f_max_hz is None else float(f_max_hz)
     data = frf.band(lo, hi)

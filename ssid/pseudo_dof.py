@@ -158,7 +158,7 @@ def identify_pseudo_dof(frf: FRFData, consistency_min: float = 0.8,
         targets found between cases (docs/algorithm.md, pseudo-DOF models; the scan on the
         payload of Table 6.18 in docs/replication.md, section 5).
     """
-    require_response(frf)
+    frf = require_response(frf)
     require_frequency_dependence(frf)
     if not frf.valid_mask().all():
         raise IdentificationError("pseudo DOFs need a record without blanked values")

@@ -230,8 +230,8 @@ def find_discrepancy(
     DiscrepancyResult
     """
     t0 = time.perf_counter()
+    frf = require_response(frf)
     _check(model, frf)
-    require_response(frf)
     lo = frf.freq_hz[0] if f_min_hz is None else f_min_hz
     hi = frf.freq_hz[-1] if f_max_hz is None else f_max_hz
     data = frf.band(lo, hi)

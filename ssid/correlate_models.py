@@ -43,7 +43,7 @@ from .correlate_frf import (
     refine_peak_frequencies,
 )
 from .errors import InputError
-from .frf import FRFData, require_response
+from .frf import FRFData, requested_band, require_response
 from .io import Model
 from .reaction_loads import choose_reactions, model_frf_under_loads
 from .rigid_body import semi_definite
@@ -289,8 +289,7 @@ def correlate_with_frf(
     if missing:
         raise InputError(f"FRF output {missing[0]!r} is not among the analysis model's DOFs")
     frf = require_response(frf)
-    lo = frf.freq_hz[0] if f_min_hz is None else f_min_hz
-    hi = frf.freq_hz[-1] if f_max_hz is None else f_max_hz
+    lo, hi = requested_band(frf, f_min_hz, f_max_hz)
     test = frf.band(lo, hi)
     if test.n_freq < 3:
         raise InputError(f"fewer than 3 frequency lines between {lo:g} and {hi:g} Hz (the FRFs "

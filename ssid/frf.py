@@ -16,6 +16,7 @@ __all__ = [
     "FRFData",
     "require_response",
     "require_frequency_dependence",
+    "requested_band",
     "receptance",
     "mobility",
     "accelerance",
@@ -218,6 +219,32 @@ def require_response(frf: FRFData, source: str = "FRF data") -> FRFData:
                              "that measured nothing (unwired or dead?); re-measure it, or write the "
                              "file without reactions if the support is free there")
     return frf
+
+
+def requested_band(frf: FRFData, f_min_hz: float | None, f_max_hz: float | None) -> tuple[float, float]:
+    """The band ``(lo, hi)`` in Hz an analysis is asked for: ``f_min_hz`` and ``f_max_hz``
+    as numbers, the record's first and last line where they are None.
+
+    Raises
+    ------
+    InputError
+        A limit that is not a number (``"abc"``: float's own ValueError said nothing of which
+        argument) or not finite (NaN selects no line, and the message would say "between nan
+        and nan Hz").
+    """
+    out = []
+    for name, value, default in (("f_min_hz", f_min_hz, frf.freq_hz[0]), ("f_max_hz", f_max_hz, frf.freq_hz[-1])):
+        if value is None:
+            out.append(float(default))
+            continue
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise InputError(f"{name} must be a frequency in Hz, got {value!r}") from None
+        if not np.isfinite(v):
+            raise InputError(f"{name} must be a finite frequency in Hz, got {value!r}")
+        out.append(v)
+    return out[0], out[1]
 
 
 def require_frequency_dependence(frf: FRFData, source: str | None = None) -> None:

@@ -16,14 +16,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from .errors import IdentificationError
+from .errors import IdentificationError, InputError
 from .fit_checks import (
     misfit_warning,
     modes_not_held_warning,
     relative_noise_level,
     unresolved_damping_warning,
 )
-from .frf import FRFData, require_frequency_dependence, require_response
+from .frf import FRFData, requested_band, require_frequency_dependence, require_response
 from .modal import (
     modal_phase_collinearity,
     physical_checks,
@@ -143,7 +143,7 @@ def identify_step1(
     levels.
     """
     if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
+        raise InputError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
     valid = frf.valid_mask()
     largest = float(np.max(np.abs(np.where(valid, np.nan_to_num(frf.H), 0.0)), initial=0.0))
     lo, hi = _STEP1_UNSCALED_LARGEST_H
@@ -247,18 +247,20 @@ def identify_mck(
 
     Raises
     ------
+    InputError
+        FRFs no analysis can use (:func:`ssid.frf.require_response`), an unknown ``solver`` or
+        ``damping``, a band limit that is not a finite number.
     IdentificationError
         Too few valid lines, FRFs that do not determine a model (the same at every line, of
         rank below the outputs; :func:`ssid.frf.require_frequency_dependence`), or a fit
         without a unique solution (:func:`singular_fit_refused`).
     """
     if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
+        raise InputError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
     if damping not in DAMPING_OPTIONS:
-        raise ValueError(f"unknown damping option {damping!r}; choose {', '.join(DAMPING_OPTIONS)}")
+        raise InputError(f"unknown damping option {damping!r}; choose {', '.join(DAMPING_OPTIONS)}")
     frf = require_response(frf)
-    lo = float(frf.freq_hz[0]) if f_min_hz is None else float(f_min_hz)
-    hi = float(frf.freq_hz[-1]) if f_max_hz is None else float(f_max_hz)
+    lo, hi = requested_band(frf, f_min_hz, f_max_hz)
     data = frf.band(lo, hi)
     if data.n_freq == 0:
         raise IdentificationError(f"no frequency lines between {lo:g} and {hi:g} Hz")

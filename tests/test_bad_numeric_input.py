@@ -346,3 +346,28 @@ def test_frf_data_built_in_python_gets_the_readers_checks(case, message):
         bad = dataclasses.replace(a, freq_hz=a.freq_hz[::-1].copy(), H=a.H[::-1].copy())
     with pytest.raises(InputError, match=re.escape(message)):
         identify_mck(bad)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"solver": "xx"}, "unknown solver 'xx'; choose one of ml, ls, tls, stls"),
+    ({"damping": "xx"}, "unknown damping option 'xx'"),
+    ({"f_max_hz": "abc"}, "f_max_hz must be a frequency in Hz, got 'abc'"),
+    ({"f_min_hz": float("nan")}, "f_min_hz must be a finite frequency in Hz, got nan"),
+])
+def test_identify_options_no_run_can_use_are_input_errors(kwargs, message):
+    """A mistyped option was a plain ValueError (float's "could not convert string to float:
+    'abc'", not naming the argument): bad input as any other, an InputError."""
+    with pytest.raises(InputError, match=re.escape(message)):
+        identify_mck(chain_frf(), **kwargs)
+
+
+def test_band_limits_that_are_not_numbers_are_input_errors_everywhere():
+    """correlate_with_frf and find_discrepancy took the band limits as given: "abc" ended in
+    numpy's comparison of an array with a string."""
+    from ssid.correlate_models import correlate_with_frf
+    from ssid.discrepancy import find_discrepancy
+
+    for run in (lambda **kw: correlate_with_frf(chain_frf(), chain_model(), **kw),
+                lambda **kw: find_discrepancy(chain_model(), chain_frf(), **kw)):
+        with pytest.raises(InputError, match="f_max_hz must be a frequency in Hz, got 'abc'"):
+            run(f_max_hz="abc")

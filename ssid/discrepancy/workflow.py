@@ -29,7 +29,7 @@ import numpy as np
 
 from ..correlate_frf import frf_gap
 from ..errors import InputError
-from ..frf import AppliedLoads, FRFData, applied_loads, require_response
+from ..frf import AppliedLoads, FRFData, applied_loads, requested_band, require_response
 from ..io import Model
 from ..modal import MODAL_DAMPING_NEEDS_MASS
 from ..reaction_loads import choose_reactions, model_frf_under_loads, weights_with_reaction_noise
@@ -232,8 +232,7 @@ def find_discrepancy(
     t0 = time.perf_counter()
     frf = require_response(frf)
     _check(model, frf)
-    lo = frf.freq_hz[0] if f_min_hz is None else f_min_hz
-    hi = frf.freq_hz[-1] if f_max_hz is None else f_max_hz
+    lo, hi = requested_band(frf, f_min_hz, f_max_hz)
     data = frf.band(lo, hi)
     valid = _valid_mask(data)
     W, noise = noise_weights(data, valid)

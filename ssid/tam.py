@@ -30,8 +30,17 @@ import numpy as np
 import scipy.linalg as sla
 
 from .errors import InputError
+from .model_checks import (
+    RIGID_ROUNDOFF_RTOL,
+    dof_indices,
+    n_unstable_modes,
+    omitted_indices,
+    require_elastic_modes,
+    require_stable_stiffness,
+)
 
 __all__ = [
+    "RIGID_ROUNDOFF_RTOL",
     "TAM_METHODS",
     "ReducedModel",
     "dof_indices",
@@ -82,39 +91,8 @@ class ReducedModel(NamedTuple):
 
 
 # ----------------------------------------------------------------------------------------------
-# Index and eigen helpers
+# Eigen helpers (the index and model checks are in ssid.model_checks)
 # ----------------------------------------------------------------------------------------------
-
-
-def dof_indices(dofs: Sequence[str], labels: Sequence[str], what: str = "DOF") -> np.ndarray:
-    """Positions of ``labels`` in ``dofs``, (len(labels),) int.
-
-    Raises
-    ------
-    InputError
-        A label is not in ``dofs`` or is given twice.
-    """
-    where = {lbl: i for i, lbl in enumerate(dofs)}
-    out = []
-    for lbl in labels:
-        if lbl not in where:
-            raise InputError(f"{what} {lbl!r} is not among the model's DOFs")
-        out.append(where[lbl])
-    if len(set(out)) != len(out):
-        raise InputError(f"a {what} label is given twice")
-    return np.asarray(out, dtype=int)
-
-
-def omitted_indices(n: int, retained: Sequence[int]) -> np.ndarray:
-    """The o-set: indices ``0..n-1`` not in ``retained``, ascending, (n - n_a,) int."""
-    a = np.asarray(retained, dtype=int)
-    if a.ndim != 1 or a.size == 0:
-        raise ValueError("retained must be a non-empty 1-D sequence of indices")
-    if a.min() < 0 or a.max() >= n or np.unique(a).size != a.size:
-        raise ValueError(f"retained indices must be distinct and within 0..{n - 1}")
-    keep = np.ones(n, dtype=bool)
-    keep[a] = False
-    return np.flatnonzero(keep)
 
 
 def normal_modes(M: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -135,65 +113,6 @@ def normal_modes(M: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     big = np.argmax(np.abs(phi), axis=0)
     phi = phi * np.sign(phi[big, np.arange(phi.shape[1])])
     return lam, phi
-
-
-#: ``omega^2`` below 0 by at most this fraction of the largest ``|omega^2|`` is round-off on a
-#: rigid-body mode (0 Hz); further below, the model is unstable.
-RIGID_ROUNDOFF_RTOL = 1e-8
-
-
-def n_unstable_modes(lam: np.ndarray) -> int:
-    """How many eigenvalues ``omega^2`` of (K, M) (:func:`normal_modes`) are clearly negative:
-    modes of an unstable structure, not round-off on rigid-body modes
-    (:data:`RIGID_ROUNDOFF_RTOL`)."""
-    lam = np.asarray(lam, dtype=float)
-    return int(np.sum(lam < -RIGID_ROUNDOFF_RTOL * np.max(np.abs(lam)))) if lam.size else 0
-
-
-def require_stable_stiffness(lam: np.ndarray, source: str) -> None:
-    """Refuse a model with a clearly negative ``omega^2`` (:func:`n_unstable_modes`; ``lam``
-    from :func:`normal_modes`): K is not the stiffness of a stable structure, and its modes
-    would be read as 0 Hz or as negative frequencies.
-
-    Raises
-    ------
-    InputError
-        Naming ``source`` (the model's file, or "analysis model") and the lowest ``omega^2``.
-    """
-    if n_unstable_modes(lam):
-        raise InputError(f"{source}: K is not positive semi-definite (mode 1 has omega^2 = "
-                         f"{lam[0]:.4g} (rad/s)^2): not the stiffness of a stable structure")
-
-
-def require_elastic_modes(K: np.ndarray, source: str, needed_for: str) -> None:
-    """Refuse a model with no elastic mode: K zero, every mode a rigid-body mode at 0 Hz.
-
-    Its modes are then one eigenvalue n times over, and any M-orthonormal basis is a set of
-    its mode shapes: what is computed from them (the sensors Effective Independence picks, the
-    MAC pairs of a correlation) is an arbitrary choice, not the model's. The discrepancy
-    workflow refuses such a model too (:func:`ssid.discrepancy.check_model`), and ``ssidlab
-    convert`` refuses to write its modes. A K with a positive eigenvalue (a free-free model's
-    elastic modes beside its rigid-body ones) passes; a K that is not positive semi-definite
-    is :func:`n_unstable_modes`' to refuse.
-
-    Parameters
-    ----------
-    K : (n, n)
-        Stiffness matrix.
-    source : str
-        Names the model (its file, or "test model" / "analysis model") in the message.
-    needed_for : str
-        What the caller would compute from the modes, for the message.
-
-    Raises
-    ------
-    InputError
-        ``K`` is zero.
-    """
-    if not np.any(np.asarray(K)):
-        raise InputError(f"{source}: K is zero: the model has no elastic modes (every mode is a "
-                         f"rigid-body mode at 0 Hz, its shapes any basis), so {needed_for} would be "
-                         "arbitrary")
 
 
 def natural_frequencies_hz(M: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -1,5 +1,6 @@
 """Checks of what the model reductions take (:mod:`ssid.tam`, :mod:`ssid.craig_bampton`) and
-of the models whose modes the analyses use: DOF labels and indices, stability, elastic modes.
+of the models whose modes the analyses use: matrices, DOF labels and indices, stability,
+elastic modes.
 
 Each refusal is an :class:`ssid.errors.InputError` with a one-line message. :mod:`ssid.tam`
 re-exports these names, where they were first defined.
@@ -12,15 +13,75 @@ from collections.abc import Sequence
 import numpy as np
 
 from .errors import InputError
+from .io import Model, validate_model
+from .io._common import _is_whole
 
 __all__ = [
     "RIGID_ROUNDOFF_RTOL",
+    "MassNotPositiveDefinite",
     "dof_indices",
+    "index_array",
+    "model_matrices",
     "n_unstable_modes",
     "omitted_indices",
     "require_elastic_modes",
     "require_stable_stiffness",
 ]
+
+
+class MassNotPositiveDefinite(InputError, np.linalg.LinAlgError):
+    """M is not positive definite, so (K, M) has no normal modes.
+
+    An InputError for a caller of the public functions (:func:`ssid.tam.normal_modes`), and
+    still the ``numpy.linalg.LinAlgError`` that callers wrapping it with their own words
+    (which model, what to do) catch.
+    """
+
+
+def model_matrices(M: np.ndarray, K: np.ndarray, source: str = "model") -> tuple[np.ndarray, np.ndarray]:
+    """``M`` and ``K`` checked as a model file's are (:func:`ssid.io.validate_model`): real,
+    finite, square, of one size and symmetric (to 1e-8 of the largest entry); float64 copies.
+
+    An asymmetric K would be reduced or solved as given by one function and read by its lower
+    triangle by another (``eigh``): a model no one wrote. Rows and columns are named by their
+    0-based index, as the reductions' DOF indices are.
+
+    Raises
+    ------
+    InputError
+        The first problem found, as one line starting with ``source``.
+    """
+    n = np.shape(M)[0] if np.ndim(M) >= 1 else 0
+    checked = validate_model(Model(M=M, K=K, C=None, dofs=[str(i) for i in range(n)] or ["0"]), source)
+    return checked.M, checked.K
+
+
+def index_array(values: Sequence[int], n: int, what: str = "retained") -> np.ndarray:
+    """``values`` as the DOF indices of an ``n``-DOF model, (len,) int.
+
+    Raises
+    ------
+    InputError
+        Not a non-empty 1-D sequence; an index that is not a whole number (0.5 was truncated
+        to 0: another DOF, silently), outside ``0..n-1``, or given twice.
+    """
+    try:
+        a = np.asarray(values)
+    except ValueError:  # a ragged nesting
+        raise InputError(f"{what} must be a non-empty 1-D sequence of DOF indices") from None
+    if a.ndim != 1 or a.size == 0:
+        raise InputError(f"{what} must be a non-empty 1-D sequence of DOF indices, got shape {a.shape}")
+    odd = [v for v in a.tolist() if not _is_whole(v)]
+    if odd:
+        raise InputError(f"{what} DOF indices must be whole numbers, got {odd[0]!r}")
+    idx = a.astype(int)
+    out = idx[(idx < 0) | (idx >= n)]
+    if out.size:
+        raise InputError(f"{what} DOF index {out[0]} is outside 0..{n - 1} (0-based; the model has {n} DOFs)")
+    u, count = np.unique(idx, return_counts=True)
+    if np.any(count > 1):
+        raise InputError(f"{what} DOF index {u[count > 1][0]} is given twice")
+    return idx
 
 
 def dof_indices(dofs: Sequence[str], labels: Sequence[str], what: str = "DOF") -> np.ndarray:
@@ -42,13 +103,12 @@ def dof_indices(dofs: Sequence[str], labels: Sequence[str], what: str = "DOF") -
     return np.asarray(out, dtype=int)
 
 
-def omitted_indices(n: int, retained: Sequence[int]) -> np.ndarray:
-    """The o-set: indices ``0..n-1`` not in ``retained``, ascending, (n - n_a,) int."""
-    a = np.asarray(retained, dtype=int)
-    if a.ndim != 1 or a.size == 0:
-        raise ValueError("retained must be a non-empty 1-D sequence of indices")
-    if a.min() < 0 or a.max() >= n or np.unique(a).size != a.size:
-        raise ValueError(f"retained indices must be distinct and within 0..{n - 1}")
+def omitted_indices(n: int, retained: Sequence[int], what: str = "retained") -> np.ndarray:
+    """The o-set: indices ``0..n-1`` not in ``retained``, ascending, (n - n_a,) int.
+
+    ``retained`` is checked by :func:`index_array` (``what`` names it in the message).
+    """
+    a = index_array(retained, n, what)
     keep = np.ones(n, dtype=bool)
     keep[a] = False
     return np.flatnonzero(keep)

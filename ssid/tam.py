@@ -33,6 +33,8 @@ from .errors import InputError
 from .model_checks import (
     RIGID_ROUNDOFF_RTOL,
     dof_indices,
+    index_array,
+    model_matrices,
     n_unstable_modes,
     omitted_indices,
     require_elastic_modes,
@@ -165,7 +167,7 @@ def guyan_transform(K: np.ndarray, retained: Sequence[int]) -> np.ndarray:
         Identity at the retained rows.
     """
     K = np.asarray(K, dtype=float)
-    a = np.asarray(retained, dtype=int)
+    a = index_array(retained, K.shape[0])
     o = omitted_indices(K.shape[0], a)
     T = np.zeros((K.shape[0], a.size))
     T[a, np.arange(a.size)] = 1.0
@@ -185,7 +187,15 @@ def guyan_reduce(M: np.ndarray, K: np.ndarray, retained: Sequence[int]) -> Reduc
     -------
     ReducedModel
         ``M_a``, ``K_a`` (n_a, n_a) and ``T`` (n, n_a).
+
+    Raises
+    ------
+    InputError
+        M or K not real, finite, square, of one size and symmetric
+        (:func:`ssid.model_checks.model_matrices`); retained indices that are not distinct DOF
+        indices (:func:`ssid.model_checks.index_array`); K_oo singular.
     """
+    M, K = model_matrices(M, K)
     T = guyan_transform(K, retained)
     return ReducedModel(reduce_by_transform(M, T), reduce_by_transform(K, T), T)
 
@@ -215,9 +225,8 @@ def irs_transform(M: np.ndarray, K: np.ndarray, retained: Sequence[int]) -> np.n
     -------
     T : (n, n_a)
     """
-    M = np.asarray(M, dtype=float)
-    K = np.asarray(K, dtype=float)
-    a = np.asarray(retained, dtype=int)
+    M, K = model_matrices(M, K)
+    a = index_array(retained, K.shape[0])
     o = omitted_indices(K.shape[0], a)
     Ts = guyan_transform(K, a)
     Ms = reduce_by_transform(M, Ts)
@@ -294,7 +303,7 @@ def serep_transform(
     mass (~1e32) garbage.
     """
     phi_t = np.asarray(phi_t, dtype=float)
-    a = np.asarray(retained, dtype=int)
+    a = index_array(retained, phi_t.shape[0])
     phi_ta = phi_t[a]
     if phi_t.shape[1] > a.size:
         raise InputError(
@@ -347,6 +356,10 @@ def serep_reduce(
         With fewer target modes ``M_a`` and ``K_a`` have rank ``n_t`` only (use
         :func:`hybrid_tam` for a full-rank TAM that still keeps the targets exact).
     """
+    # The model and the DOFs first: with no retained DOF the default targets would be none,
+    # and the message about them.
+    M, K = model_matrices(M, K)
+    retained = index_array(retained, K.shape[0])
     _, phi_t, numbers = _target_modes(M, K, targets, len(retained))
     T = serep_transform(phi_t, retained, numbers)
     return ReducedModel(reduce_by_transform(M, T), reduce_by_transform(K, T), T)
@@ -377,8 +390,8 @@ def hybrid_transform(
     -------
     T : (n, n_a)
     """
-    M = np.asarray(M, dtype=float)
-    a = np.asarray(retained, dtype=int)
+    M, K = model_matrices(M, K)
+    a = index_array(retained, K.shape[0])
     phi_t = np.asarray(phi_t, dtype=float)
     # Eq. 4.9 needs unit modal mass; rescaling here makes the result scaling-free.
     phi_t = phi_t / np.sqrt(np.einsum("ij,ik,kj->j", phi_t, M, phi_t))
@@ -402,6 +415,10 @@ def hybrid_tam(
         TAM equals SEREP, since ``P = I``). Give fewer to gain Guyan's robustness for the
         residual modes.
     """
+    # The model and the DOFs first: with no retained DOF the default targets would be none,
+    # and the message about them.
+    M, K = model_matrices(M, K)
+    retained = index_array(retained, K.shape[0])
     _, phi_t, numbers = _target_modes(M, K, targets, len(retained))
     T = hybrid_transform(M, K, retained, phi_t, numbers)
     return ReducedModel(reduce_by_transform(M, T), reduce_by_transform(K, T), T)
@@ -448,4 +465,4 @@ def reduce_to_tam(
         if boundary is None or len(boundary) == 0:
             raise InputError("the Craig-Bampton TAM needs the interface (boundary) DOFs")
         return craig_bampton_tam(M, K, retained, boundary, targets=targets).reduced
-    raise ValueError(f"unknown TAM {method!r}; choose one of {', '.join(TAM_METHODS)}")
+    raise InputError(f"unknown TAM {method!r}; choose one of {', '.join(TAM_METHODS)}")

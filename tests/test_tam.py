@@ -9,6 +9,8 @@ checked leaves a margin of 100 over what we observe while any formula error show
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from test_tam_models import beam_model, translations
@@ -171,6 +173,31 @@ def test_a_target_mode_with_a_node_at_every_retained_dof_is_refused(reduce):
     # Modes 1-3 move there: the TAM holds them exactly (T rebuilds each from its partition).
     red = reduce(M, K, [1, 3, 5], [0, 1, 2])
     np.testing.assert_allclose(red.T @ phi[[1, 3, 5]][:, :3], phi[:, :3], atol=1e-12)
+
+
+_BAD_INPUT = [
+    # (what is wrong, M and K of a 6-mass chain -> the bad ones, retained, message)
+    ("NaN in K", lambda M, K: (M, K * np.nan), [0, 2], "model: K holds NaN or Inf in 36 value(s)"),
+    ("M not square", lambda M, K: (np.ones((6, 5)), K), [0, 2], "model: M must be a square matrix, got shape (6, 5)"),
+    ("K of another size", lambda M, K: (M, K[:5, :5]), [0, 2], "model: K is 5 x 5 but there are 6 dofs"),
+    ("K not symmetric", lambda M, K: (M, K + np.triu(np.ones((6, 6)))), [0, 2], "model: K is not symmetric"),
+    ("a fractional index", lambda M, K: (M, K), [0.5, 2], "retained DOF indices must be whole numbers, got 0.5"),
+    ("an index past the end", lambda M, K: (M, K), [0, 7], "retained DOF index 7 is outside 0..5"),
+    ("a negative index", lambda M, K: (M, K), [-1, 2], "retained DOF index -1 is outside 0..5"),
+    ("an index twice", lambda M, K: (M, K), [2, 2], "retained DOF index 2 is given twice"),
+    ("no index", lambda M, K: (M, K), [], "retained must be a non-empty 1-D sequence of DOF indices"),
+]
+
+
+@pytest.mark.parametrize("method", ["guyan", "irs", "serep", "hybrid"])
+@pytest.mark.parametrize("case, bad, retained, message", _BAD_INPUT, ids=[c[0] for c in _BAD_INPUT])
+def test_bad_matrices_and_dof_indices_are_input_errors(method, case, bad, retained, message):
+    """Each was a raw numpy/scipy error (NaN: "SVD did not converge"; M not square: matmul's
+    core-dimension mismatch), a plain ValueError, or worse an answer: 0.5 was truncated to DOF 0
+    and an asymmetric K was reduced as given (QA)."""
+    M, K = bad(*_chain(6, fixed_ends=True))
+    with pytest.raises(InputError, match=re.escape(message)):
+        reduce_to_tam(method, M, K, retained)
 
 
 def test_unknown_tam_name(beam):

@@ -32,6 +32,7 @@ import scipy.linalg as sla
 from .errors import InputError
 from .model_checks import (
     RIGID_ROUNDOFF_RTOL,
+    MassNotPositiveDefinite,
     dof_indices,
     index_array,
     model_matrices,
@@ -42,6 +43,7 @@ from .model_checks import (
 )
 
 __all__ = [
+    "MassNotPositiveDefinite",
     "RIGID_ROUNDOFF_RTOL",
     "TAM_METHODS",
     "ReducedModel",
@@ -108,10 +110,19 @@ def normal_modes(M: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     Raises
     ------
-    numpy.linalg.LinAlgError
-        ``M`` is not positive definite.
+    MassNotPositiveDefinite
+        ``M`` is not positive definite: an InputError, and a ``numpy.linalg.LinAlgError`` for
+        the callers that name the model in their own message.
+    InputError
+        M or K not finite, not square or not of one size.
     """
-    lam, phi = sla.eigh(np.asarray(K, dtype=float), np.asarray(M, dtype=float))
+    try:
+        lam, phi = sla.eigh(np.asarray(K, dtype=float), np.asarray(M, dtype=float))
+    except np.linalg.LinAlgError:
+        raise MassNotPositiveDefinite("M is not positive definite: (K, M) has no normal modes (a negative "
+                                      "or zero mass, or massless DOFs to reduce out first)") from None
+    except ValueError as exc:  # scipy's: NaN or Inf, not square, sizes that differ
+        raise InputError(f"no normal modes of these M, K: {exc}") from None
     big = np.argmax(np.abs(phi), axis=0)
     phi = phi * np.sign(phi[big, np.arange(phi.shape[1])])
     return lam, phi

@@ -200,6 +200,21 @@ def test_bad_matrices_and_dof_indices_are_input_errors(method, case, bad, retain
         reduce_to_tam(method, M, K, retained)
 
 
+def test_normal_modes_of_a_mass_that_is_not_positive_definite_are_an_input_error():
+    """scipy's "The leading minor of order 1 of B is not positive definite" reached a caller of
+    normal_modes as a LinAlgError (QA). It is an InputError now, and still a LinAlgError: the
+    callers that name the model in their own message (correlate, place, discrepancy) catch it."""
+    M, K = _chain(6, fixed_ends=True)
+    for bad in (-M, np.diag([1.0, 1.0, 0.0, 1.0, 1.0, 1.0])):  # negative definite; a massless DOF
+        with pytest.raises(InputError, match="M is not positive definite") as info:
+            normal_modes(bad, K)
+        assert isinstance(info.value, np.linalg.LinAlgError)
+    with pytest.raises(InputError, match="no normal modes of these M, K: array must not contain infs or NaNs"):
+        normal_modes(M, K * np.nan)
+    lam, _ = normal_modes(M, K)  # and a good model still has its modes: 4 k sin^2(j pi / 14) / m
+    np.testing.assert_allclose(lam, 4e4 * np.sin(np.arange(1, 7) * np.pi / 14) ** 2, rtol=1e-12)
+
+
 def test_unknown_tam_name(beam):
     M, K, _ = beam
     with pytest.raises(ValueError, match="unknown TAM"):

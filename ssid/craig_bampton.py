@@ -24,6 +24,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .errors import InputError
+from .model_checks import index_array, model_matrices
 from .tam import (
     _MODE_RCOND,
     ReducedModel,
@@ -56,10 +57,19 @@ def fixed_interface_modes(
         Mass-normalised on ``M_ii``.
     interior : (n_i,) int
         Full-model indices of the rows of ``phi_n``.
+
+    Raises
+    ------
+    InputError
+        M, K or the boundary indices not those of a model (:mod:`ssid.model_checks`), every
+        DOF a boundary DOF, or ``M_ii`` not positive definite.
     """
-    M = np.asarray(M, dtype=float)
-    K = np.asarray(K, dtype=float)
-    i = omitted_indices(M.shape[0], boundary)
+    M, K = model_matrices(M, K)
+    i = omitted_indices(M.shape[0], boundary, "boundary")
+    if i.size == 0:
+        # No interior: no fixed-interface mode, and numpy's "argmax of an empty sequence".
+        raise InputError(f"every one of the {M.shape[0]} DOFs is a boundary (interface) DOF: no interior "
+                         "DOF is left for fixed-interface modes")
     try:
         lam, phi = normal_modes(M[np.ix_(i, i)], K[np.ix_(i, i)])
     except np.linalg.LinAlgError:
@@ -77,8 +87,8 @@ def constraint_modes(K: np.ndarray, boundary: Sequence[int]) -> tuple[np.ndarray
     interior : (n_i,) int
     """
     K = np.asarray(K, dtype=float)
-    b = np.asarray(boundary, dtype=int)
-    i = omitted_indices(K.shape[0], b)
+    b = index_array(boundary, K.shape[0], "boundary")
+    i = omitted_indices(K.shape[0], b, "boundary")
     return -_solve_partition(K[np.ix_(i, i)], K[np.ix_(i, b)], "K_ii"), i
 
 
@@ -97,8 +107,8 @@ def craig_bampton_transform(
     T1 : (n, n_m + n_b)
         Columns: the kept fixed-interface modes, then the boundary DOFs in ``boundary`` order.
     """
-    b = np.asarray(boundary, dtype=int)
-    lam, phi, i = fixed_interface_modes(M, K, b)
+    lam, phi, i = fixed_interface_modes(M, K, boundary)
+    b = np.asarray(boundary, dtype=int)  # checked by fixed_interface_modes
     keep = np.arange(lam.size) if modes is None else np.asarray(modes, dtype=int)
     psi, _ = constraint_modes(K, b)
     n = np.asarray(M).shape[0]
@@ -164,8 +174,9 @@ def craig_bampton_physical(
     ReducedModel
         ``T`` (n, n_a) with columns in ``retained`` order.
     """
-    a = np.asarray(retained, dtype=int)
-    b = np.asarray(boundary, dtype=int)
+    n = np.shape(M)[0]
+    a = index_array(retained, n)
+    b = index_array(boundary, n, "boundary")
     if not np.isin(b, a).all():
         raise InputError("every interface (boundary) DOF must be a retained DOF of the C-B TAM")
     r = a[~np.isin(a, b)]
@@ -244,10 +255,9 @@ def craig_bampton_form(M: np.ndarray, K: np.ndarray, boundary: Sequence[int]) ->
     model needs (section 6.5): its interior partition gives the fixed-interface modes and its
     condensed boundary stiffness gives the constraint-mode data.
     """
-    M = np.asarray(M, dtype=float)
-    K = np.asarray(K, dtype=float)
-    b = np.asarray(boundary, dtype=int)
-    lam, phi, i = fixed_interface_modes(M, K, b)
+    M, K = model_matrices(M, K)
+    lam, phi, i = fixed_interface_modes(M, K, boundary)
+    b = np.asarray(boundary, dtype=int)  # checked by fixed_interface_modes
     psi, _ = constraint_modes(K, b)
     Kbb = K[np.ix_(b, b)] + K[np.ix_(b, i)] @ psi
     S = np.zeros((M.shape[0], b.size))

@@ -20,6 +20,7 @@ import numpy as np
 
 from .craig_bampton import constraint_modes, craig_bampton_physical, fixed_interface_modes
 from .errors import InputError
+from .model_checks import index_array, model_matrices
 from .tam import ReducedModel, normal_modes, omitted_indices
 
 __all__ = [
@@ -250,7 +251,7 @@ def craig_bampton_tam(
     M: np.ndarray,
     K: np.ndarray,
     retained: Sequence[int],
-    boundary: Sequence[int],
+    boundary: Sequence[int] | None,
     targets: Sequence[int] | None = None,
 ) -> CraigBamptonTAM:
     """C-B TAM with its fixed-interface modes selected for the target modes.
@@ -259,9 +260,18 @@ def craig_bampton_tam(
     ----------
     targets : sequence of int, optional
         0-based full-model target mode numbers; default the lowest ``n_a``.
+
+    Raises
+    ------
+    InputError
+        No boundary DOF, every DOF a boundary DOF, a boundary DOF not retained, indices or
+        matrices that are not a model's (:mod:`ssid.model_checks`), M not positive definite.
     """
-    a = np.asarray(retained, dtype=int)
-    b = np.asarray(boundary, dtype=int)
+    if boundary is None or len(boundary) == 0:
+        raise InputError("the Craig-Bampton TAM needs the interface (boundary) DOFs")
+    M, K = model_matrices(M, K)
+    a = index_array(retained, M.shape[0])
+    b = index_array(boundary, M.shape[0], "boundary")
     if not np.isin(b, a).all():
         raise InputError("every interface (boundary) DOF must be a retained DOF of the C-B TAM")
     try:

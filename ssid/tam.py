@@ -473,7 +473,5 @@ def reduce_to_tam(
     if method == "cb":
         from .craig_bampton_tam import craig_bampton_tam
 
-        if boundary is None or len(boundary) == 0:
-            raise InputError("the Craig-Bampton TAM needs the interface (boundary) DOFs")
         return craig_bampton_tam(M, K, retained, boundary, targets=targets).reduced
     raise InputError(f"unknown TAM {method!r}; choose one of {', '.join(TAM_METHODS)}")

@@ -176,3 +176,26 @@ def test_cb_tam_errors(setup):
         craig_bampton_physical(M, K, r + b, b, [0, 1])
     with pytest.raises(InputError, match="interface"):
         reduce_to_tam("cb", M, K, r + b)
+
+
+def test_a_boundary_of_every_dof_or_of_none_is_an_input_error(setup):
+    """Every DOF on the boundary leaves no interior: numpy's "attempt to get argmax of an empty
+    sequence" from craig_bampton_reduce and craig_bampton_tam. No boundary DOF was a plain
+    ValueError naming "retained" (QA)."""
+    M, K, dofs, b, r = setup
+    every = list(range(len(dofs)))
+    with pytest.raises(InputError, match=f"every one of the {len(dofs)} DOFs is a boundary"):
+        craig_bampton_reduce(M, K, every)
+    with pytest.raises(InputError, match=f"every one of the {len(dofs)} DOFs is a boundary"):
+        craig_bampton_tam(M, K, every, every)
+    with pytest.raises(InputError, match="boundary must be a non-empty 1-D sequence of DOF indices"):
+        craig_bampton_reduce(M, K, [])
+    for boundary in ([], None):
+        with pytest.raises(InputError, match="the Craig-Bampton TAM needs the interface"):
+            craig_bampton_tam(M, K, list(b) + list(r), boundary)
+    with pytest.raises(InputError, match="boundary DOF index 99 is outside"):
+        craig_bampton_tam(M, K, list(b) + list(r), [b[0], 99])
+    # One interior DOF left: a valid model, all of whose fixed-interface modes (one) keep the
+    # full model's frequencies exactly (a change of coordinates).
+    red = craig_bampton_reduce(M, K, every[1:])
+    assert np.max(np.abs(natural_frequencies_hz(red.M, red.K) / natural_frequencies_hz(M, K) - 1)) < EXACT

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import InputError
+from .io._common import _is_whole
+
 __all__ = ["effective_independence"]
 
 
@@ -21,10 +24,12 @@ def effective_independence(
 
     Parameters
     ----------
-    phi : (n_cand, n_modes)
-        Target mode shapes at the candidate DOFs (any scaling: E is scale-invariant per mode).
+    phi : (n_cand, n_modes) or (n_cand,)
+        Target mode shapes at the candidate DOFs (any scaling: E is scale-invariant per mode);
+        a 1-D array is one mode.
     n_keep : int
-        Number of DOFs to keep; at least ``n_modes`` (F must stay invertible).
+        Number of DOFs to keep, a whole number; at least ``n_modes`` (F must stay invertible)
+        and at most ``n_cand``.
     candidates : list, optional
         Labels of the candidate rows (default: row indices).
     required : list, optional
@@ -35,20 +40,38 @@ def effective_independence(
     Returns
     -------
     The kept labels (or indices), in the candidates' original order.
+
+    Raises
+    ------
+    InputError
+        Shapes that are not finite numbers (all NaN, the QR below picked DOFs anyway), an
+        ``n_keep`` that is not a whole number (4.5 kept 4) or outside ``n_modes..n_cand``, a
+        required DOF that is no candidate or more of them than ``n_keep``.
     """
-    phi = np.asarray(phi, dtype=float)
+    phi = np.asarray(phi)
+    if phi.ndim == 1:
+        phi = phi[:, None]
+    if phi.ndim != 2 or phi.dtype.kind not in "iuf":
+        raise InputError(f"phi must be real mode shapes, (candidates, modes), got {phi.dtype} of shape {phi.shape}")
+    if not np.isfinite(phi).all():
+        raise InputError(f"phi holds NaN or Inf in {int(np.count_nonzero(~np.isfinite(phi)))} value(s): "
+                         "no sensor can be chosen from such mode shapes")
+    phi = phi.astype(float)
     n_cand, n_modes = phi.shape
+    if not _is_whole(n_keep):
+        raise InputError(f"n_keep must be a whole number of sensors, got {n_keep!r}")
+    n_keep = int(n_keep)
     if not n_modes <= n_keep <= n_cand:
-        raise ValueError(f"n_keep must lie between the number of modes ({n_modes}) and of "
+        raise InputError(f"n_keep must lie between the number of modes ({n_modes}) and of "
                          f"candidates ({n_cand}), got {n_keep}")
     labels = list(range(n_cand)) if candidates is None else list(candidates)
     fixed = np.zeros(n_cand, dtype=bool)
     for r in required or []:
         if r not in labels:
-            raise ValueError(f"required DOF {r!r} is not a candidate")
+            raise InputError(f"required DOF {r!r} is not a candidate")
         fixed[labels.index(r)] = True
     if fixed.sum() > n_keep:
-        raise ValueError(f"{int(fixed.sum())} required DOFs, more than the {n_keep} to keep")
+        raise InputError(f"{int(fixed.sum())} required DOFs, more than the {n_keep} to keep")
     keep = np.arange(n_cand)
     while keep.size > n_keep:
         # Diagonal of the projector by QR: E_ii = |Q_i|^2, stable even when F is ill-conditioned.

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
+from ssid.errors import InputError
 from ssid.models.beams import assemble_grillage, box_section
 from ssid.models.payload import (
     INTERFACE_DOFS,
@@ -167,7 +168,28 @@ def test_effective_independence_keeps_required_dofs():
     labels = [f"d{i}" for i in range(12)]
     kept = effective_independence(phi, 6, labels, required=["d2"])
     assert len(kept) == 6 and "d2" in kept and not {"d5", "d9"} & set(kept)
-    with pytest.raises(ValueError, match="not a candidate"):
+    with pytest.raises(InputError, match="not a candidate"):
         effective_independence(phi, 6, labels, required=["x"])
-    with pytest.raises(ValueError, match="more than the 3 to keep"):
+    with pytest.raises(InputError, match="more than the 3 to keep"):
         effective_independence(phi, 3, labels, required=labels[:4])
+
+
+def test_effective_independence_refuses_what_it_cannot_choose_from():
+    """More sensors than candidates was a plain ValueError; all-NaN shapes returned DOFs (the
+    last three, from a QR of NaNs) and n_keep = 4.5 kept 4, both without a word (QA)."""
+    rng = np.random.default_rng(0)
+    phi = rng.standard_normal((6, 3))
+    with pytest.raises(InputError, match="between the number of modes \\(3\\) and of candidates \\(6\\), got 10"):
+        effective_independence(phi, 10)
+    with pytest.raises(InputError, match="phi holds NaN or Inf in 12 value"):
+        effective_independence(np.full((6, 2), np.nan), 3)
+    bad = phi.copy()
+    bad[4, 1] = np.inf
+    with pytest.raises(InputError, match="phi holds NaN or Inf in 1 value"):
+        effective_independence(bad, 4)
+    for n_keep in (4.5, "4", True):
+        with pytest.raises(InputError, match="n_keep must be a whole number of sensors"):
+            effective_independence(phi, n_keep)
+    # A whole float is a whole number, and a 1-D shape is one mode: its largest entries win.
+    assert effective_independence(phi, 4.0) == effective_independence(phi, 4)
+    assert effective_independence(np.array([0.1, 1.0, -0.2, 2.0]), 2) == [1, 3]

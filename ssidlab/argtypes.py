@@ -80,7 +80,11 @@ def whole_number(text: str, minimum: int = 1) -> int:
 
 
 def parse_mode_list(text: str) -> list[int]:
-    """argparse type: ``"1-10,17,18"`` -> ``[1, ..., 10, 17, 18]`` (1-based, distinct, sorted)."""
+    """argparse type: ``"1-10,17,18"`` -> ``[1, ..., 10, 17, 18]`` (1-based, distinct, sorted).
+
+    A mode given twice (``"1,1,2"``, ``"1-3,2"``) is refused, as a repeated label is by
+    :func:`label_list`: dropped silently, it left one target fewer than the user counted.
+    """
     out: set[int] = set()
     for part in text.split(","):
         part = part.strip()
@@ -93,6 +97,9 @@ def parse_mode_list(text: str) -> list[int]:
             raise argparse.ArgumentTypeError(f"bad mode range {part!r}: modes count from 1")
         if hi < lo:
             raise argparse.ArgumentTypeError(f"bad mode range {part!r}: the range is reversed (write {hi}-{lo})")
+        again = out.intersection(range(lo, hi + 1))
+        if again:
+            raise argparse.ArgumentTypeError(f"mode {min(again)} is repeated in {text!r}")
         out.update(range(lo, hi + 1))
     return sorted(out)
 

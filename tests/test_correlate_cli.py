@@ -130,6 +130,11 @@ def test_mode_list():
     assert parse_mode_list("1-3,7, 5") == [1, 2, 3, 5, 7]
     with pytest.raises(argparse.ArgumentTypeError):
         parse_mode_list("0-2")
+    # A mode twice was dropped without a word (--targets 1,1,2: two targets where the user
+    # counted three, then "the TAM mass is singular"), while a label twice is refused.
+    for text, mode in (("1,1,2", 1), ("1-3,2", 2), ("4,2-5", 4)):
+        with pytest.raises(argparse.ArgumentTypeError, match=f"mode {mode} is repeated in '{text}'"):
+            parse_mode_list(text)
 
 
 @pytest.mark.parametrize(
@@ -166,6 +171,10 @@ def test_mode_list():
           "--json", "{d}/o.json"], "--targets"),
         (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--targets", "x", "--json", "{d}/o.json"],
          "not a mode list"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--tam", "serep", "--targets", "1,1,2",
+          "--json", "{d}/o.json"], "argument --targets: mode 1 is repeated in '1,1,2'"),
+        (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--tam", "cb", "--interface", "1+Z,1+Z",
+          "--json", "{d}/o.json"], "argument --interface: a DOF label is repeated in '1\\+Z,1\\+Z'"),
         (["--model", "{d}/test.h5", "--model", "{d}/fem.h5", "--tam", "magic", "--json", "{d}/o.json"],
          "invalid choice"),
         (["--model", "{d}/fem.h5", "--frf", "{d}/frf.h5", "--zeta", "2", "--json", "{d}/o.json"],

@@ -16,7 +16,7 @@ from .frf import FRFData
 from .noise import data_noise_weights
 
 __all__ = ["DAMPING_SIGNATURE_FLOOR", "MISFIT_FLOOR", "MISFIT_NOISE_RATIO", "MODES_HELD_RTOL", "misfit_warning",
-           "modes_not_held_warning", "relative_noise_level", "unresolved_damping_warning"]
+           "misfits", "modes_not_held_warning", "relative_noise_level", "unresolved_damping_warning"]
 
 #: Relative RMS difference between the model's FRFs and the data above which, when it is
 #: also MISFIT_NOISE_RATIO times the data's own noise, the model is said not to reproduce
@@ -40,6 +40,14 @@ def relative_noise_level(frf: FRFData, w: np.ndarray | None = None) -> float:
     return float(np.sqrt(np.sum(sigma**2)) / scale) if scale > 0 else np.inf
 
 
+def misfits(frf_relative_rms_error: float, noise: float) -> bool:
+    """Whether a model's FRFs miss the data they were fitted to by more than
+    :data:`MISFIT_FLOOR` and :data:`MISFIT_NOISE_RATIO` times the noise (or by a non-finite
+    amount): the criterion of :func:`misfit_warning`, for commands that word their own."""
+    e = float(frf_relative_rms_error)
+    return not np.isfinite(e) or (e > MISFIT_FLOOR and e > MISFIT_NOISE_RATIO * noise)
+
+
 def misfit_warning(frf_relative_rms_error: float, noise: float) -> str | None:
     """A warning when the written model's FRFs differ from the data of the band it was fitted
     to by more than :data:`MISFIT_FLOOR` and :data:`MISFIT_NOISE_RATIO` times the noise.
@@ -52,7 +60,7 @@ def misfit_warning(frf_relative_rms_error: float, noise: float) -> str | None:
         The data's relative noise level (:func:`relative_noise_level`).
     """
     e = float(frf_relative_rms_error)
-    if not np.isfinite(e) or (e > MISFIT_FLOOR and e > MISFIT_NOISE_RATIO * noise):
+    if misfits(e, noise):
         return (f"the written M, C, K reproduce the measured FRFs only to {100 * e:.3g} % (RMS; "
                 f"the data's noise is about {100 * noise:.2g} %): the fit failed, or the band "
                 "holds what a model of this order cannot (more modes than DOFs, modes outside "

@@ -48,6 +48,7 @@ from .io import Model
 from .reaction_loads import choose_reactions, model_frf_under_loads
 from .rigid_body import semi_definite
 from .tam import (
+    _MODE_RCOND,
     TAM_METHODS,
     dof_indices,
     n_unstable_modes,
@@ -56,6 +57,7 @@ from .tam import (
     reduce_to_tam,
     require_elastic_modes,
     require_stable_stiffness,
+    retained_share,
 )
 
 __all__ = ["ANALYSIS_BAND_FACTOR", "CorrelationStudy", "correlate_models", "correlate_with_frf"]
@@ -221,7 +223,7 @@ def correlate_models(
     f_test, phi_test = _modes(test, "test")
     f_all, phi_all = _modes(analysis, "analysis")
     n_an = _analysis_band(f_all, float(np.max(f_test)), f_test.size)
-    f_an, phi_an = f_all[:n_an], phi_all[np.ix_(retained, np.arange(n_an))]
+    f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
     f_tam = _tam_frequencies(M_tam, K_tam, warnings)
     corr, mac, pairs = _mode_correlation(phi_test, f_test, phi_an, f_an, M_tam)
     summary = {
@@ -238,6 +240,23 @@ def correlate_models(
         "warnings": warnings,
     }
     return CorrelationStudy(summary, mac, f_test, f_an, pairs, warnings=warnings)
+
+
+def _analysis_shapes(phi: np.ndarray, retained: np.ndarray, warnings: list[str]) -> np.ndarray:
+    """The analysis modes ``phi`` (n, m) at the test DOFs, (n_a, m). A mode at rest at every
+    test DOF (:func:`ssid.tam.retained_share` at round-off) is given as exact zeros, whose MAC
+    is 0 with every test mode, and a warning names it: the MAC, scale-free, would otherwise
+    take its round-off (1e-16 of the mode) to unit length and correlate that (0.4-0.6 with the
+    test modes of a chain measured at the nodes of its mode 4)."""
+    part = phi[retained]
+    blind = np.flatnonzero(retained_share(phi, retained) <= _MODE_RCOND)
+    if blind.size:
+        part = part.copy()
+        part[:, blind] = 0.0
+        warnings.append(f"analysis mode{'s' if blind.size > 1 else ''} {', '.join(str(k + 1) for k in blind)} "
+                        f"{'are' if blind.size > 1 else 'is'} at rest at every test DOF (a node at each): not "
+                        "observable by this test, MAC 0 with every test mode")
+    return part
 
 
 def _tam_frequencies(M_tam: np.ndarray, K_tam: np.ndarray, warnings: list[str]) -> np.ndarray | None:
@@ -334,7 +353,7 @@ def correlate_with_frf(
     phi_test = cmif_shapes(test.H, peaks, valid)
     f_all, phi_all = _modes(analysis, "analysis")
     n_an = _analysis_band(f_all, float(hi), max(peaks.size, 1))
-    f_an, phi_an = f_all[:n_an], phi_all[np.ix_(retained, np.arange(n_an))]
+    f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
     corr, mac, pairs = _mode_correlation(phi_test, f_test, phi_an, f_an, M_tam)
     frac = frf_assurance(test.H, model.H, valid)
     summary = {

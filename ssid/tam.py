@@ -60,6 +60,7 @@ __all__ = [
     "require_elastic_modes",
     "require_stable_stiffness",
     "omitted_indices",
+    "retained_share",
     "reduce_by_transform",
     "reduce_to_tam",
     "serep_reduce",
@@ -277,6 +278,19 @@ def _target_modes(
     return lam[t], phi[:, t], t + 1
 
 
+def retained_share(phi: np.ndarray, retained: Sequence[int]) -> np.ndarray:
+    """Each mode's norm over the retained DOFs relative to its norm over the whole model,
+    (n_modes,) in [0, 1]: 0 for a mode at rest at every retained DOF (0 too for a zero mode).
+
+    Scale-free per mode. A share at or below 1e-8 is round-off: the retained DOFs do not
+    observe that mode (:func:`serep_transform` refuses it as a target; a correlation gives it
+    MAC 0 rather than the MAC of its round-off, scaled up to unit length).
+    """
+    phi = np.asarray(phi, dtype=float)
+    size = np.linalg.norm(phi, axis=0)
+    return np.linalg.norm(phi[np.asarray(retained, dtype=int)], axis=0) / np.where(size > 0, size, 1.0)
+
+
 def serep_transform(
     phi_t: np.ndarray, retained: Sequence[int], mode_numbers: Sequence[int] | None = None
 ) -> np.ndarray:
@@ -321,8 +335,7 @@ def serep_transform(
             f"{phi_t.shape[1]} target modes but only {a.size} retained DOFs: SEREP needs at "
             "most as many target modes as retained DOFs"
         )
-    size = np.linalg.norm(phi_t, axis=0)
-    seen = np.linalg.norm(phi_ta, axis=0) / np.where(size > 0, size, 1.0)
+    seen = retained_share(phi_t, a)
     blind = np.flatnonzero(seen <= _MODE_RCOND)
     if blind.size:
         names = (np.arange(1, phi_t.shape[1] + 1) if mode_numbers is None
@@ -337,7 +350,7 @@ def serep_transform(
             "norm over the model (a node at every retained DOF); retain a DOF where "
             f"{'it moves' if one else 'each moves'}, or choose other target modes"
         )
-    s = np.linalg.svd(phi_ta / size, compute_uv=False)
+    s = np.linalg.svd(phi_ta / np.linalg.norm(phi_t, axis=0), compute_uv=False)
     if s[-1] <= _MODE_RCOND:
         raise InputError(
             "the target modes are not linearly independent at the retained DOFs "

@@ -209,3 +209,26 @@ def test_cmif_finds_the_modes_and_their_shapes(frfs):
     _, phi = normal_modes(M, K)
     mac = modal_assurance(cmif_shapes(H, peaks), phi[out, : f_n.size])
     assert np.all(np.diag(mac) > 0.99)
+
+
+def test_an_analysis_mode_at_rest_at_every_test_dof_has_mac_zero_and_is_named():
+    """Fixed-fixed 7-mass chain (1 kg, 1e4 N/m) measured at masses 2, 4 and 6, the nodes of
+    its mode 4 (sin(4 pi j / 8)): the mode's partition there is round-off, which the MAC,
+    scale-free, took to unit length and correlated (0.44, 0.06, 0.60 with the test modes: a
+    pair above 0.5 was possible). It is MAC 0 now, and a warning says why. The test model is
+    the chain's Guyan TAM, whose modes at these DOFs are the chain's modes 1-3 (sines), so those
+    still pair, with MAC 1 (1e-12: round-off of 3 x 3 eigenpairs)."""
+    from ssid.correlate_models import correlate_models
+    from ssid.io import Model
+
+    n = 7
+    K = 1e4 * (2 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1))
+    dofs = [f"{i}+Z" for i in range(1, n + 1)]
+    red = guyan_reduce(np.eye(n), K, [1, 3, 5])
+    study = correlate_models(Model(red.M, red.K, None, ["2+Z", "4+Z", "6+Z"]), Model(np.eye(n), K, None, dofs))
+    assert study.analysis_freq_hz.size >= 4
+    np.testing.assert_array_equal(study.mac[:, 3], 0.0)
+    assert study.warnings == ["analysis mode 4 is at rest at every test DOF (a node at each): not observable by "
+                              "this test, MAC 0 with every test mode"]
+    assert [(p.test, p.analysis) for p in study.pairs][:1] == [(0, 0)]
+    assert study.pairs[0].mac == pytest.approx(1.0, abs=1e-12)

@@ -68,14 +68,15 @@ def add_segments(raw: h5py.Group, nch: int, n: int) -> None:
 def _end(raw: h5py.Group) -> int:
     """Global rows written so far: segments fill in order, so the first one not full ends
     them (found by bisection: a long run has hundreds)."""
-    lo, hi = 0, _n_segments(raw)
+    n = _n_segments(raw)
+    lo, hi = 0, n
     while lo < hi:
         mid = (lo + hi) // 2
         if raw[_segment_name(mid)].shape[0] == SEGMENT_ROWS:
             lo = mid + 1
         else:
             hi = mid
-    return lo * SEGMENT_ROWS + (raw[_segment_name(lo)].shape[0] if lo < _n_segments(raw) else 0)
+    return lo * SEGMENT_ROWS + (raw[_segment_name(lo)].shape[0] if lo < n else 0)
 
 
 def segments_missing(raw: h5py.Group, n_rows: int) -> int:

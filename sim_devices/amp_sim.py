@@ -61,6 +61,7 @@ N_CONTROL, N_STATUS = 4, 10
 MODEL_ID = 0x5A01
 GAIN_MAX_CENTI = 5000
 DEVICE_ID = 1
+_WRITE_FUNCTIONS = (6, 16)  # write single / multiple registers
 
 
 class AmpServerThread:
@@ -159,7 +160,13 @@ class SimAmplifier:
     def inject(self, kind: str, count: int = 1, code: int = ExcCodes.DEVICE_BUSY, delay_s: float = 0.0) -> None:
         """``exception`` (next ``count`` requests), ``delay`` (next ``count`` replies sent
         ``delay_s`` late; it stalls the server's loop, so every amplifier that loop hosts),
-        ``drop`` (connections) or ``heartbeat_stall``."""
+        ``drop`` (connections) or ``heartbeat_stall``.
+
+        Requests that reach a stalled server together (a client's resend, its next request)
+        are not all answered: pymodbus's server answers the first of those that one read
+        from the socket returns and discards the rest, as a device that handles one
+        transaction at a time may.
+        """
         if kind == "exception":
             self._exception_code = ExcCodes(code)
             self._exceptions_left = count
@@ -223,17 +230,22 @@ class SimAmplifier:
             ]
 
     async def _action(self, func_code, start_address, address, count, registers, set_values):
-        """Called by pymodbus on every request, before registers are read or written."""
-        self.requests += 1
-        self._last_request = time.monotonic()
-        if self._delays_left:
-            self._delays_left -= 1
-            # A busy controller: everything stops, heartbeat included. Blocking, because the
-            # pymodbus server mixes up replies on one connection when an action awaits.
-            time.sleep(self._delay_s)
-        if self._exceptions_left:
-            self._exceptions_left -= 1
-            return self._exception_code
+        """Called by pymodbus before registers are read or written: once for a read, twice for
+        a write (the write, then the read-back of the registers its reply echoes)."""
+        if not (func_code in _WRITE_FUNCTIONS and not set_values):
+            # Once per request: a write's read-back half took a second delay (a write with
+            # ``inject("delay", count=1)`` was answered 2 * delay_s late, and count=2 made one
+            # reply late, not two) and counted as a second request.
+            self.requests += 1
+            self._last_request = time.monotonic()
+            if self._delays_left:
+                self._delays_left -= 1
+                # A busy controller: everything stops, heartbeat included. Blocking, because the
+                # pymodbus server mixes up replies on one connection when an action awaits.
+                time.sleep(self._delay_s)
+            if self._exceptions_left:
+                self._exceptions_left -= 1
+                return self._exception_code
         if set_values:
             for k, value in enumerate(set_values):
                 err = self._write(address + k, int(value))

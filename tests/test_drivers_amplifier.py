@@ -190,6 +190,27 @@ def test_a_late_reply_is_waited_for_and_a_silent_amplifier_is_no_reply(sim):
     run(go())
 
 
+def test_the_simulator_delays_and_counts_a_write_once(sim):
+    """pymodbus calls the simulator's action twice for a write (the write, then the read-back
+    its reply echoes): ``inject("delay", count=1)`` answered a write 2 * delay_s late (and
+    count=2 made one reply late, not two), and ``requests`` counted each write twice."""
+    async def go():
+        async with ShakerAmplifier("127.0.0.1", sim.port, **dict(FAST, timeout_s=1.0, poll_interval_s=30.0)) as amp:
+            n0 = sim.requests
+            await amp._write(REG["GAIN"], 250)
+            assert sim.requests - n0 == 1
+            sim.inject("delay", count=2, delay_s=0.2)
+            for value in (300, 350):
+                t0 = time.monotonic()
+                await amp._write(REG["GAIN"], value)
+                assert 0.2 <= time.monotonic() - t0 < 0.35
+            t0 = time.monotonic()
+            await amp._write(REG["GAIN"], 400)
+            assert time.monotonic() - t0 < 0.1 and sim.model.gain_v_per_v == 4.0
+
+    run(go())
+
+
 def test_lost_heartbeat_is_a_fault(sim):
     async def go():
         async with ShakerAmplifier("127.0.0.1", sim.port, **FAST) as amp:

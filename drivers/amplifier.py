@@ -128,6 +128,10 @@ class ShakerAmplifier:
         one reply is not a lost instrument; one silent for ``(retries + 1) * timeout_s`` is.
         Every Modbus write we make is idempotent (a register set to a value), so resending
         is safe.
+    resync_s : float or None
+        After a request went unanswered (no reply to any try, or the call was cancelled),
+        how long from then on the next request waits for the amplifier to answer a probe
+        before it is sent (see :meth:`_resync`). None: ``2 * (retries + 1) * timeout_s``.
     poll_interval_s : float
         Status polling period of the monitor (also keeps the amplifier's comms watchdog fed).
     heartbeat_timeout_s : float
@@ -149,6 +153,7 @@ class ShakerAmplifier:
         name: str = "amp",
         timeout_s: float = 0.5,
         retries: int = 1,
+        resync_s: float | None = None,
         poll_interval_s: float = 0.2,
         heartbeat_timeout_s: float = 1.0,
         max_gain_v_per_v: float = 50.0,
@@ -162,6 +167,9 @@ class ShakerAmplifier:
         if retries < 0:
             raise RangeError(f"{name}: retries must be >= 0")
         self.retries = int(retries)
+        self.resync_s = 2 * (self.retries + 1) * self.timeout_s if resync_s is None else float(resync_s)
+        if not self.resync_s >= 0:
+            raise RangeError(f"{name}: resync_s must be >= 0")
         self.poll_interval_s = float(poll_interval_s)
         self.heartbeat_timeout_s = float(heartbeat_timeout_s)
         self.max_gain_v_per_v = float(max_gain_v_per_v)
@@ -174,6 +182,9 @@ class ShakerAmplifier:
         self._monitor_task: asyncio.Task | None = None
         self._want_enabled = False
         self._lock = asyncio.Lock()
+        # When a request ended without its reply (None: none since the last reply): the
+        # amplifier may still be busy with it, so the next request waits until it answers.
+        self._unanswered_since: float | None = None
 
     # ------------------------------------------------------------------ link
     async def connect(self) -> None:
@@ -206,32 +217,89 @@ class ShakerAmplifier:
         self._monitor_task = asyncio.get_running_loop().create_task(self._monitor())
 
     async def _request(self, make):
-        """Run one pymodbus request with an outer timeout; map every failure to our errors.
+        """Run one pymodbus request, after re-synchronising if an earlier one went unanswered;
+        a Modbus exception reply is a :class:`~drivers.errors.DeviceError`."""
+        if self.client is None:
+            raise ConnectionLost(f"{self.name}: not connected")
+        async with self._lock:
+            if self._unanswered_since is not None:
+                await self._resync()
+            rr = await self._exchange(make)
+        if rr.isError():
+            code = getattr(rr, "exception_code", 0)
+            raise DeviceError(f"{self.name}: Modbus exception {code} ({MODBUS_EXCEPTIONS.get(code, 'unknown')})")
+        return rr
+
+    async def _exchange(self, make):
+        """One request and its reply (a Modbus exception reply included), with pymodbus's
+        failures as ours. A request that ends without its reply puts the link out of step.
 
         ``make`` builds the request coroutine; pymodbus raises at once (not when awaited)
         when the link is down, so the call must happen inside the ``try``.
         """
-        if self.client is None:
-            raise ConnectionLost(f"{self.name}: not connected")
         tries = self.retries + 1
         # pymodbus times each try itself; the outer guard (one try more) is for a hang.
         guard_s = (tries + 1) * self.timeout_s
         try:
-            async with self._lock:
-                rr = await asyncio.wait_for(make(), guard_s)
+            rr = await asyncio.wait_for(make(), guard_s)
         except TimeoutError:
+            self._unanswered()
             raise InstrumentTimeout(f"{self.name}: no Modbus reply within {guard_s:g} s") from None
         except ModbusIOException as exc:  # pymodbus: no reply (or an undecodable one) to any try
+            self._unanswered()
             raise InstrumentTimeout(
                 f"{self.name}: no valid Modbus reply in {tries} tries of {self.timeout_s:g} s") from exc
         except ModbusException as exc:
             raise ConnectionLost(f"{self.name}: Modbus link failed: {exc}") from exc
         except OSError as exc:
             raise ConnectionLost(f"{self.name}: Modbus link failed: {exc}") from exc
-        if rr.isError():
-            code = getattr(rr, "exception_code", 0)
-            raise DeviceError(f"{self.name}: Modbus exception {code} ({MODBUS_EXCEPTIONS.get(code, 'unknown')})")
+        except asyncio.CancelledError:
+            # A caller's deadline or Ctrl-C: the request is on the wire all the same.
+            self._unanswered()
+            raise
+        # Its transaction id matched (pymodbus skips replies with another): every request
+        # sent before this one has been dealt with.
+        self._unanswered_since = None
         return rr
+
+    def _unanswered(self) -> None:
+        """Note that a request ended without its reply (the first since the last reply)."""
+        if self._unanswered_since is None:
+            self._unanswered_since = time.monotonic()
+
+    async def _resync(self) -> None:
+        """Probe (read ``MODEL_ID``) until the amplifier answers, for up to ``resync_s`` from
+        the request that went unanswered; at least once.
+
+        A request left without its reply may still be in the amplifier's hands, with the
+        resend pymodbus made of it behind it. A command sent at once joined that queue: a
+        Modbus TCP server that handles one transaction at a time may drop requests that
+        reach it while it is busy (pymodbus's own server, the simulator's, answers the first
+        of those that arrived together and discards the rest), so the command failed
+        although the amplifier answered again a moment later, and ``close()`` could not
+        confirm the safe state. A reply carries its request's transaction id and pymodbus
+        skips replies with any other: once a probe is answered, every request sent before
+        it has been dealt with, and no late reply can come ahead of the next one. An
+        amplifier silent past ``resync_s`` is lost (:class:`~drivers.errors.InstrumentTimeout`);
+        later requests then probe once each, as long as a request would have waited.
+        """
+        start = time.monotonic()
+        probes = 0
+        while True:
+            probes += 1
+            try:
+                await self._exchange(
+                    lambda: self.client.read_holding_registers(REG["MODEL_ID"], count=1, device_id=self.device_id)
+                )
+            except InstrumentTimeout as exc:
+                silent = time.monotonic() - self._unanswered_since  # since the first unanswered one
+                if silent >= self.resync_s:
+                    raise InstrumentTimeout(
+                        f"{self.name}: no Modbus reply for {silent:.1f} s after a request went unanswered "
+                        f"({probes} probe{'s' if probes > 1 else ''})") from exc
+                continue
+            log.info("%s: answering again after %.2f s (%d probes)", self.name, time.monotonic() - start, probes)
+            return
 
     async def _read(self, address: int, count: int) -> list[int]:
         rr = await self._request(
@@ -351,7 +419,12 @@ class ShakerAmplifier:
 
     # ------------------------------------------------------------------ safety
     async def safe_state(self) -> None:
-        """Output disabled and confirmed; reconnects once if the link dropped. Never hangs."""
+        """Output disabled and confirmed; reconnects once if the link dropped. Never hangs.
+
+        A second attempt after a request went unanswered waits (up to ``resync_s`` from it)
+        for the amplifier to answer again, so a controller that answered late is still
+        confirmed disabled.
+        """
         self._want_enabled = False
         last: Exception | None = None
         for attempt in range(2):
@@ -419,7 +492,10 @@ class SyncShakerAmplifier:
 
     def _call(self, coro, timeout_s: float | None = None):
         fut = asyncio.run_coroutine_threadsafe(coro, self._loop)
-        deadline = timeout_s if timeout_s is not None else 10 * (self.amp.retries + 1) * self.amp.timeout_s + 5.0
+        # A hang guard: beyond the requests' own time-outs, and the waits for an amplifier to
+        # answer again after a late reply (the safe state may make two).
+        a = self.amp
+        deadline = timeout_s if timeout_s is not None else 10 * (a.retries + 1) * a.timeout_s + 2 * a.resync_s + 5.0
         try:
             # In slices with Ctrl-C held: an interrupt inside Future.result's condition could
             # leave it locked and the event loop's thread stuck setting the result.

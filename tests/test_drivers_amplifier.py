@@ -211,6 +211,79 @@ def test_the_simulator_delays_and_counts_a_write_once(sim):
     run(go())
 
 
+# A controller busy for longer than a call waits (two tries of timeout_s): every request in
+# these tests is answered LATE_S late, the two tries of one call among them. The monitor does
+# not poll (a poll would take a delay), and the amplifier's own watchdog is off (its stalled
+# controller would see no request for over a second and trip).
+LATE_S = 0.7
+PATIENT = dict(FAST, heartbeat_timeout_s=30.0, poll_interval_s=30.0, watchdog_ms=0)
+
+
+def test_commands_after_late_replies_are_answered_with_their_own_values(sim):
+    """A call whose requests are answered after it gave up leaves the amplifier busy with
+    them; the next command, sent at once, went in behind them and was dropped unanswered by
+    the busy server ("no valid Modbus reply"). Now the driver waits until the amplifier
+    answers a probe, then sends it: the gain reads back as set (not the late replies' old
+    gain), and enable/disable reach the amplifier."""
+    async def go():
+        async with ShakerAmplifier("127.0.0.1", sim.port, **PATIENT) as amp:
+            await amp.set_gain(2.0)
+            await amp.enable()
+            sim.inject("delay", count=2, delay_s=LATE_S)  # the gain read that starts the ramp, and its resend
+            with pytest.raises(InstrumentTimeout, match="no valid Modbus reply in 2 tries"):
+                await amp.set_gain(3.0)
+            await amp.set_gain(4.0)  # at once: the late replies (gain 2 V/V) are still to come
+            assert sim.model.gain_v_per_v == 4.0 and (await amp._read(REG["GAIN"], 1)) == [400]
+            await amp.disable()
+            assert not sim.model.enabled and not (await amp.read_status()).enabled
+            await amp.enable()
+            assert sim.model.enabled and (await amp.read_status()).enabled
+        assert not sim.model.enabled
+
+    run(go())
+
+
+def test_close_confirms_the_safe_state_after_late_replies(sim):
+    """close() whose ENABLE = 0 is answered late (its resend too): its second attempt went
+    in behind them and was dropped or answered after it gave up, and close() raised "could
+    not confirm the amplifier disabled" just as the amplifier could answer again. The second
+    attempt now waits for the amplifier to answer (up to resync_s), then disables it and
+    reads it back."""
+    amp = SyncShakerAmplifier("127.0.0.1", sim.port, **PATIENT)
+    try:
+        amp.set_gain(2.0)
+        amp.enable()
+        assert sim.model.enabled
+        sim.inject("delay", count=2, delay_s=LATE_S)
+        t0 = time.monotonic()
+        amp.close()
+        assert time.monotonic() - t0 < 2 * LATE_S + 2 * FAST["timeout_s"] + 0.5  # waited, not more
+    finally:
+        amp.close()
+    assert not sim.model.enabled and not sim.model.fault_code
+
+
+def test_an_amplifier_still_silent_after_a_late_reply_is_lost_then_recovers(sim):
+    """Waiting for the amplifier to answer again has its limit: silent for resync_s (two
+    unanswered calls' time by default) it is reported lost, with what the driver waited for.
+    The link stays up, and once the amplifier answers again so does the driver."""
+    async def go():
+        async with ShakerAmplifier("127.0.0.1", sim.port, **PATIENT) as amp:
+            assert amp.resync_s == 2 * 2 * FAST["timeout_s"]
+            sim.inject("delay", count=1, delay_s=2.5)
+            with pytest.raises(InstrumentTimeout, match="no valid Modbus reply in 2 tries"):
+                await amp.read_status()
+            t0 = time.monotonic()
+            with pytest.raises(InstrumentTimeout, match=r"no Modbus reply for 1\.\d s after a request went unanswered"):
+                await amp.read_status()
+            assert amp.resync_s <= time.monotonic() - t0 < amp.resync_s + 0.3
+            await asyncio.sleep(2.5 - 0.6 - amp.resync_s + 0.1)  # the controller catches up
+            assert (await amp.read_status()).interlock_closed
+        assert not sim.model.enabled
+
+    run(go())
+
+
 def test_lost_heartbeat_is_a_fault(sim):
     async def go():
         async with ShakerAmplifier("127.0.0.1", sim.port, **FAST) as amp:

@@ -38,10 +38,11 @@ BAND_NOTES = """Why M was not positive definite at first, and what changed (`ssi
   criterion checks): X = 0, M and K are positive definite when every modal mass is positive,
   and eig(K, M) = |lambda_r|^2, so its frequency error is the root error. On the noisy
   record the roots and the automatic set move with rounding. This section now runs with one
-  BLAS thread, as sections 2 and 3 (in the bench's pool): the noisy cells read 0.217 % for
-  the roots and 11.8 % for the automatic set. With two threads (the runs before) they read
-  0.105 % and 26.7 %, the clean record's automatic set; on the machine of an earlier run one
-  of BP2's modal masses was not positive there, so that cell had no model.
+  BLAS thread, as sections 2 and 3 (in the bench's pool): the noisy cells read 0.1 % for the
+  roots and 11.8 % for the automatic set (0.217 % and 11.8 % with the libraries installed
+  before 2026-11-28; NumPy 2.4.6, SciPy 1.17.1 since). With two threads (the runs before)
+  they read 0.105 % and 26.7 %, the clean record's automatic set; on the machine of an
+  earlier run one of BP2's modal masses was not positive there, so that cell had no model.
 
 - **Repeat tolerance and the lines (criterion 4).** A root is located to a fraction of
   the width over which the lines see it: its half-power band 2 zeta f when the lines resolve

@@ -144,6 +144,21 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         raise _UsageError(self.prog, message)
 
+    def parse_known_args(self, args=None, namespace=None):  # type: ignore[override]
+        """As argparse's, but an option this parser does not know is named before a missing
+        required one: ``ssidlab demo --bogus`` said "required: --out", which sends the user
+        after the wrong mistake."""
+        try:
+            return super().parse_known_args(args, namespace)
+        except _UsageError as exc:
+            if exc.prog != self.prog or "arguments are required" not in exc.message:
+                raise  # another parser's (a subcommand's, on its way up), or another error
+            unknown = [a for a in (sys.argv[1:] if args is None else args)
+                       if a.startswith("--") and a.split("=", 1)[0] not in self._option_string_actions]
+            if not unknown:
+                raise
+            raise _UsageError(self.prog, f"unrecognized arguments: {' '.join(unknown)}") from None
+
 
 def _build_parser() -> tuple[_Parser, dict[str, _Parser]]:
     """The top-level parser and the subcommand parsers by name."""

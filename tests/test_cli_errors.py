@@ -150,6 +150,15 @@ def test_top_level_usage_errors(tmp_path, args, fragment):
     assert_one_line_error(proc, "ssidlab: error: ", fragment)
 
 
+def test_an_unknown_option_is_named_before_a_missing_required_one(tmp_path):
+    """``ssidlab demo --bogus`` said "required: --out" (a contract check): the mistake made
+    is the unknown option."""
+    proc = run_cli("demo", "--bogus", cwd=tmp_path)
+    assert_one_line_error(proc, "ssidlab demo: error: ", "unrecognized arguments: --bogus")
+    proc = run_cli("demo", cwd=tmp_path)
+    assert_one_line_error(proc, "ssidlab demo: error: ", "required: --out")
+
+
 def test_version(tmp_path):
     proc = run_cli("--version", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr

@@ -409,6 +409,7 @@ def _reciprocity(frf, echo) -> dict:
     for p in reciprocity_check(frf):
         echo(p.describe())
         row = {"dofs": [p.dof_a, p.dof_b], **p.curves.to_json_dict()}
-        row["reciprocal"] = row.pop("agree")  # the two curves of a pair agree: reciprocal
+        del row["agree"]  # the pair's verdict: its curves agree, or both are noise only
+        row.update(reciprocal=p.reciprocal, noise_only=p.noise_only)
         rows.append(row)
     return {"reciprocity": rows, "n_not_reciprocal": sum(not r["reciprocal"] for r in rows)}

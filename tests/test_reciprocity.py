@@ -149,3 +149,41 @@ def test_two_cross_frfs_that_are_both_zero_are_reciprocal():
     (p,) = reciprocity_check(frf)
     assert p.reciprocal and p.silent_drive_points == ("1+Z",)
     assert p.describe().endswith(": reciprocal; the drive point H(1+Z,1+Z) is zero too (a dead channel?)")
+
+
+@pytest.mark.parametrize("stated", [False, True])
+def test_cross_frfs_at_their_noise_level_are_not_testable_not_a_fault(stated):
+    """Two chains in X and Z that nothing couples, driven at 1+X and 1+Z; every value gets
+    circular complex Gaussian noise of 1e-3 of the largest |H| (seed 3), stated as H_var or
+    not. The cross FRFs are that noise alone: their gain (0.017) and FRAC (0.0003) read as a
+    calibration fault at these points (a QA pass). They are now said to be at their noise
+    level, not testable, and no fault. The same noise on a pair that couples, with its force
+    gauge 5 % off, on a grid of 12 lines (a roughness as large as the curves: SNR 1.0 for
+    its cross FRFs too), still fails: its drive points read as low."""
+    k = np.array([[2.0, -1.0], [-1.0, 1.0]])
+    M, K = np.eye(4), np.zeros((4, 4))
+    K[:2, :2], K[2:, 2:] = 1e4 * k, 1.7e4 * k
+    C = 1e-3 * K + 0.2 * M
+    labels = ["1+X", "2+X", "1+Z", "2+Z"]
+    frf = accelerance_from_model(M, C, K, labels, np.linspace(1.0, 60.0, 400), labels, ["1+X", "1+Z"])
+    sigma = 1e-3 * np.abs(frf.H).max()
+    rng = np.random.default_rng(3)
+    frf.H = frf.H + sigma * (rng.standard_normal(frf.H.shape) + 1j * rng.standard_normal(frf.H.shape)) / np.sqrt(2)
+    if stated:
+        frf.H_var = np.full(frf.H.shape, sigma**2)
+    (pair,) = reciprocity_check(frf)
+    assert pair.noise_only and pair.reciprocal and max(pair.snr) < 2 and pair.cross_to_drive < 0.1
+    assert pair.drive_snr > 10
+    assert "not testable" in pair.describe() and "NOT RECIPROCAL" not in pair.describe()
+    from daq.run import _reciprocity  # the run's summary counts it so too
+
+    said = []
+    summary = _reciprocity(frf, said.append)
+    assert summary["n_not_reciprocal"] == 0 and summary["reciprocity"][0]["noise_only"]
+    assert said == [pair.describe()]
+
+    coarse = _chain(n_freq=12)
+    coarse.H[:, :, 1] /= 1.05
+    coarse.H = coarse.H + 1e-3 * np.abs(coarse.H).max() * rng.standard_normal(coarse.H.shape)
+    coupled = _by_pair(coarse)[("2", "7")]
+    assert not coupled.reciprocal and coupled.drive_snr < 10

@@ -49,9 +49,14 @@ def extend_allocation_to_file_end(path: str | Path) -> bool:
     Returns
     -------
     bool
-        Whether the superblock was changed.
+        Whether the superblock was changed; False also for a file this process may not
+        write (opening it for resuming then says why).
     """
-    with open(path, "r+b") as fh:
+    try:
+        fh = open(path, "r+b")
+    except OSError:
+        return False
+    with fh:
         try:  # the lock HDF5 takes for writing: a live run's file is not touched
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:

@@ -207,3 +207,18 @@ def test_a_stepped_sine_run_keeps_every_dwell_record_in_segments(tmp_path):
             assert np.isfinite(raw_rows(raw, int(offsets[k]), int(n))).all()
     finally:
         rf.close()
+
+
+def test_a_run_file_this_process_may_not_write_is_left_to_the_resume_to_refuse(tmp_path, monkeypatch):
+    """The end-of-allocation repair opens the file for writing before HDF5 does; a file
+    it may not open (permissions) is left as it is, for the resume's own message, not a
+    PermissionError traceback."""
+    import daq.h5_safe as h5_safe
+
+    def refused(*args, **kw):
+        raise PermissionError(13, "Permission denied")
+
+    run = tmp_path / "run.h5"
+    assert _child(tmp_path, "prep", str(run), "1", "100").returncode == 0
+    monkeypatch.setattr(h5_safe, "open", refused, raising=False)
+    assert h5_safe.extend_allocation_to_file_end(run) is False

@@ -48,7 +48,7 @@ def add_correlate_subcommand(sub: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--frf", metavar="FRF.h5", help="measured FRFs (ssidlab-frf file)")
     p.add_argument(
-        "--tam", choices=TAM_METHODS, default="guyan",
+        "--tam", choices=TAM_METHODS, default=None,
         help="test-analysis model reducing the analysis model to the test DOFs (default guyan)",
     )
     p.add_argument("--interface", type=label_list, metavar="DOF[,DOF...]",
@@ -94,10 +94,11 @@ def run_correlate(args: argparse.Namespace) -> int:
     if not args.frf and (args.zeta is not None or args.reactions is not None):
         raise InputError("--zeta and --reactions apply to --frf only")
     # Options a TAM does not use were ignored without a word (the audit): said, as --fmin is.
-    if args.targets is not None and args.tam not in ("serep", "hybrid", "cb"):
-        raise InputError(f"--targets applies to --tam serep, hybrid or cb; --tam {args.tam} uses no target modes")
-    if args.interface is not None and args.tam != "cb":
-        raise InputError(f"--interface applies to --tam cb only; --tam {args.tam} has no interface DOFs")
+    tam = args.tam or "guyan"
+    if args.targets is not None and tam not in ("serep", "hybrid", "cb"):
+        raise InputError(f"--targets applies to --tam serep, hybrid or cb; --tam {tam} uses no target modes")
+    if args.interface is not None and tam != "cb":
+        raise InputError(f"--interface applies to --tam cb only; --tam {tam} has no interface DOFs")
     if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
         raise InputError(f"--fmin ({args.fmin:g} Hz) must be below --fmax ({args.fmax:g} Hz)")
     sources = models + ([args.frf] if args.frf else [])
@@ -123,9 +124,10 @@ def run_correlate(args: argparse.Namespace) -> int:
             raise InputError(f"{args.frf}: --reactions apply needs measured interface reactions "
                              "(H_reaction), and the file has none")
         _require_dofs_in(frf.outputs, "output", args.frf, analysis.dofs, models[0])
+        _require_a_reduction_for(args, frf.outputs, analysis.n, models[0])
         with _models_named(test_source, analysis_source):
             study = correlate_with_frf(
-                frf, analysis, tam=args.tam, interface=args.interface, targets=args.targets,
+                frf, analysis, tam=tam, interface=args.interface, targets=args.targets,
                 zeta=0.02 if args.zeta is None else args.zeta, f_min_hz=args.fmin, f_max_hz=args.fmax,
                 reactions=args.reactions or "auto",
             )
@@ -133,8 +135,9 @@ def run_correlate(args: argparse.Namespace) -> int:
         test_source, analysis_source = models[0], models[1]
         test = read_analysis_model(models[0])
         _require_dofs_in(test.dofs, "DOF", models[0], analysis.dofs, models[1])
+        _require_a_reduction_for(args, test.dofs, analysis.n, models[1])
         with _models_named(test_source, analysis_source):
-            study = correlate_models(test, analysis, tam=args.tam, interface=args.interface,
+            study = correlate_models(test, analysis, tam=tam, interface=args.interface,
                                      targets=args.targets)
     summary = {"test_source": test_source, "analysis_source": analysis_source, **study.summary}
     summary["plots"] = _write_plots(study, args.plots) if args.plots is not None else []
@@ -145,6 +148,20 @@ def run_correlate(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(pair_table(summary))
     return 0
+
+
+def _require_a_reduction_for(args: argparse.Namespace, test_dofs: list[str], n_analysis: int,
+                             analysis_source: str) -> None:
+    """An analysis model over the test DOFs alone is compared as it is, with no TAM: a TAM
+    option given then is refused, as the others no comparison uses are (``--tam serep
+    --targets 1-3`` passed, and the JSON listed targets no reduction had used)."""
+    given = [name for name, value in (("--tam", args.tam), ("--targets", args.targets),
+                                      ("--interface", args.interface)) if value is not None]
+    if any(d not in test_dofs for d in args.interface or []):
+        return  # a mistyped interface label: the library names it, the first thing to mend
+    if given and len(test_dofs) == n_analysis:
+        raise InputError(f"{analysis_source} has only the test DOFs: no TAM is made, so {', '.join(given)} "
+                         f"{'is' if len(given) == 1 else 'are'} not used")
 
 
 def _require_dofs_in(dofs: list[str], kind: str, source: str, analysis_dofs: list[str], analysis_source: str) -> None:

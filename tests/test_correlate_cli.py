@@ -253,3 +253,17 @@ def test_a_target_mode_the_test_dofs_do_not_see_is_refused(tmp_path, tam):
     assert status == 2 and "\n" not in err, err
     assert "target mode 4 is not observable at the retained DOFs" in err
     assert not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.parametrize("options", [["--tam", "cb"], ["--tam", "serep", "--targets", "1-3"],
+                                     ["--tam", "cb", "--interface", "1+Z"]])
+def test_tam_options_with_no_reduction_to_make_are_refused(files, options):
+    """An analysis model over the test DOFs alone is compared with no TAM; a TAM option then
+    was accepted and ignored (the docs' check: ``--tam serep --targets 1-3`` passed, and the
+    JSON listed target modes no reduction had used). docs/correlation.md promises that an
+    option the comparison does not use is refused."""
+    out = files / f"no_tam_{len(options)}{options[-1]}.json"
+    status, err = run(["--model", f"{files}/fem.h5", "--model", f"{files}/fem.mat", *options, "--json", str(out)])
+    assert status == 2 and "has only the test DOFs: no TAM is made" in err and options[0] in err, err
+    assert not out.exists()
+    assert run(["--model", f"{files}/fem.h5", "--model", f"{files}/fem.mat", "--json", str(out)]) == (0, "")

@@ -42,15 +42,19 @@ def _configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     return p
 
 
+#: What ``--help`` says (the module docstring's first line is reStructuredText for the docs).
+_DESCRIPTION = "Run the simulated lab (every simulated instrument on loopback) as a standalone process."
+
+
 def add_sim_lab_subcommand(sub) -> argparse.ArgumentParser:
     """Add the ``sim-lab`` subcommand to an argparse subparsers object."""
     p = sub.add_parser("sim-lab", help="run the simulated instruments (loopback only) until interrupted",
-                       description=__doc__.split("\n\n")[0])
+                       description=_DESCRIPTION)
     return _configure(p)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    return _configure(argparse.ArgumentParser(prog="python -m sim_devices", description="Run the simulated lab."))
+    return _configure(argparse.ArgumentParser(prog="python -m sim_devices", description=_DESCRIPTION))
 
 
 def run_sim_lab(args: argparse.Namespace) -> int:

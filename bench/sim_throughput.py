@@ -75,7 +75,7 @@ def run_tcp(seconds: float) -> tuple[float, dict]:
     try:
         ep = json.loads(proc.stdout.readline())
         # Drive both shakers with noise through the real generator and amplifier drivers.
-        from drivers.amplifier import SyncShakerAmplifier
+        from drivers.amplifier_sync import SyncShakerAmplifier
         from drivers.siggen import SignalGenerator
 
         with SignalGenerator(ep["generators"][0], ramp_time_s=0.02, ramp_step_s=0.005) as gen:

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from drivers.amplifier import SyncShakerAmplifier, modbus_log_held_back
+from drivers.amplifier import modbus_log_held_back
+from drivers.amplifier_sync import SyncShakerAmplifier
 from drivers.daq import CanFdDaq, firmware_text
 from drivers.errors import AmplifierFault, InstrumentError
 from drivers.siggen import SignalGenerator

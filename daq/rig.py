@@ -21,7 +21,8 @@ import logging
 
 import numpy as np
 
-from drivers.amplifier import MODEL_ID, SyncShakerAmplifier
+from drivers.amplifier import MODEL_ID
+from drivers.amplifier_sync import SyncShakerAmplifier
 from drivers.daq import CanFdDaq, DaqChannel
 from drivers.errors import AmplifierFault, BusCapacityError, HeartbeatLost, InstrumentError, InterlockOpen
 from drivers.siggen import SignalGenerator

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from drivers.amplifier import REG, ShakerAmplifier, SyncShakerAmplifier
+from drivers.amplifier import REG, ShakerAmplifier
+from drivers.amplifier_sync import SyncShakerAmplifier
 from drivers.errors import (
     AmplifierFault,
     ConnectionLost,

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from conftest import reap
 
-from drivers.amplifier import SyncShakerAmplifier
+from drivers.amplifier_sync import SyncShakerAmplifier
 from drivers.daq import CanFdDaq, DaqChannel
 from drivers.siggen import SignalGenerator
 from sim_devices.effects import AddedMass, AttachedOscillator

@@ -40,7 +40,8 @@ class MassNotPositiveDefinite(InputError, np.linalg.LinAlgError):
 
 def model_matrices(M: np.ndarray, K: np.ndarray, source: str = "model") -> tuple[np.ndarray, np.ndarray]:
     """``M`` and ``K`` checked as a model file's are (:func:`ssid.io.validate_model`): real,
-    finite, square, of one size and symmetric (to 1e-8 of the largest entry); float64 copies.
+    finite, square, of one size and symmetric (to ``ssid.io.SYMMETRY_RTOL`` of the largest
+    entry); float64 copies, made exactly symmetric.
 
     An asymmetric K would be reduced or solved as given by one function and read by its lower
     triangle by another (``eigh``): a model no one wrote. Rows and columns are named by their

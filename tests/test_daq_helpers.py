@@ -216,3 +216,10 @@ def all_safe(world) -> bool:
 
 def argparse_ns(**kw) -> argparse.Namespace:
     return argparse.Namespace(**kw)
+
+
+def killed_at_write(path, nth_write: int) -> list[str]:
+    """The command prefix (strace fault injection) that kills (-9) the command after it at its
+    ``nth_write`` write (pwrite64) to the file ``path``."""
+    return ["strace", "-f", "-o", "/dev/null", "-P", str(path), "-e", "trace=pwrite64", "-e",
+            f"inject=pwrite64:signal=KILL:when={nth_write}"]

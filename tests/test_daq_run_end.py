@@ -14,7 +14,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from test_daq_helpers import cli, ctrl_c_at_line, random_setup, run_on_sim, sine_setup
+from test_daq_helpers import cli, ctrl_c_at_line, killed_at_write, random_setup, run_on_sim, sine_setup
 
 from daq.setup import parse_setup
 from ssid.errors import InputError
@@ -293,9 +293,7 @@ def _kill_at_write(run: Path, nth_write: int, args: list[str], cwd: Path) -> Non
     """``ssidlab acquire ARGS``, killed (-9) at its ``nth_write`` write to ``run`` (strace
     fault injection)."""
     killed = subprocess.run(
-        ["strace", "-f", "-o", "/dev/null", "-P", str(run), "-e", "trace=pwrite64", "-e",
-         f"inject=pwrite64:signal=KILL:when={nth_write}", sys.executable, "-m", "ssidlab", "acquire", *args,
-         "--sim", "--quiet"],
+        [*killed_at_write(run, nth_write), sys.executable, "-m", "ssidlab", "acquire", *args, "--sim", "--quiet"],
         cwd=cwd, capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(ROOT)))
     assert killed.returncode != 0 and run.exists(), killed.stderr
     assert _state(run) == "running"  # killed mid-run, not after it

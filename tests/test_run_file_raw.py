@@ -14,6 +14,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from test_daq_helpers import cli, killed_at_write, sine_setup
 
 from daq.raw_store import CHUNK_ROWS, SEGMENT_ROWS, raw_rows
 from daq.storage import RunFile
@@ -80,9 +81,7 @@ def _writes(tmp_path: Path, run: Path, *args: str) -> list[tuple[int, int]]:
 
 
 def _kill_at(tmp_path: Path, run: Path, nth: int, *args: str) -> None:
-    killed = _child(tmp_path, args[0], str(run), *args[1:],
-                    strace=["strace", "-f", "-o", "/dev/null", "-P", str(run), "-e", "trace=pwrite64", "-e",
-                            f"inject=pwrite64:signal=KILL:when={nth}"])
+    killed = _child(tmp_path, args[0], str(run), *args[1:], strace=killed_at_write(run, nth))
     assert killed.returncode != 0, "the child was not killed"
 
 
@@ -185,8 +184,6 @@ def test_a_stepped_sine_run_keeps_every_dwell_record_in_segments(tmp_path):
     """``raw_time = true``, end to end on the simulated lab: the file is made with the
     segments the run's longest dwells could fill, each sub-line's record is the length of
     its dwell, and the finished file keeps them."""
-    from test_daq_helpers import cli, sine_setup
-
     setup = tmp_path / "s.toml"
     setup.write_text(sine_setup(n_lines=2, refine=1).replace('file = "run.h5"', 'file = "run.h5"\nraw_time = true'))
     run = tmp_path / "run.h5"

@@ -19,7 +19,6 @@ from ssid.discrepancy import (
     find_discrepancy,
 )
 from ssid.discrepancy.cases import make_case
-from ssid.discrepancy.damping import peak_damping_ratios
 from ssid.discrepancy.search import NEGLIGIBLE_CHANGE, candidate_frf, search_round
 from ssid.discrepancy.weights import neighbour_power, noise_weights, two_level_variance
 from ssid.discrepancy.workflow import check_model
@@ -181,25 +180,6 @@ def test_hidden_accelerometer_mass_in_the_simulated_world_is_named():
     assert (res.effect.name, res.dofs) == ("added_mass", ["16+Z"])
     assert res.parameters["mass_kg"] == pytest.approx(0.08, rel=0.05)
     assert res.gap_after < 0.2 * res.gap_before
-
-
-def test_model_without_c_gets_fitted_modal_damping():
-    case = make_case(1003, structure="payload", effect="added_mass", undamped_nominal=True, n_lines=400)
-    assert case.nominal.C is None
-    res = find_discrepancy(case.nominal, case.frf)
-    assert (res.effect.name, set(res.dofs)) == (case.truth.name, set(case.truth.dofs))
-    assert res.parameters["mass_kg"] == pytest.approx(case.truth.parameters["mass_kg"], rel=0.1)
-    assert "no C" in res.info["damping_source"]
-    assert res.updated_model.C is not None  # written with the damping used for gap_after
-
-
-def test_damping_read_off_the_measured_peaks():
-    pm = payload_simulator()
-    C = modal_damping(pm.M, pm.K, 0.02)
-    frf = accelerance_from_model(pm.M, C, pm.K, pm.dofs, np.linspace(20, 650, 1000), list(Z_DOFS), ["4+Z", "12+Z"])
-    _, zeta = peak_damping_ratios(frf.freq_hz, frf.H, np.ones(frf.H.shape, bool))
-    assert zeta.size >= 4
-    assert np.median(zeta) == pytest.approx(0.02, rel=0.1)
 
 
 def test_blanked_values_and_noise_weights_are_respected():

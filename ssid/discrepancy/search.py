@@ -31,6 +31,7 @@ than its ``E``) and the screened criterion is within a margin of it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -57,12 +58,14 @@ from .response import NominalResponse, nominal_response, receptance_entries
 __all__ = [
     "CRITERION_NAME",
     "Candidate",
+    "OwnModesDamping",
     "adopt_parameters",
     "SearchResult",
     "candidate_frf",
     "candidate_location",
     "cross_validated_gain",
     "frf_change",
+    "rank_candidates",
     "rerank_none",
     "search_round",
 ]
@@ -91,6 +94,29 @@ SCREEN_MARGIN = 30.0
 
 
 @dataclass
+class OwnModesDamping:
+    """A candidate's model damped in its own modes (a model file without C, ``undamped.py``).
+
+    Attributes
+    ----------
+    zeta : float
+        The damping ratio of every mode of the changed structure, fitted with the effect.
+    C : (n, n)
+        The changed structure's damping matrix, ``zeta C_1(M', K')``.
+    H : (n_freq, n_out, n_in)
+        Its accelerance at the round's lines.
+    heldout_gain : callable
+        ``() -> float``: :func:`cross_validated_gain` under this reading (computed when asked:
+        it costs four fits).
+    """
+
+    zeta: float
+    C: np.ndarray
+    H: np.ndarray
+    heldout_gain: Callable[[], float]
+
+
+@dataclass
 class Candidate:
     """One effect at one location, fitted.
 
@@ -107,6 +133,9 @@ class Candidate:
         ``("dof", j)`` or ``("pair", j)``: index into the round's Locations; None for none.
     delta_criterion : float
         ``criterion`` minus the best candidate's.
+    own_modes : OwnModesDamping or None
+        Set when the candidate fits better with the changed structure's own modes damped
+        than with the round's C kept; its RSS and parameters are then those of that fit.
     """
 
     effect: Effect
@@ -115,6 +144,7 @@ class Candidate:
     explained: float
     location: tuple | None = None
     delta_criterion: float = 0.0
+    own_modes: OwnModesDamping | None = None
 
     @property
     def name(self) -> str:
@@ -230,7 +260,7 @@ def search_round(
         rss = rss0 - singles.explained[j] + osc.cost[j]
         eff = Effect("attached_oscillator", (dofs[singles.index[j, 0]],), osc.parameters(j))
         cands.append(Candidate(eff, float(rss), float(out.criterion(rss, 3)), float(singles.explained[j]), ("dof", j)))
-    _rank(cands)
+    rank_candidates(cands)
     out.tried = {name: n for name in ONE_DOF_EFFECTS}
     out.tried.update(coupling_spring=pairs.n, attached_oscillator=int(np.isfinite(osc.cost).sum()),
                      attached_oscillator_screened=n * OSC_N_FREQ, none=1)
@@ -251,7 +281,7 @@ def _pairs(M, C, K, omega, nom, W, R, singles: Locations, n_top: int) -> Locatio
     return pair_locations(nom, W, R, pair_idx, Gx[:, :m], Gx[:, m:])
 
 
-def _rank(cands: list[Candidate]) -> None:
+def rank_candidates(cands: list[Candidate]) -> None:
     """Sort by criterion (in place) and set each ``delta_criterion`` relative to the best."""
     cands.sort(key=lambda c: c.criterion)
     for c in cands:
@@ -264,13 +294,13 @@ def rerank_none(search: SearchResult, rss: float) -> None:
     if rss < none.rss:
         none.rss = float(rss)
         none.criterion = float(search.criterion(rss, 0))
-        _rank(search.candidates)
+        rank_candidates(search.candidates)
 
 
 def demote(search: SearchResult, cand: Candidate) -> None:
     """Move ``cand`` below ``none`` (it failed cross-validation) and re-rank in place."""
     cand.criterion = max(cand.criterion, search.none().criterion + 1e-9)
-    _rank(search.candidates)
+    rank_candidates(search.candidates)
 
 
 def adopt_parameters(search: SearchResult, cand: Candidate, effect: Effect) -> None:
@@ -283,10 +313,11 @@ def adopt_parameters(search: SearchResult, cand: Candidate, effect: Effect) -> N
     """
     loc, j = candidate_location(search, cand)
     a = effect_a(effect_dynamic_stiffness(effect, search.nominal.omega), loc.g[:, j])
+    cand.own_modes = None  # refitted with the round's C
     rss = search.rss0 - float(loc.explained[j]) + float(np.sum(loc.c[:, j] * np.abs(a - loc.astar[:, j]) ** 2))
     cand.effect, cand.rss = effect, rss
     cand.criterion = float(search.criterion(rss, effect.n_parameters))
-    _rank(search.candidates)
+    rank_candidates(search.candidates)
     search.candidates.remove(cand)
     search.candidates.insert(0, cand)
     for c in search.candidates:
@@ -334,6 +365,8 @@ def cross_validated_gain(search: SearchResult, cand: Candidate) -> float:
     """
     if cand.location is None:
         return 0.0
+    if cand.own_modes is not None:
+        return cand.own_modes.heldout_gain()
     loc, j = candidate_location(search, cand)
     one = loc.subset(np.array([j]))
     omega = search.nominal.omega
@@ -371,10 +404,13 @@ def frf_change(search: SearchResult, cand: Candidate) -> float:
 
 
 def candidate_frf(search: SearchResult, cand: Candidate) -> np.ndarray:
-    """Model accelerance with the candidate's effect, (n_freq, n_out, n_in), by Sherman-Morrison."""
+    """Model accelerance with the candidate's effect, (n_freq, n_out, n_in), by Sherman-Morrison
+    (or its own modes' damping, ``cand.own_modes``)."""
     nom = search.nominal
     if cand.location is None:
         return nom.H.copy()
+    if cand.own_modes is not None:
+        return cand.own_modes.H.copy()
     loc, j = candidate_location(search, cand)
     p, q = loc.index[j]
     if q < 0:

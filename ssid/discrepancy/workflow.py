@@ -276,7 +276,11 @@ def find_discrepancy(
     effects = [] if chosen.name == "none" else [chosen.effect]
     updated = nominal
     for eff in effects:
-        updated = apply_effect_to_model(updated, eff)
+        updated = apply_effect_to_model(updated, eff, C=None if chosen.own_modes is None else chosen.own_modes.C)
+    if chosen.own_modes is not None:
+        damping += (f"; with {chosen.effect.describe()} the data prefer every mode of the changed structure "
+                    f"damped alike, zeta = {chosen.own_modes.zeta:.4g}, to the nominal modes' damping matrix "
+                    "kept: the updated model has that damping")
     H_nom = search.nominal.H
     H_upd = _model_frf(updated, data, loads)
 

@@ -13,6 +13,8 @@ module                      what
 ``drivers.daq_protocol``    protocol: DAQ frames from ``ssidlab_daq.dbc`` (cantools), bus load,
                             stream reassembly (lost / duplicated / reordered frames)
 ``drivers.daq``             device: CAN FD DAQ front end (python-can)
+``drivers.daq_receive``     the DAQ driver's receive path: frames polled and routed, the wait
+                            for scans, the end of a finite acquisition
 ``drivers.interrupts``      Ctrl-C held back while a driver waits on a lock another thread takes
 ==========================  ====================================================================
 

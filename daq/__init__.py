@@ -22,6 +22,8 @@ module                      what
 ``daq.random_run``          continuous, periodic and burst random (MIMO), spectral averaging
 ``daq.storage``             the run file: contract FRF view + ``/acq`` records, flushed per
                             line, finalised atomically
+``daq.run_file_replace``    the run file replaced whole, never restructured in place: the
+                            edited copy, the compact file at the end, killed runs' leftovers
 ``daq.safety``              limits (abort the line), faults (stop the run), messages
 ``daq.run``                 a whole run: every exit path ends in the safe state; what a
                             resume may change (the DAQ input ranges)

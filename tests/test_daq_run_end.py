@@ -36,12 +36,12 @@ def test_kill_9_while_the_file_is_finished_leaves_a_run_that_resume_finishes(tmp
     text = sine_setup(n_lines=3, refine=2)
     (tmp_path / "s.toml").write_text(text)
     code = ("import os, signal, sys; sys.path[:0] = [%r, %r]\n"
-            "import daq.storage as st\n"
-            "write_frf = st.write_frf\n"
+            "import daq.run_file_replace as rfr\n"
+            "write_frf = rfr.write_frf\n"
             "def then_killed(path, frf):\n"
             "    write_frf(path, frf)\n"
             "    os.kill(os.getpid(), signal.SIGKILL)\n"
-            "st.write_frf = then_killed\n"
+            "rfr.write_frf = then_killed\n"
             "from test_daq_helpers import cli\n"
             "sys.exit(cli(sys.argv[1:])[0])\n" % (str(ROOT), str(ROOT / "tests")))
     run = tmp_path / "run.h5"
@@ -64,7 +64,7 @@ def test_a_finished_file_that_does_not_read_back_does_not_replace_the_run_file(t
     only prints them: the broken copy replaced the run file, and the measurement was lost.
     Here the compact FRF is written short (its H cut to one line) as such a write would leave
     it; the run stops with the run file kept, and a resume finishes it."""
-    import daq.storage as st
+    import daq.run_file_replace as rfr
     from ssid.io import write_frf
 
     def written_short(path, frf):
@@ -74,7 +74,7 @@ def test_a_finished_file_that_does_not_read_back_does_not_replace_the_run_file(t
             del f["H"]
             f["H"] = H
 
-    monkeypatch.setattr(st, "write_frf", written_short)
+    monkeypatch.setattr(rfr, "write_frf", written_short)
     text = sine_setup(n_lines=3, refine=2)
     (tmp_path / "s.toml").write_text(text)
     run = tmp_path / "run.h5"

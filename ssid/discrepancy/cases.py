@@ -10,7 +10,10 @@ shown the truth. Two families of structures:
 - ``payload``: the report's 52-DOF payload simulator (``ssid.models.payload``) with modal
   damping of 1-3 % per mode, linear lines over 20-650 Hz (the flexible modes). Effects at the
   16 Z DOFs (rotations are never measured, so a kilogram there would mean nothing); a quarter
-  of the cases give the nominal model without C (the truth then has one ratio for all modes).
+  of the cases give the nominal model without C (the truth then has one ratio for all modes;
+  in half of them, by a separate seeded draw, a hidden mass or spring leaves the nominal modes'
+  damping matrix as it was, in the other half every mode of the changed structure has the
+  ratio: the two readings of modal damping that ``undamped.py`` tells apart).
 
 Sizes are set by what they do, so that they are comparable across structures: a mass, spring
 or coupling spring shifts the most affected natural frequency in the band by 1.5-8 %
@@ -36,6 +39,7 @@ from ..models.payload import Z_DOFS, payload_simulator
 from ..tam import normal_modes
 from .effects import EFFECT_NAMES, Effect, apply_effect
 from .response import unit_modal_damping
+from .undamped import OWN_MODES_EFFECTS
 
 __all__ = ["STAND_INPUTS", "STAND_REACTIONS", "STRUCTURES", "Case", "make_case", "make_stand_case"]
 
@@ -169,7 +173,7 @@ def _noisy(rng, H: np.ndarray, eps: float, coherence: bool, blank: bool) -> FRFD
 def make_case(seed: int, structure: str | None = None, effect: str | None = None,
               n_lines: int | None = None, undamped_nominal: bool | None = None,
               n_outputs: int | None = None, n_inputs: int | None = None,
-              model_error: float = 0.0) -> Case:
+              model_error: float = 0.0, own_modes_truth: bool | None = None) -> Case:
     """A seeded case (module docstring).
 
     Parameters
@@ -190,6 +194,10 @@ def make_case(seed: int, structure: str | None = None, effect: str | None = None
         Relative RMS of a distributed stiffness error that the truth has and the nominal model
         lacks, ``K_true = S K S`` with ``S = diag(1 + model_error * n)``, ``n`` standard normal
         (0, the default: the nominal model is exact but for the hidden effect).
+    own_modes_truth : bool, optional
+        For a nominal model without C and a hidden mass or spring: every mode of the changed
+        structure damped alike (True) or the nominal modes' damping matrix kept (False);
+        default a seeded draw, each half of the time.
     """
     rng = np.random.default_rng(seed)
     structure = structure or STRUCTURES[int(rng.integers(2))]
@@ -241,6 +249,10 @@ def make_case(seed: int, structure: str | None = None, effect: str | None = None
         s = 1 + model_error * np.random.default_rng(seed + 7_000_000).standard_normal(K.shape[0])
         K_true = s[:, None] * K * s[None, :]
     M2, C2, K2, d2 = apply_effect(M, C, K_true, dofs, truth)
+    own_modes = undamped and truth.name in OWN_MODES_EFFECTS and (
+        np.random.default_rng(seed + 9_000_000).random() < 0.5 if own_modes_truth is None else own_modes_truth)
+    if own_modes:
+        C2 = zeta_all * unit_modal_damping(M2, K2)
     H = accelerance_from_model(M2, C2, K2, d2, freq, outputs, inputs).H
     eps = float(rng.uniform(0.01, 0.03))
     coherence = rng.random() < 2 / 3
@@ -253,6 +265,7 @@ def make_case(seed: int, structure: str | None = None, effect: str | None = None
             "n_dofs": len(dofs), "n_out": len(outputs), "n_in": n_in, **size}
     if undamped:
         info["zeta"] = float(zeta_all)
+        info["own_modes_truth"] = bool(own_modes)
     return Case(seed, structure, nominal, meas, truth, info)
 
 

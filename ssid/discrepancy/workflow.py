@@ -274,13 +274,10 @@ def find_discrepancy(
     nominal = Model(M=model.M, K=model.K, C=C, dofs=list(model.dofs), attrs=dict(model.attrs))
     chosen = search.best
     effects = [] if chosen.name == "none" else [chosen.effect]
+    own = chosen.own_modes  # the changed structure's own modes damped (undamped.py), or None
     updated = nominal
     for eff in effects:
-        updated = apply_effect_to_model(updated, eff, C=None if chosen.own_modes is None else chosen.own_modes.C)
-    if chosen.own_modes is not None:
-        damping += (f"; with {chosen.effect.describe()} the data prefer every mode of the changed structure "
-                    f"damped alike, zeta = {chosen.own_modes.zeta:.4g}, to the nominal modes' damping matrix "
-                    "kept: the updated model has that damping")
+        updated = apply_effect_to_model(updated, eff, C=None if own is None else own.C)
     H_nom = search.nominal.H
     H_upd = _model_frf(updated, data, loads)
 
@@ -297,6 +294,11 @@ def find_discrepancy(
             for eff in effects:
                 updated = apply_effect_to_model(updated, eff)
             H_upd = _model_frf(updated, data, loads)
+            own = None  # backfitted with the nominal modes' damping kept
+    if own is not None:
+        damping += (f"; with {chosen.effect.describe()} the data prefer every mode of the changed structure "
+                    f"damped alike, zeta = {own.zeta:.4g}, to the nominal modes' damping matrix kept: the "
+                    "updated model has that damping")
     gap_before = noise_gap(H, H_nom, W)
     gap_after = noise_gap(H, H_upd, W)
     # The leader of the round that decided (the second, or the first if it named none), if

@@ -226,6 +226,11 @@ class SimDaq:
                 if enable > 1 or coupling > 2 or not 100 <= range_mv <= 10000 or not (np.isfinite(sens) and sens > 0) or quantity > 3:
                     return R_BAD_VALUE, b""
                 inp = self.inputs[ch]
+                if (bool(enable), coupling) != (inp.enabled, inp.coupling):
+                    # Another analog path (coupling capacitor switched in or out, IEPE current
+                    # on or off): its high-pass starts from rest. A range or sensitivity
+                    # change leaves the capacitor's charge alone.
+                    inp.hp_state = np.zeros(1)
                 inp.enabled, inp.coupling, inp.range_volt = bool(enable), coupling, range_mv / 1000.0
                 inp.sensitivity_mv, inp.quantity = float(sens), quantity
                 return R_OK, b""
@@ -269,8 +274,11 @@ class SimDaq:
         self._next_ts: dict[int, int] = {k: 0 for k in self._active}  # tick of _pending[k][0]
         self._t0_wall = time.monotonic()
         self.overload_mask = 0
-        for k in self._active:
-            self.inputs[k].hp_state = np.zeros(1)
+        # The AC/IEPE high-pass state is not reset: a coupling capacitor keeps its charge
+        # from one acquisition to the next, and the world only advances while acquiring, so
+        # successive acquisitions are one continuous record. Reset at every START, the filter
+        # stepped at the start of each of a run's chunks (periodic random on all-IEPE
+        # channels: errors up to 2.9e-3 against 4.6e-4 with DC).
         self.state = STATE_RUNNING
 
     def _stream_block(self) -> None:
@@ -301,7 +309,8 @@ class SimDaq:
         inp = self.inputs[k]
         v = volts
         if inp.coupling in (1, 2):
-            # AC/IEPE coupling: first-order high-pass (bilinear), state carried across blocks.
+            # AC/IEPE coupling: first-order high-pass (bilinear), state carried across blocks
+            # and acquisitions (reset only when SET_CHANNEL changes the input's analog path).
             wc = np.tan(np.pi * AC_CORNER_HZ / self.sample_rate_hz)
             b = np.array([1.0, -1.0]) / (1 + wc)
             a = np.array([1.0, (wc - 1) / (1 + wc)])

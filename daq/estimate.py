@@ -23,7 +23,7 @@ import numpy as np
 from scipy.signal import get_window
 
 __all__ = [
-    "SineFit", "SineEstimate", "SpectralSums", "frf_from_spectra", "multi_input_frf",
+    "SineFit", "SineEstimate", "SpectralSums", "frf_from_spectra", "frf_quality", "multi_input_frf",
     "spectra_of_blocks", "welch_blocks",
 ]
 
@@ -111,6 +111,20 @@ class SineFit:
         if noise_var is not None:
             s2 = np.asarray(noise_var, float)
         return SineEstimate(X=X, var=s2 * self.var_factor, thd=thd, peak=np.max(np.abs(x), axis=1), n=self.n)
+
+
+def frf_quality(H: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """Quality of each FRF value, ``|H|^2 / (|H|^2 + var H)`` (0 where undefined).
+
+    The share of a value's expected square that is signal: 1 for an exact value, below 0.5
+    when its standard deviation exceeds its size. It reads like a coherence and is held to
+    ``[quality] min_coherence`` like one, for every excitation: a stepped-sine value has no
+    coherence, and a multi-input random value with a good multiple coherence can still be
+    poorly determined (shakers' forces alike at a line make ``Gxx`` nearly singular).
+    """
+    a2 = np.abs(H) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.nan_to_num(a2 / (a2 + var))
 
 
 def multi_input_frf(XA: np.ndarray, XF: np.ndarray, varA: np.ndarray, varF: np.ndarray

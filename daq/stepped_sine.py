@@ -27,7 +27,7 @@ from ssid.errors import InputError
 from ssid.frf import FRFData
 
 from .control import RunControl, RunEvents, frf_line_event, hold_if_paused, raise_if_interrupted
-from .estimate import multi_input_frf
+from .estimate import frf_quality, multi_input_frf
 from .rig import Rig
 from .safety import (MAX_OVER_RANGE_IN_ROW, LineAborted, LineOverRange, drive_headroom_vpp, limit_usage,
                      over_range_in_row)
@@ -298,9 +298,7 @@ class SteppedSineRun:
         H, var = multi_input_frf(X[a], X[fi], V[a], V[fi])
         Hr, Hr_var = (multi_input_frf(X[r], X[fi], V[r], V[fi]) if n_r
                       else (np.zeros((0, self.n_pat), complex), np.zeros((0, self.n_pat))))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            coh = np.abs(H) ** 2 / (np.abs(H) ** 2 + var)
-        coh = np.nan_to_num(coh)
+        coh = frf_quality(H, var)
         valid = (coh >= self.setup.min_coherence) & np.isfinite(H)
         return {"H": H, "var": var, "coh": coh, "valid": valid, "Hr": Hr, "Hr_var": Hr_var}
 

@@ -37,6 +37,7 @@ import numpy as np
 from drivers.errors import SensorOverload
 from ssid.frf import FRFData
 
+from .coupling import coupling_response, undo_coupling
 from .estimate import SpectralSums, frf_from_spectra, frf_quality, spectra_of_blocks
 from .rig import Rig
 from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
@@ -101,6 +102,7 @@ class RandomRun:
         self.roles = roles
         self.mask = _bin_mask(setup)
         self.freq = random_bins(setup)
+        self.coupling = coupling_response(setup, self.freq)  # (n_bins, n_ch)
         n_in, n_y = len(self.fi), len(self.yi)
         # The sums after the last committed average: in the set of its parity (files from
         # before the two sets: in /acq/random).
@@ -288,6 +290,8 @@ class RandomRun:
     def result(self) -> dict:
         est = self.spec.estimator
         d = frf_from_spectra(self.S, est)
+        # The sums hold the channels as read; the AC/IEPE high-pass is divided out here.
+        d["H"], d["var"] = undo_coupling(d["H"], d["var"], self.coupling[:, self.yi], self.coupling[:, self.fi])
         no = self.n_out
         # Blanked below min_coherence in coherence, and in quality as a stepped-sine value is:
         # with several shakers a good multiple coherence can hide a value its variance says is

@@ -33,6 +33,7 @@ from drivers.errors import InstrumentError
 from ssid.errors import InputError
 
 from .control import RunControl, RunEvents, clear_interrupts, latching_interrupt_handler
+from .coupling import coupling_attrs
 from .resume import instruments_not_the_same, range_changes, setup_changes_on_resume, setup_in_effect
 from .rig import InstrumentRig, Rig
 from .safety import NOT_THE_SAME_INSTRUMENTS, SAFE_STATE_NOT_CONFIRMED, STATE_MAX_CHARS, RunStopped, describe_fault
@@ -135,7 +136,7 @@ def _create_runfile(setup: TestSetup, path: Path) -> RunFile:
         freq = random_bins(setup)
     attrs = {"test_name": setup.name, "setup_sha256": setup.sha256, "software": f"ssidlab {_version()}",
              "excitation": setup.excitation,
-             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **coupling_attrs(setup)}
     meta = {"software_version": _version(), "python": platform.python_version(), "host": platform.node(),
             "started_utc": attrs["started_utc"],
             "channels": [c.__dict__ for c in setup.channels], "shakers": [s.__dict__ for s in setup.shakers]}
@@ -312,6 +313,9 @@ def run_test(setup: TestSetup, *, out: str | None = None, resume: bool = False, 
         summary = runner.run()
         frf = runner.frf()
         frf.attrs = {k: v for k, v in rf.f.attrs.items() if k not in ("format", "format_version", "quantity", "n_avg")}
+        # The FRFs were formed with this session's setup (a run file from before the
+        # correction was recorded gets it here).
+        frf.attrs.update(coupling_attrs(setup))
         state = "complete"
     except InstrumentError as exc:
         state = f"stopped: {describe_fault(exc)}"

@@ -78,6 +78,9 @@ class DaqSpec:
     #: filter's passband edge): about 0.45 for a delta-sigma converter, 1/2.56 for an
     #: analyser with an analog filter. No test band may reach past it.
     passband_fraction: float = 0.45
+    #: The -3 dB corner of the front end's AC/IEPE coupling (a first-order high-pass), Hz:
+    #: divided out of the AC and IEPE channels' spectra when FRFs are formed (daq.coupling).
+    ac_corner_hz: float = 0.5
 
     @property
     def passband_hz(self) -> float:
@@ -255,6 +258,7 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
         nominal_bitrate=dq.int("nominal_bitrate", 1_000_000, lo=10_000, hi=1_000_000),
         data_bitrate=dq.int("data_bitrate", 5_000_000, lo=100_000, hi=8_000_000),
         passband_fraction=dq.num("passband_fraction", 0.45, lo=0.1, hi=0.49),
+        ac_corner_hz=dq.num("ac_corner_hz", 0.5, lo=0.0, lo_open=True, hi=100.0),
     )
     dq.done()
 

@@ -40,6 +40,7 @@ from drivers.errors import SensorOverload
 from ssid.errors import InputError
 from ssid.io import Model
 
+from .coupling import AC_COUPLINGS
 from .setup import TestSetup
 from .toml_table import TomlTable
 
@@ -181,7 +182,9 @@ def start_sim_lab(setup: TestSetup, world=None) -> tuple[SimHandle, TestSetup]:
 
     world = build_world(setup) if world is None else world
     transport = setup.sim.get("generator_transport", "tcp")
-    lab = SimLab(world, generator_transport=transport).start()
+    # The simulated front end is the one the setup describes: its anti-alias passband (in the
+    # world) and its AC/IEPE coupling corner.
+    lab = SimLab(world, generator_transport=transport, ac_corner_hz=setup.daq.ac_corner_hz).start()
     try:
         ep = lab.endpoints()
         gens = [dataclasses.replace(g, url=ep["generators"][i]) for i, g in enumerate(setup.generators)]
@@ -204,8 +207,9 @@ class WorldRig:
     """A :class:`daq.rig.Rig` on a world directly, without transports (benchmarks, fast tests).
 
     Same channels, shakers and limits as the setup; the world's own sensor values (noise and
-    range included, no 24-bit quantisation) stand in for the DAQ. Generators and amplifiers
-    are the world's component models, switched directly.
+    range included, no 24-bit quantisation) stand in for the DAQ, AC and IEPE channels through
+    the simulated DAQ's coupling high-pass (which the FRF estimates divide out). Generators
+    and amplifiers are the world's component models, switched directly.
     """
 
     def __init__(self, setup: TestSetup, world) -> None:
@@ -219,6 +223,10 @@ class WorldRig:
         gi = {g.name: i for i, g in enumerate(setup.generators)}
         self.out = [(gi[s.generator], s.channel) for s in setup.shakers]
         self.clock = 0
+        from sim_devices.daq_sim import ac_highpass
+
+        self._highpass = ac_highpass
+        self.hp_state = {i: np.zeros(1) for i, c in enumerate(setup.channels) if c.coupling in AC_COUPLINGS}
 
     def _ch(self, j: int):
         g, ch = self.out[j]
@@ -259,7 +267,10 @@ class WorldRig:
         over = tuple(self.names[i] for i, k in enumerate(self.rows) if blk.overload[k])
         if over:
             raise SensorOverload(f"world: over range on {', '.join(over)} (samples clipped)", over)
-        return blk.volts[self.rows] / self.sens
+        volts = blk.volts[self.rows]
+        for i, state in self.hp_state.items():
+            volts[i], self.hp_state[i] = self._highpass(volts[i], self.fs_hz, self.setup.daq.ac_corner_hz, state)
+        return volts / self.sens
 
     def check(self) -> None:
         pass

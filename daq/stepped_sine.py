@@ -6,7 +6,8 @@ every shaker has measured a line, its FRFs follow from the multi-input solve
 ``H = X_A X_F^-1`` (:func:`daq.estimate.multi_input_frf`, all gauges' forces, so the
 passive force of an undriven shaker is accounted for) and are written to the contract
 view with their variance and a coherence-like quality ``|H|^2 / (|H|^2 + var H)``, where
-``var H`` holds the noise of the fit and the transient left at the end of the settling.
+``var H`` holds the noise of the fit and the transient left at the end of the settling; the
+AC/IEPE channels' coupling high-pass is divided out (:mod:`daq.coupling`).
 Values whose quality is below ``[quality] min_coherence`` are blanked (``valid`` False).
 
 Resume: the records of the interrupted run are fed back to the schedule in order (each
@@ -27,6 +28,7 @@ from ssid.errors import InputError
 from ssid.frf import FRFData
 
 from .control import RunControl, RunEvents, frf_line_event, hold_if_paused, raise_if_interrupted
+from .coupling import coupling_response, undo_coupling
 from .estimate import frf_quality, multi_input_frf
 from .rig import Rig
 from .safety import (MAX_OVER_RANGE_IN_ROW, LineAborted, LineOverRange, drive_headroom_vpp, limit_usage,
@@ -298,6 +300,10 @@ class SteppedSineRun:
         H, var = multi_input_frf(X[a], X[fi], V[a], V[fi])
         Hr, Hr_var = (multi_input_frf(X[r], X[fi], V[r], V[fi]) if n_r
                       else (np.zeros((0, self.n_pat), complex), np.zeros((0, self.n_pat))))
+        # The records hold the channels as read; the AC/IEPE high-pass is divided out here.
+        c = coupling_response(self.setup, self.grid[k])[0]
+        H, var = undo_coupling(H, var, c[a], c[fi])
+        Hr, Hr_var = undo_coupling(Hr, Hr_var, c[r], c[fi])
         coh = frf_quality(H, var)
         valid = (coh >= self.setup.min_coherence) & np.isfinite(H)
         return {"H": H, "var": var, "coh": coh, "valid": valid, "Hr": Hr, "Hr_var": Hr_var}

@@ -34,7 +34,7 @@ from scipy.signal import lfilter
 
 from .world import World
 
-__all__ = ["DATA_ID0", "REQ_ID", "RSP_ID", "SAMPLES_PER_FRAME", "SimDaq"]
+__all__ = ["AC_CORNER_HZ", "DATA_ID0", "REQ_ID", "RSP_ID", "SAMPLES_PER_FRAME", "SimDaq", "ac_highpass"]
 
 REQ_ID, RSP_ID, DATA_ID0 = 0x100, 0x101, 0x200
 SAMPLES_PER_FRAME = 19
@@ -43,9 +43,24 @@ CMD_SET_CHANNEL, CMD_SET_RATE, CMD_START, CMD_STOP, CMD_STATUS, CMD_RESET, CMD_I
 R_OK, R_BAD_CHANNEL, R_BAD_VALUE, R_BUSY, R_UNKNOWN, R_NOTHING = 0, 1, 2, 3, 4, 5
 STATE_IDLE, STATE_RUNNING, STATE_DONE = 0, 1, 2
 FW_VERSION = 0x0100
+#: The simulated front end's AC/IEPE coupling corner (-3 dB), Hz, unless a lab sets another.
 AC_CORNER_HZ = 0.5
 CAN_ERR_BUSOFF = 0x40  # SocketCAN error class of a bus-off error frame
 _DATA_DTYPE = np.dtype([("seq", "<u2"), ("ts", "<u4"), ("flags", "u1"), ("s", "u1", (57,))])
+
+
+def ac_highpass(v: np.ndarray, fs_hz: float, corner_hz: float, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An AC/IEPE input's coupling: the first-order high-pass ``iw / (iw + w_c)`` by the
+    bilinear transform, prewarped to its -3 dB corner ``corner_hz``; ``state`` (1,) is the
+    filter's (zeros: at rest). Returns the filtered samples and the state after them.
+
+    It departs from the analog filter by about ``(f_c / f) (1 - x / tan x)``, ``x = pi f / f_s``
+    (2e-4 at 0.45 f_s for 0.5 Hz at 4096 S/s), which :mod:`daq.coupling`'s correction leaves.
+    """
+    wc = np.tan(np.pi * corner_hz / fs_hz)
+    b = np.array([1.0, -1.0]) / (1 + wc)
+    a = np.array([1.0, (wc - 1) / (1 + wc)])
+    return lfilter(b, a, v, zi=state)
 
 
 class _SenderBus(VirtualBus):
@@ -95,6 +110,9 @@ class SimDaq:
         Scans per world step (a multiple of 19 keeps frames full).
     serial : int
         Serial number reported by IDENTIFY.
+    ac_corner_hz : float
+        -3 dB corner of the AC/IEPE coupling's first-order high-pass (the front end's spec;
+        a setup's ``[daq] ac_corner_hz`` says what its analysis divides out).
     """
 
     def __init__(
@@ -106,6 +124,7 @@ class SimDaq:
         block_scans: int = 19 * 14,
         serial: int = 1,
         seed: int = 0,
+        ac_corner_hz: float = AC_CORNER_HZ,
     ) -> None:
         if len(world.sensors) > MAX_INPUTS:
             raise ValueError(f"the DAQ has {MAX_INPUTS} inputs; the world has {len(world.sensors)} sensors")
@@ -114,6 +133,7 @@ class SimDaq:
         self.speed = speed
         self.block_scans = int(block_scans)
         self.serial = serial
+        self.ac_corner_hz = float(ac_corner_hz)
         self.inputs = [_Input() for _ in world.sensors]
         self.sample_rate_hz = 5120
         self.state = STATE_IDLE
@@ -309,12 +329,9 @@ class SimDaq:
         inp = self.inputs[k]
         v = volts
         if inp.coupling in (1, 2):
-            # AC/IEPE coupling: first-order high-pass (bilinear), state carried across blocks
-            # and acquisitions (reset only when SET_CHANNEL changes the input's analog path).
-            wc = np.tan(np.pi * AC_CORNER_HZ / self.sample_rate_hz)
-            b = np.array([1.0, -1.0]) / (1 + wc)
-            a = np.array([1.0, (wc - 1) / (1 + wc)])
-            v, inp.hp_state = lfilter(b, a, v, zi=inp.hp_state)
+            # AC/IEPE coupling, state carried across blocks and acquisitions (reset only when
+            # SET_CHANNEL changes the input's analog path).
+            v, inp.hp_state = ac_highpass(v, self.sample_rate_hz, self.ac_corner_hz, inp.hp_state)
         if k in self._spike:
             self._spike.discard(k)
             v = v.copy()

@@ -66,6 +66,8 @@ class SimLab:
         Also serve the CAN bus over TCP on 127.0.0.1 (for other processes).
     gateway_port, amp_ports : int, list of int
         Fixed ports (0 or None: ephemeral).
+    ac_corner_hz : float, optional
+        The DAQ's AC/IEPE coupling corner (default its own, ``daq_sim.AC_CORNER_HZ``).
     """
 
     def __init__(
@@ -78,6 +80,7 @@ class SimLab:
         gateway: bool = False,
         gateway_port: int = 0,
         amp_ports: Sequence[int] | None = None,
+        ac_corner_hz: float | None = None,
     ) -> None:
         self.world = world
         self.generator_transport = generator_transport
@@ -86,6 +89,7 @@ class SimLab:
         self.want_gateway = gateway
         self.gateway_port = gateway_port
         self.amp_ports = list(amp_ports) if amp_ports else [0] * len(world.amplifiers)
+        self.daq_options = {} if ac_corner_hz is None else {"ac_corner_hz": float(ac_corner_hz)}
         self.generators: list[SimSignalGenerator] = []
         self.amplifiers: list[SimAmplifier] = []
         self.daq: SimDaq | None = None
@@ -100,7 +104,8 @@ class SimLab:
             for j, model in enumerate(self.world.amplifiers):
                 self.amplifiers.append(SimAmplifier(model, self._amp_host, self.amp_ports[j], name=f"amp{j}",
                                                    serial=52001 + j).start())
-            self.daq = SimDaq(self.world, self.can_channel, speed=self.speed, serial=self.world.fingerprint()).start()
+            self.daq = SimDaq(self.world, self.can_channel, speed=self.speed, serial=self.world.fingerprint(),
+                              **self.daq_options).start()
             if self.want_gateway:
                 self.gateway = CanTcpGateway(self.can_channel, self.gateway_port).start()
         except BaseException:

@@ -37,10 +37,10 @@ import numpy as np
 from drivers.errors import SensorOverload
 from ssid.frf import FRFData
 
+from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
 from .coupling import coupling_response, undo_coupling
 from .estimate import SpectralSums, frf_from_spectra, frf_quality, spectra_of_blocks
 from .rig import Rig
-from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
 from .safety import MAX_OVER_RANGE_IN_ROW, RunStopped, check_limits, limit_usage, over_range_in_row
 from .setup import TestSetup
 from .steady_state import periodic_transient, record_noise_floor
@@ -323,6 +323,7 @@ class RandomRun:
     def summary(self) -> dict:
         d = self.result()
         return {"excitation": f"random ({self.spec.kind}, {self.spec.estimator})", "n_lines": int(self.freq.size),
-                "n_avg": int(self.S.n_avg), "n_values_blanked": int(np.count_nonzero(~d["valid"])), "n_values": int(d["valid"].size),
+                "n_avg": int(self.S.n_avg), "n_values_blanked": int(np.count_nonzero(~d["valid"])),
+                "n_values": int(d["valid"].size),
                 "test_time_s": self.test_time_s, "min_coherence": float(np.min(d["coherence"])),
                 **({"unsettled_averages": self.unsettled} if self.spec.kind != "random" else {})}

@@ -74,8 +74,8 @@ def build_world(setup: TestSetup):
     """The :class:`sim_devices.world.World` that matches ``setup`` (see the module docstring)."""
     from sim_devices import effects as eff_mod
     from sim_devices.components import SensorSpec, ShakerSpec, StandSpec
-    from ssid.models import example_system
     from sim_devices.world import World, WorldError
+    from ssid.models import example_system
 
     src = setup.source
     sim = dict(setup.sim)

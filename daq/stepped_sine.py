@@ -31,8 +31,14 @@ from .control import RunControl, RunEvents, frf_line_event, hold_if_paused, rais
 from .coupling import coupling_response, undo_coupling
 from .estimate import frf_quality, multi_input_frf
 from .rig import Rig
-from .safety import (MAX_OVER_RANGE_IN_ROW, LineAborted, LineOverRange, drive_headroom_vpp, limit_usage,
-                     over_range_in_row)
+from .safety import (
+    MAX_OVER_RANGE_IN_ROW,
+    LineAborted,
+    LineOverRange,
+    drive_headroom_vpp,
+    limit_usage,
+    over_range_in_row,
+)
 from .schedule import frequency_grid, sweep_plan
 from .setup import TestSetup
 from .sine_line import MIN_DRIVE_VPP, NOTCH_MARGIN, LineResult, SineLine, initial_drive

@@ -243,7 +243,8 @@ class SimDaq:
                 range_mv, = struct.unpack_from("<H", d, 5)
                 sens, = struct.unpack_from("<f", d, 7)
                 quantity = d[11]
-                if enable > 1 or coupling > 2 or not 100 <= range_mv <= 10000 or not (np.isfinite(sens) and sens > 0) or quantity > 3:
+                if (enable > 1 or coupling > 2 or not 100 <= range_mv <= 10000
+                        or not (np.isfinite(sens) and sens > 0) or quantity > 3):
                     return R_BAD_VALUE, b""
                 inp = self.inputs[ch]
                 if (bool(enable), coupling) != (inp.enabled, inp.coupling):

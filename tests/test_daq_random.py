@@ -9,13 +9,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from test_daq_helpers import all_safe, ctrl_c_at_line, frf_error, random_setup, run_on_sim
 
 from daq.run import run_test
 from daq.setup import parse_setup
 from daq.simlab import build_world
 from ssid.io import read_frf
-
-from test_daq_helpers import all_safe, ctrl_c_at_line, frf_error, random_setup, run_on_sim
 
 
 def test_periodic_random_mimo_noise_free_matches_the_world(tmp_path):

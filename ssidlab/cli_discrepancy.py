@@ -146,11 +146,15 @@ def summary_text(data: dict) -> str:
     """A few lines for the terminal: the effect, the gap before and after, the runners-up."""
     pars = ", ".join(f"{k} = {v:.4g}" for k, v in data["parameters"].items())
     where = " - ".join(data["dofs"]) if data["dofs"] else ""
-    lines = [f"effect: {data['effect']}" + (f" at {where}" if where else "") + (f" ({pars})" if pars else ""),
-             f"gap ({data['gap_metric']}, 1 = noise level): {data['gap_before']:.4g} -> {data['gap_after']:.4g}"]
+    lines = [f"effect: {data['effect']}" + (f" at {where}" if where else "") + (f" ({pars})" if pars else "")]
+    effects = data.get("effects", [])
+    for e in effects[1:]:  # --max-effects 2: the gap after is with every one added
+        more = ", ".join(f"{k} = {v:.4g}" for k, v in e["parameters"].items())
+        lines.append(f"  and: {e['effect']} at {' - '.join(e['dofs'])} ({more})")
+    lines.append(f"gap ({data['gap_metric']}, 1 = noise level): {data['gap_before']:.4g} -> {data['gap_after']:.4g}")
     lines.append(data.get("residual", {}).get("text", ""))
     lines.append(data.get("reactions", {}).get("text", ""))
-    lines.append("candidates (delta EBIC):")
+    lines.append("candidates (delta EBIC" + (", first round: one effect at a time):" if len(effects) > 1 else "):"))
     for c in data["candidates"][:6]:
         cp = ", ".join(f"{k} = {v:.4g}" for k, v in c["parameters"].items())
         lines.append(f"  {c['delta_criterion']:>10.1f}  {c['effect']:<20} {' - '.join(c['dofs']):<14} {cp}")

@@ -123,7 +123,9 @@ def plot_dynamic_stiffness(result: DiscrepancyResult, path: str | os.PathLike) -
     where = "-".join(a["delta_dofs"])
     fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(7.5, 5.0))
     ax1.plot(f, ds.real, "k.", ms=2, label="measured delta* (free per line)")
-    ax1.plot(f, df.real, "r-", lw=1.2, label=f"fitted: {result.effect.name}")
+    # The first round's leader, fitted alone: with two effects it can differ from those named.
+    fitted = a.get("delta_effect", result.effect.name)
+    ax1.plot(f, df.real, "r-", lw=1.2, label=f"fitted: {fitted}")
     ax2.plot(f, ds.imag, "k.", ms=2)
     ax2.plot(f, df.imag, "r-", lw=1.2)
     for ax, part in ((ax1, "Re"), (ax2, "Im")):
@@ -136,7 +138,8 @@ def plot_dynamic_stiffness(result: DiscrepancyResult, path: str | os.PathLike) -
         ax.set_ylabel(f"{part} delta (N/m)")
         ax.grid(True, alpha=0.3)
     ax1.legend(fontsize=8)
-    ax1.set_title(f"Dynamic-stiffness change at {where}", fontsize=10)
+    first_round = " (first round, one effect)" if len(result.effects) > 1 else ""
+    ax1.set_title(f"Dynamic-stiffness change at {where}{first_round}", fontsize=10)
     ax2.set_xlabel("frequency (Hz)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

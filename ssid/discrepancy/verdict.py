@@ -55,10 +55,13 @@ def residual_statement(second: SearchResult | None, effects: list[Effect], gap_a
                                               "criterion_gain_over_none": -second.none().delta_criterion,
                                               "gap_with_it": second.gap(b.rss)}
     closed = nxt is None if (second is not None or not effects) else None
+    # One effect, or two (``max_effects=2``: then ``second`` is the third round's search).
+    found = " and ".join(e.describe() for e in effects)
+    n_found, next_round = ("one effect", "second") if len(effects) < 2 else ("two effects", "third")
     # A negligible leader did pay for its parameters; it is not named for its size.
     nothing_pays = "that matters pays for its parameters" if negligible else "pays for its parameters"
     if closed is None:
-        text = f"{effects[0].describe()} found; whether it closes the gap was not checked"
+        text = f"{found} found; whether it closes the gap was not checked"
     elif (not effects and gap_after > GAP_WITHIN_NOISE and negligible is not None
           and negligible["gap_with_it"] <= GAP_WITHIN_NOISE):
         # The data show the difference beyond their noise, and it is an effect too small to
@@ -81,12 +84,12 @@ def residual_statement(second: SearchResult | None, effects: list[Effect], gap_a
         # at all (above), the model differs in a way the library does not describe. Said
         # "closes the gap (gap after 36.6)", the line contradicted itself.
         closed = False
-        text = (f"{effects[0].describe()} found, and a second search finds no further effect that "
+        text = (f"{found} found, and a {next_round} search finds no further effect that "
                 f"{nothing_pays}, yet the gap after is {gap_after:.3g} (1 = noise level): the model "
                 "differs from the test in a way the library does not describe")
     elif closed:
-        text = (f"{effects[0].describe()} closes the gap: a second search finds no further effect "
-                f"(gap after {gap_after:.3g}, 1 = noise level)")
+        text = (f"{found} {'close' if len(effects) > 1 else 'closes'} the gap: a {next_round} search finds "
+                f"no further effect (gap after {gap_after:.3g}, 1 = noise level)")
     else:
         # The search ranks with each model's own residual level, so it can still find a
         # pattern in a residual below the stated noise: say so, or the line reads as a
@@ -95,8 +98,8 @@ def residual_statement(second: SearchResult | None, effects: list[Effect], gap_a
                    ", within the estimated noise: the file states none")
                   if gap_after <= GAP_WITHIN_NOISE else "")
         # What the next effect would buy tells a pattern of the errors from a missing effect.
-        text = (f"one effect does not close the gap (gap after {gap_after:.3g}{within}): the second "
-                f"search names {nxt['effect']} at {'-'.join(nxt['dofs'])}, which would lower it to "
-                f"{nxt['gap_with_it']:.3g}")
+        text = (f"{n_found} {'do' if len(effects) > 1 else 'does'} not close the gap (gap after "
+                f"{gap_after:.3g}{within}): the {next_round} search names {nxt['effect']} at "
+                f"{'-'.join(nxt['dofs'])}, which would lower it to {nxt['gap_with_it']:.3g}")
     return {"closed": closed, "text": text + negligible_text(negligible), "next_effect": nxt,
             "negligible_effect": negligible}

@@ -9,7 +9,8 @@
 3. The winner is added to the model; the same gap measure before and after.
 4. A second round on the updated model says whether one effect closed the gap: if another
    effect still beats ``none`` it is reported (and, with ``max_effects=2``, added, the two
-   refitted in turn each with the other in place).
+   refitted in turn each with the other in place, then together; a third round then says
+   whether the two close the gap, ``ssid.discrepancy.two_effects``).
 5. Channel gains (``ssid.discrepancy.calibration``): if one real gain per transducer explains
    the data better than any effect, or still pays on top of the effect, the data are flagged
    as miscalibrated and the search is run again on them corrected.
@@ -57,6 +58,7 @@ from .search import (
 )
 from .search_json import candidate_json, listed_candidates, localisation_json, round_json
 from .stand_noise import StandNoise, stand_noise_check
+from .two_effects import backfit, refine_jointly, with_effects
 from .undamped import search_undamped
 from .verdict import negligible_leader, negligible_text, residual_statement
 from .weights import noise_weights, reaction_variance
@@ -288,13 +290,20 @@ def find_discrepancy(
         second_checks = _validate(second, stand, negligible_change=negligible_change)
         rounds.append(round_json(second, H, valid, updated.dofs))
         if second.best.name != "none" and max_effects >= 2:
-            effects = _backfit(nominal, effects[0], second.best.effect, omega, H, W, out_idx, in_idx, T, stand,
-                               negligible_change=negligible_change)
-            updated = nominal
-            for eff in effects:
-                updated = apply_effect_to_model(updated, eff)
+            def search_validated(m: Model) -> SearchResult:
+                found = _search(m, m.C, omega, H, W, out_idx, in_idx, T)
+                _validate(found, stand, negligible_change=negligible_change)
+                return found
+
+            effects = backfit(nominal, effects[0], second.best.effect, search_validated)
+            effects, _ = refine_jointly(nominal, effects, lambda m: _model_frf(m, data, loads), H, W)
+            updated = with_effects(nominal, effects)
             H_upd = _model_frf(updated, data, loads)
             own = None  # backfitted with the nominal modes' damping kept
+            # Does the pair close the gap? A third round decides, as the second did for one.
+            second = _search(updated, updated.C, omega, H, W, out_idx, in_idx, T)
+            second_checks = _validate(second, stand, negligible_change=negligible_change)
+            rounds.append(round_json(second, H, valid, updated.dofs))
     if own is not None:
         damping += (f"; with {chosen.effect.describe()} the data prefer every mode of the changed structure "
                     f"damped alike, zeta = {own.zeta:.4g}, to the nominal modes' damping matrix kept: the "
@@ -363,7 +372,7 @@ def find_discrepancy(
     arrays = {"freq_hz": data.freq_hz, "H_meas": H, "H_nominal": H_nom, "H_updated": H_upd,
               "valid": valid, "outputs": list(data.outputs), "inputs": list(data.inputs),
               "delta_star": loc.delta_star(best_loc[1]),
-              "delta_fit": effect_dynamic_stiffness(chosen.effect, omega),
+              "delta_fit": effect_dynamic_stiffness(chosen.effect, omega), "delta_effect": chosen.name,
               "delta_dofs": [model.dofs[i] for i in loc.index[best_loc[1]] if i >= 0],
               "explained": search.singles.explained / max(search.rss0, 1e-300),
               "explained_dofs": [model.dofs[i] for i in search.singles.index[:, 0]]}
@@ -464,29 +473,6 @@ def _loads_corrected(loads: AppliedLoads | None, data: FRFData, b: np.ndarray,
         if var is not None:  # the unit input forces carry none: the row's variance is the reaction's
             var[:, row, :] *= factor**2
     return AppliedLoads(loads.dofs, T, var)
-
-
-def _backfit(nominal: Model, first: Effect, second: Effect, omega, H, W, out_idx, in_idx, T,
-             stand: StandNoise | None = None, sweeps: int = 2,
-             negligible_change: float = NEGLIGIBLE_CHANGE) -> list[Effect]:
-    """Two effects refitted in turn, each with the other in place (backfitting).
-
-    The first round fitted its effect with the second one missing, so it may have absorbed
-    part of it (an oscillator standing in for a mass plus a spring); searching again for each
-    effect with the other added undoes that. An effect at the first one's own oscillator DOF
-    cannot be refitted without it and is kept as found.
-    """
-    effects = [first, second]
-    if any(d not in nominal.dofs for d in second.dofs):
-        return effects
-    for _ in range(sweeps):
-        for k in (0, 1):
-            base = apply_effect_to_model(nominal, effects[1 - k])
-            found = _search(base, base.C, omega, H, W, out_idx, in_idx, T)
-            _validate(found, stand, negligible_change=negligible_change)
-            if found.best.name != "none" and all(d in nominal.dofs for d in found.best.effect.dofs):
-                effects[k] = found.best.effect
-    return effects
 
 
 def _model_frf(model: Model, data: FRFData, loads: AppliedLoads | None) -> np.ndarray:

@@ -1,0 +1,103 @@
+"""Two effects at once (``find_discrepancy(..., max_effects=2)``): backfitting, then a joint fit.
+
+The first round fitted its effect with the second one missing, so it may have absorbed part of
+it (an oscillator standing in for a mass plus a spring). :func:`backfit` searches again for
+each effect with the other one in place; that names them, but each search fits one effect's
+parameters with the other's held, and two sweeps stop short of the fit: on the simulated lab's
+payload on its stand with 0.1 kg and a 5e4 N/m spring hidden, the spring came back 1.7 % low
+and the gap 40 where the truth leaves 0.9. :func:`refine_jointly` then fits every parameter of
+both effects together on the exact model FRFs (a few parameters, a direct solve per line per
+evaluation: the search's rank-one shortcut holds for one effect only).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..io import Model
+from .effects import PARAMETER_KEYS, Effect, apply_effect_to_model
+from .search import NONNEGATIVE, SearchResult
+
+__all__ = ["backfit", "refine_jointly"]
+
+#: Parameters that must stay positive (an oscillator's mass and spring) or not negative.
+_POSITIVE = {("attached_oscillator", "mass_kg"), ("attached_oscillator", "stiffness_n_per_m"),
+             ("attached_oscillator", "damping_n_s_per_m")}
+
+
+def backfit(nominal: Model, first: Effect, second: Effect, search_fn: Callable[[Model], SearchResult],
+            sweeps: int = 2) -> list[Effect]:
+    """Two effects refitted in turn, each with the other in place.
+
+    ``search_fn(model) -> SearchResult`` searches the model and validates its leader. An
+    effect at the first one's own oscillator DOF cannot be refitted without it and is kept as
+    found.
+    """
+    effects = [first, second]
+    if any(d not in nominal.dofs for d in second.dofs):
+        return effects
+    for _ in range(sweeps):
+        for k in (0, 1):
+            found = search_fn(apply_effect_to_model(nominal, effects[1 - k]))
+            if found.best.name != "none" and all(d in nominal.dofs for d in found.best.effect.dofs):
+                effects[k] = found.best.effect
+    return effects
+
+
+def with_effects(nominal: Model, effects: list[Effect]) -> Model:
+    """``nominal`` with every effect of ``effects`` added, in order."""
+    model = nominal
+    for eff in effects:
+        model = apply_effect_to_model(model, eff)
+    return model
+
+
+def refine_jointly(nominal: Model, effects: list[Effect], model_frf: Callable[[Model], np.ndarray],
+                   H: np.ndarray, W: np.ndarray) -> tuple[list[Effect], float]:
+    """Every parameter of ``effects`` fitted together: ``(effects, rss)``.
+
+    Weighted least squares (``scipy.optimize.least_squares``, each parameter scaled by its
+    start) of ``W (H - model_frf(nominal with the effects))`` over the valid values (``W > 0``),
+    from the effects as given; a damper, and an oscillator's mass, spring and damper, are kept
+    from going negative. The start is returned if the fit does not lower the residual.
+
+    Parameters
+    ----------
+    model_frf : callable
+        ``model_frf(model) -> (n_freq, n_out, n_in)`` the model's accelerance at the data's
+        lines (under the measured reactions where they are applied).
+    H, W : (n_freq, n_out, n_in)
+        Measured accelerance and weights ``1/sigma`` (0 where not valid).
+    """
+    keys = [(e.name, k) for e in effects for k in PARAMETER_KEYS[e.name]]
+    p0 = np.concatenate([e.values() for e in effects])
+    scale = np.where(p0 != 0, np.abs(p0), 1.0)
+    m = W > 0
+    w, h = W[m], H[m]
+
+    def effects_of(x: np.ndarray) -> list[Effect]:
+        p, out, i = x * scale, [], 0
+        for e in effects:
+            n = e.n_parameters
+            out.append(Effect(e.name, e.dofs, dict(zip(PARAMETER_KEYS[e.name], map(float, p[i:i + n])))))
+            i += n
+        return out
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        with np.errstate(all="ignore"):
+            r = w * (h - model_frf(with_effects(nominal, effects_of(x)))[m])
+        r = np.concatenate([r.real, r.imag])
+        return np.where(np.isfinite(r), r, 1e100)
+
+    x0 = p0 / scale
+    rss0 = float(np.sum(residual(x0) ** 2))
+    floor = [0.0 if (name in NONNEGATIVE or (name, k) in _POSITIVE) and x >= 0 else -np.inf
+             for (name, k), x in zip(keys, x0)]
+    res = least_squares(residual, x0, bounds=(floor, np.inf))
+    rss = float(np.sum(res.fun**2))
+    if not np.isfinite(rss) or rss >= rss0:
+        return list(effects), rss0
+    return effects_of(res.x), rss

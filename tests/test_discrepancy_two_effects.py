@@ -60,3 +60,15 @@ def test_the_terminal_names_every_effect_added(two_effects):
     for e in res.effects:
         assert f"{e.name} at {' - '.join(e.dofs)}" in text
     assert "first round: one effect at a time" in text
+
+
+def test_one_effect_of_two_does_not_raise_a_calibration_alarm(two_effects):
+    """Run for one effect, the gains that absorb part of the effect left out were flagged
+    ("check the transducers' calibration") although every transducer is right; the next
+    effect the second round names lowers the gap further than they do."""
+    nominal, frf, _ = two_effects
+    res = find_discrepancy(nominal, frf)
+    calibration = res.info["calibration"]
+    assert not calibration["flagged"]
+    assert "a further effect, not a calibration error" in calibration["text"]
+    assert not any("calibration" in w for w in res.info["warnings"])

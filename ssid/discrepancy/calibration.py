@@ -200,7 +200,7 @@ def refit_gains_exact(gains: ChannelGains, stand: StandNoise, parts: ModelParts,
 
 def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray | ModelParts,
                         H_upd: np.ndarray | ModelParts, W: np.ndarray, effects: list[Effect],
-                        data: FRFData, stand: StandNoise | None = None) -> dict:
+                        data: FRFData, stand: StandNoise | None = None, next_gap: float | None = None) -> dict:
     """Channel gains against the effects, by the search's own EBIC; the workflow's
     ``info["calibration"]`` (``docs/discrepancy.md``, section 8).
 
@@ -216,6 +216,12 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray |
     that scales the noise the reactions bring in (an output at a held DOF, a load cell)
     otherwise pays by shrinking that noise: without stated variances, every null stand case
     tried flagged the held DOF's accelerometer at x 0.09-0.14.
+
+    ``next_gap``: the gap with the next effect the round after the effects names (the
+    residual's ``next_effect``). Gains that pay on top of the effects are not flagged when
+    that effect lowers the gap further than they do: a second effect the one named left out
+    is then the likelier cause (a mass and a spring hidden together, one coupling spring
+    named: gains 2230 -> 2160 flagged "check the transducers", the next effect -> 871).
     """
     n_eff = sum(e.n_parameters for e in effects)
     alone = fit_channel_gains(H, H_nom, W)
@@ -243,6 +249,8 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray |
     large = np.log1p(GAIN_TOLERANCE)
     explains_better = d_alone < 0 and alone.largest_deviation() > large
     pays_on_top = bool(effects) and d_top < 0 and on_top.largest_deviation() > large
+    effect_left = pays_on_top and next_gap is not None and next_gap < search.gap(on_top.rss)
+    pays_on_top = pays_on_top and not effect_left
     # The gains reported: against the nominal model when they stand in for the effect, else
     # against the model with the effect added (against the nominal model they would absorb
     # part of it: a load cell at x 0.13 beside a 0.43 kg mass that is named right).
@@ -261,6 +269,10 @@ def check_channel_gains(search: SearchResult, H: np.ndarray, H_nom: np.ndarray |
                 f"part of the gap (gap {gap0:.3g} -> {gap:.3g} with them; measured over updated model: "
                 f"{which}): {cause} The effect was fitted to these data as they are: check the "
                 "transducers' calibration")
+    elif effect_left:
+        text = (f"channel gains would lower the gap to {search.gap(on_top.rss):.3g} on top of "
+                f"{' and '.join(e.name for e in effects)}, and the next effect the search names to "
+                f"{next_gap:.3g}: a further effect, not a calibration error, is the likelier cause")
     else:
         text = "no channel gain explains the data better than the effect named"
     return {

@@ -319,7 +319,9 @@ def find_discrepancy(
         parts_nom, parts_upd = H_nom, H_upd
     else:  # the load cells' gains are fitted too
         parts_nom, parts_upd = _model_parts(nominal, data, loads), _model_parts(updated, data, loads)
-    calibration = check_channel_gains(search, H, parts_nom, parts_upd, W, effects, data, stand)
+    nxt = residual["next_effect"]
+    calibration = check_channel_gains(search, H, parts_nom, parts_upd, W, effects, data, stand,
+                                      next_gap=None if nxt is None else nxt["gap_with_it"])
     if calibration["flagged"]:
         fix = _search_gains_corrected(nominal, omega, H, W, W_meas, out_idx, in_idx, data, loads, calibration,
                                       stand, negligible_change=negligible_change)

@@ -59,7 +59,7 @@ from .search import (
 from .search_json import candidate_json, listed_candidates, localisation_json, round_json
 from .stand_noise import StandNoise, stand_noise_check
 from .two_effects import backfit, refine_jointly, with_effects
-from .undamped import search_undamped
+from .undamped import damping_spread_warning, search_undamped
 from .verdict import negligible_leader, negligible_text, residual_statement
 from .weights import noise_weights, reaction_variance
 
@@ -268,6 +268,9 @@ def find_discrepancy(
         search, C, _, damping = search_undamped(
             model, data, omega, H, W, valid, out_idx, in_idx,
             lambda C_: _search(model, C_, omega, H, W, out_idx, in_idx, T), T)
+        spread = damping_spread_warning(data.freq_hz, H, valid)
+        if spread is not None:
+            warnings.append(spread)
     else:
         search = _search(model, C, omega, H, W, out_idx, in_idx, T)
     validation = _validate(search, stand, negligible_change=negligible_change)

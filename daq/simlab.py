@@ -74,7 +74,7 @@ def build_world(setup: TestSetup):
     """The :class:`sim_devices.world.World` that matches ``setup`` (see the module docstring)."""
     from sim_devices import effects as eff_mod
     from sim_devices.components import SensorSpec, ShakerSpec, StandSpec
-    from sim_devices.world import World, WorldError
+    from sim_devices.world import EffectError, World, WorldError
     from ssid.models import example_system
 
     src = setup.source
@@ -139,6 +139,9 @@ def build_world(setup: TestSetup):
         return World(M, C, K, dofs, shakers=shakers, sensors=sensors, stand=stand, effects=effects,
                      sample_rate_hz=setup.daq.sample_rate_hz, noise=noise, seed=seed, oversample=oversample,
                      antialias_passband=setup.daq.passband_fraction)
+    except EffectError as exc:
+        # The entry to mend, by its place in the file, its type, DOF and value.
+        raise InputError(f"{src}: [[sim.effects]] #{exc.index + 1} {exc.entry}") from None
     except (WorldError, ValueError) as exc:
         # Without a [sim] table every key is its default (the 14-DOF example structure): a
         # setup for the payload then fails on a DOF, which would not say why.

@@ -6,6 +6,8 @@ module                          what
 ``sim_devices.world``           the world: generator -> amplifier -> shaker (back-EMF) ->
                                 structure (any M, C, K; stand; hidden effects) -> sensors, exact
                                 modal time integration in sample time
+``sim_devices.world_errors``     why a world cannot be built (``WorldError``; ``EffectError``
+                                names the hidden effect at fault and its parameter)
 ``sim_devices.components``      shaker, stand, sensor specs; generator and amplifier models
 ``sim_devices.effects``         hidden effects (added mass, springs, damper, attached oscillator)
 ``sim_devices.siggen_sim``      SCPI generator on a pseudo-terminal or a TCP socket

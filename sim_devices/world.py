@@ -48,13 +48,10 @@ from .components import (
     ShakerSpec,
     StandSpec,
 )
-from .effects import Effect, apply_effects
+from .effects import Effect, apply_effects, instability_reason, invalid_parameter
+from .world_errors import EffectError, UnstableError, WorldError
 
-__all__ = ["World", "WorldBlock", "WorldError"]
-
-
-class WorldError(ValueError):
-    """The world cannot be built from the structure and hardware given."""
+__all__ = ["EffectError", "World", "WorldBlock", "WorldError"]
 
 
 @dataclass
@@ -78,6 +75,25 @@ class WorldBlock:
     volts: np.ndarray
     overload: np.ndarray
     physical: np.ndarray
+
+
+def _on_stand(M: np.ndarray, C: np.ndarray, K: np.ndarray, dofs: list[str],
+              stand: StandSpec | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """M, C, K of a structure plus the stand's masses under its reaction DOFs (none: as it is)."""
+    n = M.shape[0]
+    reactions = list(stand.reactions) if stand else []
+    nr = len(reactions)
+    Mc = np.zeros((n + nr, n + nr))
+    Cc = np.zeros_like(Mc)
+    Kc = np.zeros_like(Mc)
+    Mc[:n, :n], Cc[:n, :n], Kc[:n, :n] = M, C, K
+    if nr:
+        Mc[n:, n:] = stand.stand_mass_kg * np.eye(nr)
+        T = np.hstack([selection_matrix(dofs, reactions).T, -np.eye(nr)])
+        Kc += stand.stand_k_n_per_m * T.T @ T
+        Cc += stand.stand_c_n_s_per_m * T.T @ T
+        Kc[n:, n:] += stand.ground_k_n_per_m * np.eye(nr)
+    return Mc, Cc, Kc
 
 
 def _phi12(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -148,6 +164,10 @@ class World:
         self.nominal_dofs = list(dofs)
         if len(set(self.nominal_dofs)) != len(self.nominal_dofs):
             raise WorldError("DOF labels must be unique")
+        effects = list(effects)
+        for i, eff in enumerate(effects):
+            if (bad := invalid_parameter(eff)) is not None:
+                raise EffectError(i, eff, *bad)
         self.M_s, self.C_s, self.K_s, self.dofs = apply_effects(M, C, K, list(dofs), list(effects))
         self.shakers = list(shakers)
         if not self.shakers:
@@ -166,8 +186,14 @@ class World:
         self.oversample = max(1, int(oversample))
         self.antialias_passband = antialias_passband
         self._antialias: AntiAliasFilter | None = None
-        self._assemble()
-        self._modalise()
+        try:
+            self._assemble()
+            self._modalise()
+        except UnstableError:
+            if not effects:
+                raise
+            # "Unstable (check M, C, K signs)" does not say which of the setup's effects to mend.
+            raise self._unstable_effect(M, C, K, list(dofs), effects) from None
         self.sample_rate_hz = 0.0
         self.set_sample_rate(sample_rate_hz)
         self.reset_state()
@@ -181,21 +207,22 @@ class World:
 
     def _structure_with_stand(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """M, C, K of structure (with effects) plus stand masses, as in frf_on_test_stand."""
-        n = self.M_s.shape[0]
-        reactions = list(self.stand.reactions) if self.stand else []
-        nr = len(reactions)
-        Mc = np.zeros((n + nr, n + nr))
-        Cc = np.zeros_like(Mc)
-        Kc = np.zeros_like(Mc)
-        Mc[:n, :n], Cc[:n, :n], Kc[:n, :n] = self.M_s, self.C_s, self.K_s
-        if nr:
-            st = self.stand
-            Mc[n:, n:] = st.stand_mass_kg * np.eye(nr)
-            T = np.hstack([selection_matrix(self.dofs, reactions).T, -np.eye(nr)])
-            Kc += st.stand_k_n_per_m * T.T @ T
-            Cc += st.stand_c_n_s_per_m * T.T @ T
-            Kc[n:, n:] += st.ground_k_n_per_m * np.eye(nr)
-        return Mc, Cc, Kc
+        return _on_stand(self.M_s, self.C_s, self.K_s, self.dofs, self.stand)
+
+    def _unstable_effect(self, M, C, K, dofs: list[str], effects: list[Effect]) -> EffectError:
+        """The error naming the first effect with which (and the ones before it) the world is
+        unstable, when the world with all of them is: each shorter list is built in turn."""
+        for k in range(1, len(effects)):
+            try:
+                World(M, C, K, dofs, shakers=self.shakers, stand=self.stand, effects=effects[:k], noise=False)
+            except EffectError as exc:  # unstable already: it names the effect
+                return exc
+            except WorldError:  # another fault of a part-built structure: not this question's
+                continue
+        i = len(effects) - 1
+        Ms, Cs, Ks, dofs_i = apply_effects(M, C, K, dofs, effects)
+        param, problem = instability_reason(effects[i], *_on_stand(Ms, Cs, Ks, dofs_i, self.stand))
+        return EffectError(i, effects[i], param, problem + (" (with the effects before it)" if i else ""))
 
     def coupled_model(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
         """M, C, K of structure (with its effects) plus stand, and DOF labels.
@@ -248,7 +275,7 @@ class World:
         try:
             Minv = np.linalg.inv(Mq)
         except np.linalg.LinAlgError:
-            raise WorldError("mass matrix is singular") from None
+            raise UnstableError("mass matrix is singular") from None
         L = np.array([sh.coil_l_h for sh in self.shakers])
         R = np.array([sh.coil_r_ohm for sh in self.shakers])
         nz = 2 * nq + ns
@@ -314,7 +341,7 @@ class World:
                 "path to ground; add a boundary spring (GroundedSpring) or a test stand"
             )
         if np.any(lam.real > 1e-9 * np.abs(lam).max()):
-            raise WorldError("the assembled system is unstable (check M, C, K signs)")
+            raise UnstableError("the assembled system is unstable (check M, C, K signs)")
         scale = np.abs(lam).max()
         upper = lam.imag > 1e-12 * scale
         real = np.abs(lam.imag) <= 1e-12 * scale

@@ -292,3 +292,47 @@ def test_a_bad_sim_table_is_refused_before_the_run_file_exists(tmp_path):
     with pytest.raises(InputError, match=r"\[sim\] oversample: must be in \[1, 64\], got 0"):
         run_test(setup, out=str(tmp_path / "run.h5"), sim=True, echo=lambda m: None)
     assert not (tmp_path / "run.h5").exists()
+
+
+@pytest.mark.parametrize("effect, said", [
+    # Each was "[sim]: the assembled system is unstable (check M, C, K signs)", naming no entry (QA).
+    ('type = "added_mass"\ndof = "6+Z"\nmass_kg = -0.9',
+     "[[sim.effects]] #1 (added_mass at 6+Z) mass_kg = -0.9: makes the assembled system unstable: "
+     "the mass matrix is no longer positive definite"),
+    ('type = "coupling_spring"\ndof_a = "7+Z"\ndof_b = "8+Z"\nstiffness_n_per_m = -3e6',
+     "[[sim.effects]] #1 (coupling_spring between 7+Z and 8+Z) stiffness_n_per_m = -3e+06: makes the "
+     "assembled system unstable: the stiffness matrix gets a negative eigenvalue"),
+    ('type = "attached_oscillator"\ndof = "3+Z"\nmass_kg = 0.2\nstiffness_n_per_m = -1e5\ndamping_n_s_per_m = 1',
+     "[[sim.effects]] #1 (attached_oscillator at 3+Z) stiffness_n_per_m = -100000: an attached "
+     "oscillator's spring must be > 0"),
+    ('type = "attached_oscillator"\ndof = "3+Z"\nmass_kg = 0\nstiffness_n_per_m = 1e5\ndamping_n_s_per_m = 1',
+     "[[sim.effects]] #1 (attached_oscillator at 3+Z) mass_kg = 0: an attached oscillator's mass must be > 0"),
+    ('type = "grounded_damper"\ndof = "3+Z"\ndamping_n_s_per_m = -50',
+     "[[sim.effects]] #1 (grounded_damper at 3+Z) damping_n_s_per_m = -50: a damper's damping must be >= 0"),
+])
+def test_a_sim_effect_the_lab_cannot_take_is_named(tmp_path, effect, said):
+    """The payload example setup with its hidden mass replaced by one bad entry: the error
+    names the entry (its place, type, DOF) and the value at fault, and says why; acquire
+    exits 2 with that line before anything is started."""
+    from daq.simlab import example_setup_text
+
+    text = example_setup_text()
+    p = tmp_path / "bad.toml"
+    p.write_text(text[:text.index("[[sim.effects]]")] + "[[sim.effects]]\n" + effect + "\n")
+    status, err = cli([str(p), "--sim", "--out", str(tmp_path / "run.h5")])
+    assert status == 2 and err.startswith(f"{p}: {said}")
+    assert "\n" not in err and not (tmp_path / "run.h5").exists()
+
+
+def test_the_second_of_two_sim_effects_is_named_when_it_makes_the_lab_unstable(tmp_path):
+    """A harmless mass first, then a spring that makes the structure diverge: the spring's
+    entry is named, as acting with the ones before it."""
+    from daq.simlab import build_world, example_setup_text
+
+    text = example_setup_text() + ('\n[[sim.effects]]\ntype = "coupling_spring"\ndof_a = "7+Z"\ndof_b = "8+Z"\n'
+                                   'stiffness_n_per_m = -3e6\n')
+    with pytest.raises(InputError) as e:
+        build_world(parse_setup(text, "two.toml"))
+    assert str(e.value).startswith("two.toml: [[sim.effects]] #2 (coupling_spring between 7+Z and 8+Z) "
+                                   "stiffness_n_per_m = -3e+06: makes the assembled system unstable")
+    assert str(e.value).endswith("(with the effects before it)")

@@ -22,7 +22,7 @@ from sim_devices.effects import (
     GroundedSpring,
     apply_effects,
 )
-from sim_devices.world import World, WorldError
+from sim_devices.world import EffectError, World, WorldError
 from ssid.frf import accelerance_from_model
 from ssid.models import chain_model, example_system, frf_on_test_stand
 
@@ -251,3 +251,18 @@ def test_front_end_filter_passes_the_band_and_removes_what_would_alias():
     assert abs(p) > 0 and abs(v) < 1e-5 * abs(p)
     v, p, _ = _tone_through_front_end(0.62 * FS, None)
     assert abs(v / p - 1) < 1e-12
+
+
+def test_an_effect_the_world_cannot_take_is_named_with_its_parameter():
+    """A damper with negative damping is refused as it is; a negative mass larger than the
+    structure's at its DOF is refused once it makes the system unstable, by its place in the
+    list (the entry a setup names) and the parameter at fault."""
+    M, C, K, dofs = chain_model([1.0, 2.0, 1.5], [1e4, 1e4], [1e4, 0, 0], [1, 1], [0, 0, 0])
+    build = dict(shakers=[ShakerSpec("1+Z")], noise=False)
+    with pytest.raises(EffectError) as e:
+        World(M, C, K, dofs, effects=[AddedMass("2+Z", 0.1), GroundedDamper("1+Z", -2.0)], **build)
+    assert (e.value.index, e.value.parameter) == (1, "damping_n_s_per_m") and "must be >= 0" in e.value.problem
+    with pytest.raises(EffectError) as e:
+        World(M, C, K, dofs, effects=[GroundedSpring("3+Z", 500.0), AddedMass("2+Z", -2.5)], **build)
+    assert (e.value.index, e.value.parameter) == (1, "mass_kg")
+    assert "the mass matrix is no longer positive definite" in str(e.value)

@@ -347,7 +347,10 @@ def identify_mck(
     checks.update({k: v for k, v in asm.items()})
     checks["frf_relative_rms_error"] = frf_error
     warnings.extend(chk_warn)
-    warnings.extend(said for said in (misfit_warning(checks["frf_relative_rms_error"], noise),
+    f_n = wn / (2 * np.pi)
+    in_band = (int(np.count_nonzero((f_n >= band[0]) & (f_n <= band[1]))), int(f_n.size))
+    warnings.extend(said for said in (misfit_warning(checks["frf_relative_rms_error"], noise,
+                                                     reactions=bool(data.n_react), modes_in_band=in_band),
                                       unresolved_damping_warning(data.freq_hz, wn / (2 * np.pi), zeta, noise),
                                       # M not definite: the physical checks have said more already
                                       None if phi is None else

@@ -138,21 +138,49 @@ def _check_band(source: str, frf, f_min: float | None, f_max: float | None) -> N
 def _mode_table(summary: dict) -> str:
     """The roots (step 1) and, beside them, the undamped frequencies of the written M, K: the
     two agree for a full-order fit and may not for a reduced-order one (a free test), whose
-    M, K are step 2's fit to those roots. Rigid-body modes (``R1``...) head the table."""
+    M, K are step 2's fit to those roots. Rigid-body modes (``R1``...) head the table.
+
+    Row by row only where the written M, K have one elastic mode per root and no negative
+    eigenvalue: otherwise both are ascending lists of different things (the QA's record gave
+    -12408.78 and -8.42 Hz beside roots at 4.3 and 6.2 Hz, and every row after them one mode
+    apart), and the M, K frequencies follow the table on their own line, a negative
+    eigenvalue of (K, M) as the omega^2 it is, not as a frequency.
+    """
     freqs = summary.get("natural_freq_hz", [])
     zetas = summary.get("damping_ratio", [])
-    undamped = summary.get("undamped_freq_hz", [])
     # A free-free model's rigid-body modes come first in eig(K, M) (at 0 Hz) and have no
     # root among the modes: they get their own rows, and the modes pair with the rest.
     n_rigid = int(summary.get("n_rigid_body_modes") or 0)
-    lines = [f"{'mode':>4}  {'f_n [Hz]':>12}  {'damping [%]':>11}  {'M,K f [Hz]':>12}"]
-    lines += [f"{f'R{k}':>4}  {'rigid body':>12}  {'-':>11}  {_fmt(0.0, 1.0, '.4f'):>12}"
+    elastic, negative = _undamped_split(summary.get("undamped_freq_hz", []), n_rigid)
+    # M not positive definite: every value is null, and the column shows "-" (docs/formats.md).
+    side = all(math.isnan(f) for f in elastic) or (not negative and len(elastic) == len(freqs))
+    mk = (lambda text: f"  {text:>12}") if side else (lambda text: "")
+    lines = [f"{'mode':>4}  {'f_n [Hz]':>12}  {'damping [%]':>11}" + mk("M,K f [Hz]")]
+    lines += [f"{f'R{k}':>4}  {'rigid body':>12}  {'-':>11}" + mk(_fmt(0.0, 1.0, ".4f"))
               for k in range(1, n_rigid + 1)]
-    for k, (f_n, zeta) in enumerate(zip(freqs, zetas), start=1):
-        f_mk = undamped[n_rigid + k - 1] if n_rigid + k <= len(undamped) else None
-        lines.append(f"{k:>4}  {_fmt(f_n, 1.0, '.4f'):>12}  {_fmt(zeta, 100.0, '.3f'):>11}  "
-                     f"{_fmt(f_mk, 1.0, '.4f'):>12}")
+    for k, (f_n, zeta) in enumerate(zip(freqs, zetas)):
+        f_mk = elastic[k] if k < len(elastic) else None
+        lines.append(f"{k + 1:>4}  {_fmt(f_n, 1.0, '.4f'):>12}  {_fmt(zeta, 100.0, '.3f'):>11}"
+                     + mk(_fmt(f_mk, 1.0, ".4f")))
+    if not side:
+        lines.append(f"M,K f [Hz]: the written M, K's undamped frequencies, {len(elastic)} for {len(freqs)} "
+                     "roots, so not paired with them row by row: " + ", ".join(f"{f:.4f}" for f in elastic))
+    if negative:
+        omega2 = ", ".join(f"{-(2 * math.pi * f) ** 2:.4g}" for f in negative)
+        lines.append(f"(K, M) also has {len(negative)} negative eigenvalue(s), omega^2 = {omega2} (rad/s)^2: "
+                     "K is not positive semi-definite, and these are motions that diverge, not frequencies")
     return "\n".join(lines)
+
+
+def _undamped_split(undamped: list, n_rigid: int) -> tuple[list[float], list[float]]:
+    """``undamped_freq_hz`` (signed, ascending; null where undetermined) without its
+    ``n_rigid`` rigid-body zeros: the elastic frequencies (NaN for null) and the negative
+    ones (a negative eigenvalue of (K, M), written as ``-sqrt(-omega^2) / 2 pi``)."""
+    values = [math.nan if v is None else float(v) for v in undamped]
+    for _ in range(n_rigid):
+        if 0.0 in values:
+            values.remove(0.0)
+    return [v for v in values if not v < 0], [v for v in values if v < 0]
 
 
 def _fmt(value: Any, scale: float, spec: str) -> str:

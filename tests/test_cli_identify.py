@@ -118,3 +118,32 @@ def test_lab_demo_end_to_end(tmp_path):
     rows = {int(c[0]): int(c[5]) for c in (line.split() for line in p.stdout.splitlines())
             if len(c) == 9 and c[0].isdigit() and c[5].isdigit()}
     assert rows and rows == pairs
+
+
+def test_mode_table_pairs_rows_only_where_they_are_the_same_modes():
+    """The QA's random record: 15 roots, and the written M, K's 16 undamped frequencies begin
+    with two negative eigenvalues. They were printed as -12408.78 and -8.42 Hz beside the
+    roots at 4.3 and 6.2 Hz, every later row one mode apart. Now the roots stand alone, the
+    M, K frequencies follow on their own line, and the negative eigenvalues as omega^2."""
+    from ssidlab.cli_identify import _mode_table
+
+    roots = [4.2943, 6.2017, 13.3771, 78.4795, 115.2879, 145.0129, 304.7151, 318.0687, 393.1732,
+             559.9941, 696.1861, 778.0534, 1197.6195, 1763.9367, 2211.1081]
+    undamped = [-12408.7754, -8.4215, 6.1983, 15.1541, 16.4182, 78.4743, 116.2066, 145.2343, 315.6377,
+                319.1419, 395.5235, 573.8182, 767.1130, 881.7112, 1202.2671, 1785.1532]
+    table = _mode_table({"natural_freq_hz": roots, "damping_ratio": [0.02] * 15, "undamped_freq_hz": undamped,
+                         "n_rigid_body_modes": 0}).splitlines()
+    assert table[0].split() == ["mode", "f_n", "[Hz]", "damping", "[%]"]
+    assert table[1].split() == ["1", "4.2943", "2.000"] and "-12408" not in "\n".join(table[:16])
+    assert table[16].startswith("M,K f [Hz]: the written M, K's undamped frequencies, 14 for 15 roots, so "
+                                "not paired with them row by row: 6.1983, 15.1541,")
+    assert table[17].startswith("(K, M) also has 2 negative eigenvalue(s), omega^2 = -6.079e+09, -2800 (rad/s)^2")
+    # One elastic mode per root and none negative: side by side, as the guide shows; rigid-body
+    # rows first. M not positive definite (every value null): the column shows "-".
+    table = _mode_table({"natural_freq_hz": [1.26, 78.39], "damping_ratio": [0.02, 0.02],
+                         "undamped_freq_hz": [0.0, 1.2586, 78.3924], "n_rigid_body_modes": 1}).splitlines()
+    assert [row.split() for row in table[1:]] == [["R1", "rigid", "body", "-", "0.0000"],
+                                                  ["1", "1.2600", "2.000", "1.2586"],
+                                                  ["2", "78.3900", "2.000", "78.3924"]]
+    table = _mode_table({"natural_freq_hz": [1.26], "damping_ratio": [0.02], "undamped_freq_hz": [None, None]})
+    assert table.splitlines()[1].split() == ["1", "1.2600", "2.000", "-"]

@@ -49,6 +49,7 @@ from .reaction_loads import choose_reactions, model_frf_under_loads
 from .rigid_body import semi_definite
 from .tam import (
     _MODE_RCOND,
+    RIGID_ROUNDOFF_RTOL,
     TAM_METHODS,
     dof_indices,
     n_unstable_modes,
@@ -60,12 +61,18 @@ from .tam import (
     retained_share,
 )
 
-__all__ = ["ANALYSIS_BAND_FACTOR", "CorrelationStudy", "correlate_models", "correlate_with_frf"]
+__all__ = ["ANALYSIS_BAND_FACTOR", "MAX_PAIR_FREQ_RATIO", "MIN_PAIR_MAC", "CorrelationStudy", "correlate_models",
+           "correlate_with_frf"]
 
 #: Analysis modes up to this multiple of the highest test frequency take part in the MAC.
 ANALYSIS_BAND_FACTOR = 1.5
 #: Pairs with a lower MAC are not paired (no counterpart).
 MIN_PAIR_MAC = 0.5
+#: Nor are modes whose frequencies lie further apart than this factor, however alike their
+#: shapes at the sensors (:func:`ssid.correlate.pair_modes_by_mac_and_frequency`'s bound): at 16
+#: Z sensors a 54.6 Hz test mode had MAC 0.54 with the 1.29 Hz analysis mode (4140 % off) and a
+#: mode of the test model's with omega^2 < 0 MAC 0.51 with a 2310 Hz one (QA).
+MAX_PAIR_FREQ_RATIO = 2.0
 
 
 @dataclass
@@ -99,7 +106,7 @@ def _modes(model: Model, who: str) -> tuple[np.ndarray, np.ndarray]:
     unstable = n_unstable_modes(lam)
     if unstable:
         warnings.warn(f"{who} model: {unstable} mode(s) with omega^2 < 0 (K not positive "
-                      "semi-definite), shown with negative frequencies", stacklevel=2)
+                      "semi-definite), shown with negative frequencies and not paired", stacklevel=2)
     # With K zero every mode is at 0 Hz and its shapes are any basis: the MAC, the pairs and
     # the orthogonality checks would be of an arbitrary choice.
     require_elastic_modes(model.K, f"{who} model", "the MAC pairing of its modes")
@@ -135,7 +142,8 @@ def _mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarr
                       f_an: np.ndarray, M_tam: np.ndarray) -> tuple[dict, np.ndarray, list]:
     """MAC, pairing, frequency errors, orthogonality and cross-orthogonality."""
     mac = modal_assurance(phi_test, phi_an)
-    pairs = pair_modes_by_mac(mac, MIN_PAIR_MAC)
+    admissible, why_not = _pair_rule(f_test, f_an)
+    pairs = pair_modes_by_mac(np.where(admissible, mac, 0.0), MIN_PAIR_MAC)
     phi_test_r = real_mode_from_complex(phi_test)
     xo = cross_orthogonality(phi_test_r, phi_an, M_tam)
     ti = [p.test for p in pairs]
@@ -155,6 +163,18 @@ def _mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarr
         }
         for p, e in zip(pairs, ferr)
     ]
+    # A test mode left without a pair whose best MAC would have paired it by MAC alone: shown,
+    # with the reason, so that the pair the rule refused is not silently missing.
+    paired_tests = {p.test for p in pairs}
+    not_paired = []
+    for i in range(mac.shape[0]):
+        j = int(np.argmax(mac[i])) if mac.shape[1] else 0
+        if i in paired_tests or not mac.shape[1] or mac[i, j] < MIN_PAIR_MAC or admissible[i, j]:
+            continue
+        not_paired.append({"test_mode": i + 1, "analysis_mode": j + 1, "mac": float(mac[i, j]),
+                           "test_freq_hz": float(f_test[i]), "analysis_freq_hz": float(f_an[j]),
+                           "freq_error_percent": float(frequency_error_percent(f_test[i], f_an[j])),
+                           "reason": why_not(i, j)})
     o_chk = check_orthogonality(ortho, diag_min=0.0)
     x_chk = check_orthogonality(xo_paired)
     if not pairs:  # nothing paired: the criterion cannot be met
@@ -164,6 +184,8 @@ def _mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarr
         "auto_mac_test": auto_mac(phi_test),
         "auto_mac_analysis": auto_mac(phi_an),
         "paired_modes": paired,
+        "pairing": {"min_mac": MIN_PAIR_MAC, "max_freq_ratio": MAX_PAIR_FREQ_RATIO},
+        "not_paired": not_paired,
         "freq_error_percent": [float(e) for e in ferr],
         "orthogonality": {
             "matrix": ortho,
@@ -179,6 +201,43 @@ def _mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarr
         },
     }
     return summary, mac, pairs
+
+
+def _pair_rule(f_test: np.ndarray, f_an: np.ndarray):
+    """Which (test, analysis) modes may pair, and a function saying why a pair may not.
+
+    A test mode with omega^2 < 0 (a negative frequency, :func:`_modes`) is no mode of a
+    structure and pairs with nothing. Two modes pair only with frequencies within
+    :data:`MAX_PAIR_FREQ_RATIO` of each other; rigid-body modes (omega^2 at round-off of the
+    largest, :data:`ssid.tam.RIGID_ROUNDOFF_RTOL`: 0 Hz) only with each other.
+    """
+    def at_rest(f):
+        # On the scale of the positive modes: a negative omega^2 of 6e9 (rad/s)^2 (QA) would
+        # otherwise make a 1 Hz suspension mode round-off.
+        f = np.asarray(f, dtype=float)
+        w2 = (2 * np.pi * f) ** 2
+        return w2 <= RIGID_ROUNDOFF_RTOL * (np.max(w2[f > 0]) if np.any(f > 0) else np.inf)
+
+    rigid_t, rigid_a = at_rest(f_test), at_rest(f_an)
+    # As _modes counts them (ssid.tam.n_unstable_modes): omega^2 clearly below zero on the
+    # scale of the largest |omega^2|, not round-off.
+    w2 = (2 * np.pi * np.asarray(f_test, dtype=float)) ** 2
+    negative = (np.asarray(f_test) < 0) & (w2 > RIGID_ROUNDOFF_RTOL * (np.max(w2) if w2.size else 0.0))
+    fa, fb = np.abs(f_test)[:, None], np.abs(f_an)[None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        apart = np.maximum(fa, fb) / np.minimum(fa, fb)  # inf against 0 Hz
+    elastic = ~rigid_t[:, None] & ~rigid_a[None, :] & (apart <= MAX_PAIR_FREQ_RATIO)
+    ok = ~negative[:, None] & ((rigid_t[:, None] & rigid_a[None, :]) | elastic)
+
+    def why_not(i: int, j: int) -> str:
+        if negative[i]:
+            return "the test mode has omega^2 < 0 (K not positive semi-definite): not a physical mode"
+        if rigid_t[i] or rigid_a[j]:
+            return "a rigid-body mode (0 Hz) pairs only with a rigid-body mode"
+        return (f"frequencies a factor {apart[i, j]:.3g} apart (a pair needs {MAX_PAIR_FREQ_RATIO:g} or less): "
+                "shapes alike at the sensors (spatial aliasing), not taken for the same mode")
+
+    return ok, why_not
 
 
 def _analysis_band(f_an: np.ndarray, f_test_max: float, n_test: int) -> int:

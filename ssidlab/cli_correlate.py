@@ -243,12 +243,24 @@ def pair_table(summary: dict) -> str:
         lines.append(f"{p['test_mode']:>4} {p['test_freq_hz']:>12.4f} {p['analysis_mode']:>4} "
                      f"{p['analysis_freq_hz']:>12.4f} {p['freq_error_percent']:>9.3f} "
                      f"{p['mac']:>6.3f} {p['cross_orthogonality']:>7.3f}")
+    refused = summary.get("not_paired") or []
+    if refused:
+        # Below the pairs, apart from them: a row among them would read as a pair (the QA's
+        # 54.57 Hz test mode "paired" with the 1.29 Hz analysis mode, 4140 % off).
+        lines.append("not paired (MAC 0.5 or more, but not the same mode):")
+        for p in refused:
+            negative = p["test_freq_hz"] < 0 and "omega^2 < 0" in p["reason"]
+            f_test = "omega^2 < 0" if negative else f"{p['test_freq_hz']:.4f}"
+            err = "-" if negative else f"{p['freq_error_percent']:.1f}"
+            lines.append(f"{p['test_mode']:>4} {f_test:>12} {p['analysis_mode']:>4} {p['analysis_freq_hz']:>12.4f} "
+                         f"{err:>9} {p['mac']:>6.3f}  {p['reason']}")
     xo = summary["cross_orthogonality"]
     if xo["min_abs_diag"] is None:  # nothing paired: no numbers to show, only the verdict
         from ssid.correlate_models import MIN_PAIR_MAC
 
-        lines.append(f"cross-orthogonality: no modes were paired (no test mode has a MAC of "
-                     f"{MIN_PAIR_MAC:g} or more with an analysis mode) -> fail")
+        why = ("those with a MAC of 0.5 or more are not the same modes, above" if refused else
+               f"no test mode has a MAC of {MIN_PAIR_MAC:g} or more with an analysis mode")
+        lines.append(f"cross-orthogonality: no modes were paired ({why}) -> fail")
     else:
         lines.append(f"cross-orthogonality: min |diag| {xo['min_abs_diag']:.3f}, max |off-diag| "
                      f"{xo['max_abs_offdiag']:.3f} -> {'pass' if xo['pass'] else 'fail'}")

@@ -267,3 +267,37 @@ def test_tam_options_with_no_reduction_to_make_are_refused(files, options):
     assert status == 2 and "has only the test DOFs: no TAM is made" in err and options[0] in err, err
     assert not out.exists()
     assert run(["--model", f"{files}/fem.h5", "--model", f"{files}/fem.mat", "--json", str(out)]) == (0, "")
+
+
+def test_a_non_physical_mode_or_one_far_off_in_frequency_is_not_paired(tmp_path, capsys):
+    """Three modes with the same shapes in both models (MAC 1 mode for mode). Of the test
+    model's, one has omega^2 < 0, one is at ten times its counterpart's frequency (test mode 3,
+    200 Hz against 20 Hz), one at 1.25 times (test mode 2). MAC alone paired all three (the
+    QA's -12408.78 Hz with 2309.6 Hz, and 54.57 Hz with 1.29 Hz, 4140 % off); only test mode 2
+    is a pair now, and the two the rule refuses are shown apart from the pairs, in the table
+    and the JSON, with the reason."""
+    phi = np.linalg.qr(np.random.default_rng(4).normal(size=(3, 3)))[0]
+    dofs = ["1+Z", "2+Z", "3+Z"]
+
+    def model(f_hz):  # M = I and the modes phi at these signed frequencies
+        w2 = np.sign(f_hz) * (2 * np.pi * np.asarray(f_hz)) ** 2
+        return Model(np.eye(3), phi @ np.diag(w2) @ phi.T, None, dofs)
+
+    write_model(tmp_path / "test.h5", model([-10.0, 200.0, 50.0]))
+    write_model(tmp_path / "fem.h5", model([10.0, 20.0, 40.0]))
+    js = tmp_path / "c.json"
+    with pytest.warns(UserWarning, match="omega\\^2 < 0"):
+        status, err = run(["--model", str(tmp_path / "test.h5"), "--model", str(tmp_path / "fem.h5"),
+                           "--json", str(js)])
+    assert status == 0, err
+    s = json.loads(js.read_text())
+    assert [(p["test_mode"], p["analysis_mode"]) for p in s["paired_modes"]] == [(2, 3)]
+    assert [(p["test_mode"], p["analysis_mode"]) for p in s["not_paired"]] == [(1, 1), (3, 2)]
+    assert s["not_paired"][0]["reason"].startswith("the test mode has omega^2 < 0")
+    assert s["not_paired"][1]["reason"].startswith("frequencies a factor 10 apart (a pair needs 2 or less)")
+    assert s["pairing"] == {"min_mac": 0.5, "max_freq_ratio": 2.0}
+    out = capsys.readouterr().out.splitlines()
+    below = out[out.index("not paired (MAC 0.5 or more, but not the same mode):"):]
+    assert below[1].split()[:7] == ["1", "omega^2", "<", "0", "1", "10.0000", "-"]
+    assert below[2].split()[:6] == ["3", "200.0000", "2", "20.0000", "900.0", "1.000"]
+    assert below[3].startswith("cross-orthogonality: min |diag| 1.000")

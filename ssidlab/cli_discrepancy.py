@@ -155,53 +155,12 @@ def summary_text(data: dict) -> str:
     lines.append(data.get("residual", {}).get("text", ""))
     lines.append(data.get("reactions", {}).get("text", ""))
     lines.append("candidates (delta EBIC" + (", first round: one effect at a time):" if len(effects) > 1 else "):"))
-    rejected = _rejected(data)
-    for k, c in enumerate(data["candidates"][:6]):
+    for c in data["candidates"][:6]:
         cp = ", ".join(f"{k} = {v:.4g}" for k, v in c["parameters"].items())
         # A rejected candidate's criterion was set to none's (+ 1e-9): its delta would print
         # as none's, a tie it is not.
-        delta = "rejected" if k in rejected else f"{c['delta_criterion']:.1f}"
+        why = c.get("rejected")
+        delta = "rejected" if why else f"{c['delta_criterion']:.1f}"
         lines.append(f"  {delta:>10}  {c['effect']:<20} {' - '.join(c['dofs']):<14} {cp}"
-                     + (f"  ({rejected[k]})" if k in rejected else ""))
+                     + (f"  ({why})" if why else ""))
     return "\n".join(x for x in lines if x)
-
-
-def _rejected(data: dict) -> dict[int, str]:
-    """Place in ``data["candidates"]`` -> why that candidate was turned down.
-
-    The workflow moves a leader that fails its checks to just below ``none`` (its criterion
-    becomes none's + 1e-9, ``ssid.discrepancy.search.demote``), and, when no leader passes,
-    every candidate still above ``none`` with it, unchecked. The checked ones are in
-    ``cross_validation.checks``, with what failed; the others are known by that criterion.
-    """
-    cands = data.get("candidates") or []
-    none = next((c for c in cands if c["effect"] == "none"), None)
-    cv = data.get("cross_validation") or (data.get("info") or {}).get("cross_validation") or {}
-    checks = {(c["effect"], tuple(c["dofs"])): c for c in cv.get("checks") or []}
-    out: dict[int, str] = {}
-    for k, c in enumerate(cands):
-        check = checks.get((c["effect"], tuple(c["dofs"])))
-        if check is not None and not check.get("passed", True):
-            out[k] = _failed_check(check)
-        elif none is not None and k > cands.index(none) and _set_to_none(c, none):
-            out[k] = "not checked: ranked below none once the leaders checked had failed"
-    return out
-
-
-def _set_to_none(cand: dict, none: dict) -> bool:
-    """Whether ``cand``'s criterion is none's + 1e-9 (to round-off): demoted, not ranked so."""
-    gap = cand["criterion"] - none["criterion"]
-    return 0.0 <= gap <= 1e-9 + 4 * math.ulp(abs(none["criterion"]))
-
-
-def _failed_check(check: dict) -> str:
-    """What a checked leader failed (``cross_validation.checks[*]``, docs/discrepancy.md)."""
-    if check.get("negligible"):
-        return (f"negligible: it changes no model FRF value by more than {100 * check['frf_change']:.2g} %")
-    stand = check.get("stand_noise")
-    if stand is not None and not stand.get("passed", True):
-        return "failed the test with the reactions' noise modelled exactly"
-    gain = check.get("heldout_gain")
-    if gain is not None and gain <= 0:
-        return f"failed the cross-validation: it raised the held-out residual by {-gain:.3g}"
-    return "failed its checks"

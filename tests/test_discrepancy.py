@@ -390,6 +390,11 @@ def test_an_effect_the_data_show_but_too_small_to_matter_is_not_named(mass_kg, n
     assert "negligible" in residual["text"] and "would lower the gap" in residual["text"]
     check = res.info["cross_validation"]["checks"][0]
     assert check["negligible"] and check["heldout_gain"] is None and not check["passed"]
+    # the candidate says why it is ranked below none, the others that they are not turned down
+    turned_down = {(c["effect"], tuple(c["dofs"])): c["rejected"] for c in res.candidates if c["rejected"]}
+    assert turned_down[("added_mass", (dofs[3],))].startswith("negligible: it changes no model FRF value")
+    assert all(c["rejected"] is None for c in res.candidates[:res.candidates.index(
+        next(c for c in res.candidates if c["effect"] == "none")) + 1])
 
 
 def test_no_effect_with_a_large_gap_is_not_called_agreement():

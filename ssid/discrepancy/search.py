@@ -136,6 +136,11 @@ class Candidate:
     own_modes : OwnModesDamping or None
         Set when the candidate fits better with the changed structure's own modes damped
         than with the round's C kept; its RSS and parameters are then those of that fit.
+    rejected : str or None
+        Why the candidate was moved below ``none`` (:func:`demote`), None if it was not.
+    fitted_criterion : float or None
+        A rejected candidate's criterion before it was moved: the candidates moved below
+        ``none`` keep their order by it.
     """
 
     effect: Effect
@@ -145,6 +150,8 @@ class Candidate:
     location: tuple | None = None
     delta_criterion: float = 0.0
     own_modes: OwnModesDamping | None = None
+    rejected: str | None = None
+    fitted_criterion: float | None = None
 
     @property
     def name(self) -> str:
@@ -282,8 +289,9 @@ def _pairs(M, C, K, omega, nom, W, R, singles: Locations, n_top: int) -> Locatio
 
 
 def rank_candidates(cands: list[Candidate]) -> None:
-    """Sort by criterion (in place) and set each ``delta_criterion`` relative to the best."""
-    cands.sort(key=lambda c: c.criterion)
+    """Sort by criterion (in place; those moved below ``none`` by their criterion before) and
+    set each ``delta_criterion`` relative to the best."""
+    cands.sort(key=lambda c: (c.criterion, 0.0 if c.fitted_criterion is None else c.fitted_criterion))
     for c in cands:
         c.delta_criterion = c.criterion - cands[0].criterion
 
@@ -297,9 +305,12 @@ def rerank_none(search: SearchResult, rss: float) -> None:
         rank_candidates(search.candidates)
 
 
-def demote(search: SearchResult, cand: Candidate) -> None:
-    """Move ``cand`` below ``none`` (it failed cross-validation) and re-rank in place."""
+def demote(search: SearchResult, cand: Candidate, why: str) -> None:
+    """Move ``cand`` below ``none`` (it failed its checks: ``why``) and re-rank in place."""
+    if cand.fitted_criterion is None:
+        cand.fitted_criterion = cand.criterion
     cand.criterion = max(cand.criterion, search.none().criterion + 1e-9)
+    cand.rejected = why
     rank_candidates(search.candidates)
 
 

@@ -31,6 +31,7 @@ def candidate_json(search: SearchResult, cand: Candidate, H_meas: np.ndarray, va
         "delta_criterion": cand.delta_criterion,
         "n_parameters": cand.effect.n_parameters,
         "rss": cand.rss,
+        "rejected": cand.rejected,
     }
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 from .effects import Effect
 from .search import SearchResult
 
-__all__ = ["GAP_WITHIN_NOISE", "negligible_leader", "negligible_text", "residual_statement"]
+__all__ = ["GAP_WITHIN_NOISE", "failed_check", "negligible_leader", "negligible_text", "residual_statement"]
 
 #: Largest gap said to be "within the stated noise". A model as good as the truth has a gap
 #: equal to the RMS of the measurement's errors in units of their stated standard
@@ -103,3 +103,16 @@ def residual_statement(second: SearchResult | None, effects: list[Effect], gap_a
                 f"{'-'.join(nxt['dofs'])}, which would lower it to {nxt['gap_with_it']:.3g}")
     return {"closed": closed, "text": text + negligible_text(negligible), "next_effect": nxt,
             "negligible_effect": negligible}
+
+
+def failed_check(check: dict) -> str:
+    """What a leader that failed its checks failed, from its ``cross_validation.checks`` entry."""
+    if check.get("negligible"):
+        return f"negligible: it changes no model FRF value by more than {100 * check['frf_change']:.2g} %"
+    stand = check.get("stand_noise")
+    if stand is not None and not stand.get("passed", True):
+        return "failed the test with the reactions' noise modelled exactly"
+    gain = check.get("heldout_gain")
+    if gain is not None and gain <= 0:
+        return f"failed the cross-validation: it raised the held-out residual by {-gain:.3g}"
+    return "failed its checks"

@@ -60,7 +60,7 @@ from .search_json import candidate_json, listed_candidates, localisation_json, r
 from .stand_noise import StandNoise, stand_noise_check
 from .two_effects import backfit, refine_jointly, with_effects
 from .undamped import damping_spread_warning, search_undamped
-from .verdict import negligible_leader, negligible_text, residual_statement
+from .verdict import failed_check, negligible_leader, negligible_text, residual_statement
 from .weights import noise_weights, reaction_variance
 
 __all__ = ["find_discrepancy"]
@@ -175,7 +175,7 @@ def _validate(search: SearchResult, stand: StandNoise | None = None, tries: int 
         if check["passed"]:
             passed.append((cand, check))
         else:
-            demote(search, cand)
+            demote(search, cand, failed_check(check))
     if passed:
         best, check = min(passed, key=lambda cc: cc[1].get("stand_noise", {}).get("delta_criterion", 0.0))
         check["named"] = True
@@ -184,7 +184,7 @@ def _validate(search: SearchResult, stand: StandNoise | None = None, tries: int 
                                                   check["stand_noise"]["parameters"]))
         return checks
     for cand in search.candidates[:search.candidates.index(search.none())]:
-        demote(search, cand)
+        demote(search, cand, "not checked: ranked below none once the leaders checked had failed")
     return checks
 
 

@@ -23,7 +23,8 @@ from .search import NONNEGATIVE, SearchResult
 
 __all__ = ["backfit", "refine_jointly"]
 
-#: Parameters that must stay positive (an oscillator's mass and spring) or not negative.
+#: An oscillator's parameters, kept from going negative in the joint fit (as a damper's,
+#: ``search.NONNEGATIVE``): a negative mass, spring or damper is no attached subsystem.
 _POSITIVE = {("attached_oscillator", "mass_kg"), ("attached_oscillator", "stiffness_n_per_m"),
              ("attached_oscillator", "damping_n_s_per_m")}
 

@@ -301,3 +301,30 @@ def test_a_non_physical_mode_or_one_far_off_in_frequency_is_not_paired(tmp_path,
     assert below[1].split()[:7] == ["1", "omega^2", "<", "0", "1", "10.0000", "-"]
     assert below[2].split()[:6] == ["3", "200.0000", "2", "20.0000", "900.0", "1.000"]
     assert below[3].startswith("cross-orthogonality: min |diag| 1.000")
+
+
+def test_a_free_free_models_rigid_body_mode_pairs_with_the_suspension_mode_measured(tmp_path):
+    """A five-mass free-free chain (analysis: a rigid-body mode at 0 Hz) against the same chain
+    on 60 N/m bungees at its ends, as a free-free test measures it (a 0.74 Hz suspension mode,
+    MAC 1.000 with the rigid-body mode), and against one whose rigid-body mode an
+    identification put at omega^2 = -0.04 (rad/s)^2. The frequency rule had left the rigid-body
+    pair out (4 of 5 paired); it pairs by the MAC, as before the rule."""
+    m = np.array([1.0, 1.5, 1.2, 0.8, 1.0])
+    k = np.array([1e5, 1.2e5, 0.9e5, 1.1e5])
+    K = np.zeros((5, 5))
+    for i, ki in enumerate(k):
+        K[i:i + 2, i:i + 2] += ki * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    dofs = [f"{i + 1}+Z" for i in range(5)]
+    bungees = K.copy()
+    bungees[0, 0] += 60.0
+    bungees[-1, -1] += 60.0
+    write_model(tmp_path / "fem.h5", Model(np.diag(m), K, None, dofs))
+    for name, Kt in (("bungees", bungees), ("below_zero", K - 0.04 * np.diag(m))):
+        write_model(tmp_path / f"{name}.h5", Model(np.diag(m), Kt, None, dofs))
+        js = tmp_path / f"{name}.json"
+        status, err = run(["--model", str(tmp_path / f"{name}.h5"), "--model", str(tmp_path / "fem.h5"),
+                           "--json", str(js)])
+        assert status == 0, err
+        s = json.loads(js.read_text())
+        assert [(p["test_mode"], p["analysis_mode"]) for p in s["paired_modes"]] == [(i, i) for i in range(1, 6)]
+        assert s["not_paired"] == []

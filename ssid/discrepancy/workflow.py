@@ -263,9 +263,9 @@ def find_discrepancy(
     stand = StandNoise.build(H, W_meas, loads, data.outputs, model.dofs)
     warnings: list[str] = [choice.text] if choice.to_check else []
 
-    C, damping = model.C, "model C"
+    C, damping, zeta = model.C, "model C", None
     if model.C is None:
-        search, C, _, damping = search_undamped(
+        search, C, zeta, damping = search_undamped(
             model, data, omega, H, W, valid, out_idx, in_idx,
             lambda C_: _search(model, C_, omega, H, W, out_idx, in_idx, T), T)
         spread = damping_spread_warning(data.freq_hz, H, valid)
@@ -298,9 +298,22 @@ def find_discrepancy(
                 _validate(found, stand, negligible_change=negligible_change)
                 return found
 
+            def frf_of(m: Model) -> np.ndarray:
+                return _model_frf(m, data, loads)
+
             effects = backfit(nominal, effects[0], second.best.effect, search_validated)
-            effects, _ = refine_jointly(nominal, effects, lambda m: _model_frf(m, data, loads), H, W)
-            updated = with_effects(nominal, effects)
+            # Without C, the ratio fitted with the first effect alone is refitted with both.
+            base, undamped = nominal, model.C is None
+            effects, base, _ = refine_jointly(base, effects, frf_of, H, W, fit_damping=undamped)
+            # One more sweep with the partner (and ratio) fitted: a stand-in the first sweeps
+            # kept (a stiff oscillator for a mass, its partner not yet right) is re-decided.
+            again = backfit(base, effects[0], effects[1], search_validated, sweeps=1)
+            if [(e.name, e.dofs) for e in again] != [(e.name, e.dofs) for e in effects]:
+                effects, base, _ = refine_jointly(base, again, frf_of, H, W, fit_damping=undamped)
+            if base is not nominal and undamped:
+                factor = float(np.linalg.norm(base.C) / np.linalg.norm(nominal.C))  # C scaled as a whole
+                damping += f"; refitted with both effects: zeta = {zeta * factor:.4g}"
+            updated = with_effects(base, effects)
             H_upd = _model_frf(updated, data, loads)
             own = None  # backfitted with the nominal modes' damping kept
             # Does the pair close the gap? A third round decides, as the second did for one.

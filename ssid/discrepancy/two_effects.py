@@ -7,7 +7,9 @@ parameters with the other's held, and two sweeps stop short of the fit: on the s
 payload on its stand with 0.1 kg and a 5e4 N/m spring hidden, the spring came back 1.7 % low
 and the gap 40 where the truth leaves 0.9. :func:`refine_jointly` then fits every parameter of
 both effects together on the exact model FRFs (a few parameters, a direct solve per line per
-evaluation: the search's rank-one shortcut holds for one effect only).
+evaluation: the search's rank-one shortcut holds for one effect only), with the damping of a
+model file without C, and :func:`fit_two_effects` runs one more backfitting sweep with the
+partner so fitted, which re-decides a stand-in effect.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from ..io import Model
 from .effects import PARAMETER_KEYS, Effect, apply_effect_to_model
 from .search import NONNEGATIVE, SearchResult
 
-__all__ = ["backfit", "refine_jointly"]
+__all__ = ["backfit", "fit_two_effects", "refine_jointly", "with_effects"]
 
 #: An oscillator's parameters, kept from going negative in the joint fit (as a damper's,
 #: ``search.NONNEGATIVE``): a negative mass, spring or damper is no attached subsystem.
@@ -114,3 +116,23 @@ def refine_jointly(nominal: Model, effects: list[Effect], model_frf: Callable[[M
         return list(effects), nominal, rss0
     out, base = models_of(res.x)
     return out, base, rss
+
+
+def fit_two_effects(nominal: Model, first: Effect, second: Effect, search_fn: Callable[[Model], SearchResult],
+                    model_frf: Callable[[Model], np.ndarray], H: np.ndarray, W: np.ndarray,
+                    fit_damping: bool = False) -> tuple[list[Effect], Model]:
+    """The two effects of ``max_effects=2``: ``(effects, nominal)``, the nominal model with its C
+    refitted when ``fit_damping`` (:func:`refine_jointly`).
+
+    Backfitting names them, the joint fit sets their parameters (and the damping), and one
+    more backfitting sweep with the partner so fitted re-decides each: a stand-in the first
+    sweeps kept (a stiff oscillator for a mass, while its partner was not yet right) is
+    replaced, and the joint fit run again. ``search_fn``, ``model_frf``, ``H``, ``W`` as in
+    :func:`backfit` and :func:`refine_jointly`.
+    """
+    effects = backfit(nominal, first, second, search_fn)
+    effects, base, _ = refine_jointly(nominal, effects, model_frf, H, W, fit_damping=fit_damping)
+    again = backfit(base, effects[0], effects[1], search_fn, sweeps=1)
+    if [(e.name, e.dofs) for e in again] != [(e.name, e.dofs) for e in effects]:
+        effects, base, _ = refine_jointly(base, again, model_frf, H, W, fit_damping=fit_damping)
+    return effects, base

@@ -58,7 +58,7 @@ from .search import (
 )
 from .search_json import candidate_json, listed_candidates, localisation_json, round_json
 from .stand_noise import StandNoise, stand_noise_check
-from .two_effects import backfit, refine_jointly, with_effects
+from .two_effects import fit_two_effects, with_effects
 from .undamped import damping_spread_warning, search_undamped
 from .verdict import failed_check, negligible_leader, negligible_text, residual_statement
 from .weights import noise_weights, reaction_variance
@@ -301,15 +301,9 @@ def find_discrepancy(
             def frf_of(m: Model) -> np.ndarray:
                 return _model_frf(m, data, loads)
 
-            effects = backfit(nominal, effects[0], second.best.effect, search_validated)
-            # Without C, the ratio fitted with the first effect alone is refitted with both.
-            base, undamped = nominal, model.C is None
-            effects, base, _ = refine_jointly(base, effects, frf_of, H, W, fit_damping=undamped)
-            # One more sweep with the partner (and ratio) fitted: a stand-in the first sweeps
-            # kept (a stiff oscillator for a mass, its partner not yet right) is re-decided.
-            again = backfit(base, effects[0], effects[1], search_validated, sweeps=1)
-            if [(e.name, e.dofs) for e in again] != [(e.name, e.dofs) for e in effects]:
-                effects, base, _ = refine_jointly(base, again, frf_of, H, W, fit_damping=undamped)
+            undamped = model.C is None
+            effects, base = fit_two_effects(nominal, effects[0], second.best.effect, search_validated, frf_of, H, W,
+                                            fit_damping=undamped)
             if base is not nominal and undamped:
                 factor = float(np.linalg.norm(base.C) / np.linalg.norm(nominal.C))  # C scaled as a whole
                 damping += f"; refitted with both effects: zeta = {zeta * factor:.4g}"

@@ -6,10 +6,16 @@ search (or none), the effects added and the gap after them, with the noise level
 
 from __future__ import annotations
 
+import numpy as np
+
+from ..io import Model
+from ..model_checks import n_unstable_modes
+from ..tam import normal_modes
 from .effects import Effect
 from .search import SearchResult
 
-__all__ = ["GAP_WITHIN_NOISE", "failed_check", "negligible_leader", "negligible_text", "residual_statement"]
+__all__ = ["GAP_WITHIN_NOISE", "failed_check", "negligible_leader", "negligible_text", "residual_statement",
+           "unstable_warning"]
 
 #: Largest gap said to be "within the stated noise". A model as good as the truth has a gap
 #: equal to the RMS of the measurement's errors in units of their stated standard
@@ -116,3 +122,28 @@ def failed_check(check: dict) -> str:
     if gain is not None and gain <= 0:
         return f"failed the cross-validation: it raised the held-out residual by {-gain:.3g}"
     return "failed its checks"
+
+
+def _n_unstable(model: Model) -> int | None:
+    """Modes of (K, M) with omega^2 clearly below zero; None if M has no normal modes."""
+    try:
+        lam, _ = normal_modes(model.M, model.K)
+    except np.linalg.LinAlgError:  # M not positive definite (massless DOFs): not judged here
+        return None
+    return n_unstable_modes(lam)
+
+
+def unstable_warning(nominal: Model, updated: Model, effects: list[Effect]) -> str | None:
+    """A warning when the effects make the model unstable (the nominal model was not): the
+    updated model is written all the same, as what fits the data, but it is no structure."""
+    if not effects or _n_unstable(nominal) != 0:
+        return None
+    n = _n_unstable(updated)
+    if n is None:
+        return (f"the updated model's M is not positive definite with {' and '.join(e.describe() for e in effects)}: "
+                "it fits the data but is not a physical structure")
+    if not n:
+        return None
+    return (f"the updated model has {n} mode(s) with omega^2 < 0 with {' and '.join(e.describe() for e in effects)} "
+            "(K no longer positive semi-definite): it fits the data but is not a stable structure; check the "
+            "test setup or the nominal model's stiffness there")

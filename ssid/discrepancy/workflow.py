@@ -60,7 +60,7 @@ from .search_json import candidate_json, listed_candidates, localisation_json, r
 from .stand_noise import StandNoise, stand_noise_check
 from .two_effects import fit_two_effects, with_effects
 from .undamped import damping_spread_warning, search_undamped
-from .verdict import failed_check, negligible_leader, negligible_text, residual_statement
+from .verdict import failed_check, negligible_leader, negligible_text, residual_statement, unstable_warning
 from .weights import noise_weights, reaction_variance
 
 __all__ = ["find_discrepancy"]
@@ -349,6 +349,9 @@ def find_discrepancy(
         warnings.append(f"{effects[-1].describe()} leaves a gap of {gap_after:.3g} (1 = noise level) that no "
                         "further effect of the library lowers: the model differs from the test in a way the "
                         "library does not describe")
+    unstable = unstable_warning(nominal, updated, effects)
+    if unstable is not None:
+        warnings.append(unstable)
     updated.attrs = {**updated.attrs, "discrepancy_effects": "; ".join(e.describe() for e in effects) or "none"}
 
     info = {

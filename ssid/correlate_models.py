@@ -109,7 +109,8 @@ def _modes(model: Model, who: str) -> tuple[np.ndarray, np.ndarray]:
     unstable = n_unstable_modes(lam)
     if unstable:
         warnings.warn(f"{who} model: {unstable} mode(s) with omega^2 < 0 (K not positive "
-                      "semi-definite), shown with negative frequencies and not paired", stacklevel=2)
+                      "semi-definite), shown with negative frequencies and not paired unless at rest (a "
+                      "rigid-body mode a little below zero)", stacklevel=2)
     # With K zero every mode is at 0 Hz and its shapes are any basis: the MAC, the pairs and
     # the orthogonality checks would be of an arbitrary choice.
     require_elastic_modes(model.K, f"{who} model", "the MAC pairing of its modes")

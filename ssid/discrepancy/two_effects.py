@@ -23,7 +23,7 @@ from ..io import Model
 from .effects import PARAMETER_KEYS, Effect, apply_effect_to_model
 from .search import NONNEGATIVE, SearchResult
 
-__all__ = ["backfit", "fit_two_effects", "refine_jointly", "with_effects"]
+__all__ = ["backfit", "fit_two_effects", "refine_jointly", "scaled_damping", "with_effects"]
 
 #: An oscillator's parameters, kept from going negative in the joint fit (as a damper's,
 #: ``search.NONNEGATIVE``): a negative mass, spring or damper is no attached subsystem.
@@ -58,9 +58,16 @@ def with_effects(nominal: Model, effects: list[Effect]) -> Model:
     return model
 
 
+def scaled_damping(nominal: Model, factor: float) -> Model:
+    """``nominal`` with its C times ``factor`` (itself for 1)."""
+    if factor == 1.0:
+        return nominal
+    return Model(M=nominal.M, K=nominal.K, C=factor * nominal.C, dofs=list(nominal.dofs), attrs=dict(nominal.attrs))
+
+
 def refine_jointly(nominal: Model, effects: list[Effect], model_frf: Callable[[Model], np.ndarray],
-                   H: np.ndarray, W: np.ndarray, fit_damping: bool = False) -> tuple[list[Effect], Model, float]:
-    """Every parameter of ``effects`` fitted together: ``(effects, nominal, rss)``.
+                   H: np.ndarray, W: np.ndarray, fit_damping: bool = False) -> tuple[list[Effect], float]:
+    """Every parameter of ``effects`` fitted together: ``(effects, damping factor)``.
 
     Weighted least squares (``scipy.optimize.least_squares``, each parameter scaled by its
     start) of ``W (H - model_frf(nominal with the effects))`` over the valid values (``W > 0``),
@@ -75,7 +82,7 @@ def refine_jointly(nominal: Model, effects: list[Effect], model_frf: Callable[[M
     H, W : (n_freq, n_out, n_in)
         Measured accelerance and weights ``1/sigma`` (0 where not valid).
     fit_damping : bool
-        Also fit a factor on the nominal model's C (within 1/4 to 4), returned in ``nominal``:
+        Also fit a factor on the nominal model's C (within 1/4 to 4; 1 returned otherwise):
         for a model file without C, whose modal damping ratio was fitted with the first effect
         alone (a QA run: 0.0287 against 0.02, and the true pair left a gap of 9.65 there).
     """
@@ -85,22 +92,20 @@ def refine_jointly(nominal: Model, effects: list[Effect], model_frf: Callable[[M
     m = W > 0
     w, h = W[m], H[m]
 
-    def models_of(x: np.ndarray) -> tuple[list[Effect], Model]:
+    def effects_of(x: np.ndarray) -> list[Effect]:
         p, out, i = x[:p0.size] * scale, [], 0
         for e in effects:
             n = e.n_parameters
             out.append(Effect(e.name, e.dofs, dict(zip(PARAMETER_KEYS[e.name], map(float, p[i:i + n])))))
             i += n
-        base = nominal
-        if fit_damping:  # x[-1]: log of the factor on C
-            base = Model(M=nominal.M, K=nominal.K, C=float(np.exp(x[-1])) * nominal.C, dofs=list(nominal.dofs),
-                         attrs=dict(nominal.attrs))
-        return out, base
+        return out
+
+    def factor_of(x: np.ndarray) -> float:
+        return float(np.exp(x[-1])) if fit_damping else 1.0  # x[-1]: log of the factor on C
 
     def residual(x: np.ndarray) -> np.ndarray:
-        out, base = models_of(x)
         with np.errstate(all="ignore"):
-            r = w * (h - model_frf(with_effects(base, out))[m])
+            r = w * (h - model_frf(with_effects(scaled_damping(nominal, factor_of(x)), effects_of(x)))[m])
         r = np.concatenate([r.real, r.imag])
         return np.where(np.isfinite(r), r, 1e100)
 
@@ -113,16 +118,15 @@ def refine_jointly(nominal: Model, effects: list[Effect], model_frf: Callable[[M
     res = least_squares(residual, x0, bounds=(lo, hi))
     rss = float(np.sum(res.fun**2))
     if not np.isfinite(rss) or rss >= rss0:
-        return list(effects), nominal, rss0
-    out, base = models_of(res.x)
-    return out, base, rss
+        return list(effects), 1.0
+    return effects_of(res.x), factor_of(res.x)
 
 
 def fit_two_effects(nominal: Model, first: Effect, second: Effect, search_fn: Callable[[Model], SearchResult],
                     model_frf: Callable[[Model], np.ndarray], H: np.ndarray, W: np.ndarray,
-                    fit_damping: bool = False) -> tuple[list[Effect], Model]:
-    """The two effects of ``max_effects=2``: ``(effects, nominal)``, the nominal model with its C
-    refitted when ``fit_damping`` (:func:`refine_jointly`).
+                    fit_damping: bool = False) -> tuple[list[Effect], float]:
+    """The two effects of ``max_effects=2``: ``(effects, damping factor)``, the factor on the
+    nominal model's C when ``fit_damping`` (:func:`refine_jointly`; 1 otherwise).
 
     Backfitting names them, the joint fit sets their parameters (and the damping), and one
     more backfitting sweep with the partner so fitted re-decides each: a stand-in the first
@@ -131,8 +135,10 @@ def fit_two_effects(nominal: Model, first: Effect, second: Effect, search_fn: Ca
     :func:`backfit` and :func:`refine_jointly`.
     """
     effects = backfit(nominal, first, second, search_fn)
-    effects, base, _ = refine_jointly(nominal, effects, model_frf, H, W, fit_damping=fit_damping)
+    effects, factor = refine_jointly(nominal, effects, model_frf, H, W, fit_damping=fit_damping)
+    base = scaled_damping(nominal, factor)
     again = backfit(base, effects[0], effects[1], search_fn, sweeps=1)
     if [(e.name, e.dofs) for e in again] != [(e.name, e.dofs) for e in effects]:
-        effects, base, _ = refine_jointly(base, again, model_frf, H, W, fit_damping=fit_damping)
-    return effects, base
+        effects, more = refine_jointly(base, again, model_frf, H, W, fit_damping=fit_damping)
+        factor *= more
+    return effects, factor

@@ -58,7 +58,7 @@ from .search import (
 )
 from .search_json import candidate_json, listed_candidates, localisation_json, round_json
 from .stand_noise import StandNoise, stand_noise_check
-from .two_effects import fit_two_effects, with_effects
+from .two_effects import fit_two_effects, scaled_damping, with_effects
 from .undamped import damping_spread_warning, search_undamped
 from .verdict import failed_check, negligible_leader, negligible_text, residual_statement, unstable_warning
 from .weights import noise_weights, reaction_variance
@@ -288,31 +288,25 @@ def find_discrepancy(
 
     rounds = [round_json(search, H, valid, model.dofs)]
     second, second_checks = None, []
+
+    def checked_round(m: Model) -> tuple[SearchResult, list[dict]]:
+        found = _search(m, m.C, omega, H, W, out_idx, in_idx, T)
+        return found, _validate(found, stand, negligible_change=negligible_change)
+
     if second_round and effects:
-        second = _search(updated, updated.C, omega, H, W, out_idx, in_idx, T)
-        second_checks = _validate(second, stand, negligible_change=negligible_change)
+        second, second_checks = checked_round(updated)
         rounds.append(round_json(second, H, valid, updated.dofs))
         if second.best.name != "none" and max_effects >= 2:
-            def search_validated(m: Model) -> SearchResult:
-                found = _search(m, m.C, omega, H, W, out_idx, in_idx, T)
-                _validate(found, stand, negligible_change=negligible_change)
-                return found
-
-            def frf_of(m: Model) -> np.ndarray:
-                return _model_frf(m, data, loads)
-
             undamped = model.C is None
-            effects, base = fit_two_effects(nominal, effects[0], second.best.effect, search_validated, frf_of, H, W,
-                                            fit_damping=undamped)
-            if base is not nominal and undamped:
-                factor = float(np.linalg.norm(base.C) / np.linalg.norm(nominal.C))  # C scaled as a whole
+            effects, factor = fit_two_effects(nominal, effects[0], second.best.effect, lambda m: checked_round(m)[0],
+                                              lambda m: _model_frf(m, data, loads), H, W, fit_damping=undamped)
+            if factor != 1.0:
                 damping += f"; refitted with both effects: zeta = {zeta * factor:.4g}"
-            updated = with_effects(base, effects)
+            updated = with_effects(scaled_damping(nominal, factor), effects)
             H_upd = _model_frf(updated, data, loads)
-            own = None  # backfitted with the nominal modes' damping kept
+            own = None  # the pair is fitted with the nominal modes' damping (scaled, without C)
             # Does the pair close the gap? A third round decides, as the second did for one.
-            second = _search(updated, updated.C, omega, H, W, out_idx, in_idx, T)
-            second_checks = _validate(second, stand, negligible_change=negligible_change)
+            second, second_checks = checked_round(updated)
             rounds.append(round_json(second, H, valid, updated.dofs))
     if own is not None:
         damping += (f"; with {chosen.effect.describe()} the data prefer every mode of the changed structure "

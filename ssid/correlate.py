@@ -21,6 +21,7 @@ from .errors import InputError
 
 __all__ = [
     "CROSS_ORTHOGONALITY_DIAG_MIN",
+    "MAX_PAIR_FREQ_RATIO",
     "ORTHOGONALITY_OFFDIAG_MAX",
     "ModePair",
     "OrthogonalityCheck",
@@ -28,6 +29,7 @@ __all__ = [
     "check_orthogonality",
     "cross_orthogonality",
     "frequency_error_percent",
+    "frequency_ratio",
     "modal_assurance",
     "normalize_modal_mass",
     "orthogonality",
@@ -260,9 +262,22 @@ def pair_modes_by_mac(mac: np.ndarray, min_mac: float = 0.5) -> list[ModePair]:
     return sorted((p for p in pairs if p.mac >= min_mac), key=lambda p: p.test)
 
 
+#: Modes further apart in frequency than this factor are not paired, however alike their
+#: shapes at the sensors (:func:`pair_modes_by_mac_and_frequency`, and ``ssidlab correlate``).
+MAX_PAIR_FREQ_RATIO = 2.0
+
+
+def frequency_ratio(f_a_hz: np.ndarray, f_b_hz: np.ndarray) -> np.ndarray:
+    """``min(|f_a|, |f_b|) / max(|f_a|, |f_b|)`` of every pair, (n_a, n_b): 1 for equal
+    frequencies, 0 against 0 Hz (and for two at 0 Hz)."""
+    fa = np.abs(np.asarray(f_a_hz, dtype=float))[:, None]
+    fb = np.abs(np.asarray(f_b_hz, dtype=float))[None, :]
+    return np.minimum(fa, fb) / np.maximum(np.maximum(fa, fb), 1e-300)
+
+
 def pair_modes_by_mac_and_frequency(
     mac: np.ndarray, f_test_hz: np.ndarray, f_ref_hz: np.ndarray, min_mac: float = 0.5,
-    max_freq_ratio: float = 2.0,
+    max_freq_ratio: float = MAX_PAIR_FREQ_RATIO,
 ) -> list[ModePair]:
     """One-to-one pairing on ``MAC x min(f_t, f_r) / max(f_t, f_r)``; a pair needs
     ``MAC >= min_mac`` and frequencies within a factor ``max_freq_ratio``.
@@ -279,9 +294,7 @@ def pair_modes_by_mac_and_frequency(
     f_test_hz : (n_test,), f_ref_hz : (n_ref,) natural frequencies, Hz.
     """
     mac = np.asarray(mac, dtype=float)
-    fa = np.abs(np.asarray(f_test_hz, dtype=float))[:, None]
-    fb = np.abs(np.asarray(f_ref_hz, dtype=float))[None, :]
-    ratio = np.minimum(fa, fb) / np.maximum(np.maximum(fa, fb), 1e-300)
+    ratio = frequency_ratio(f_test_hz, f_ref_hz)
     ok = (mac >= min_mac) & (ratio * max_freq_ratio >= 1.0)
     score = np.where(ok, mac * ratio, 0.0)
     return [ModePair(p.test, p.analysis, float(mac[p.test, p.analysis]))

@@ -22,11 +22,13 @@ import numpy as np
 
 from .correlate import (
     CROSS_ORTHOGONALITY_DIAG_MIN,
+    MAX_PAIR_FREQ_RATIO,
     ORTHOGONALITY_OFFDIAG_MAX,
     auto_mac,
     check_orthogonality,
     cross_orthogonality,
     frequency_error_percent,
+    frequency_ratio,
     modal_assurance,
     orthogonality,
     pair_modes_by_mac,
@@ -67,11 +69,9 @@ __all__ = ["ANALYSIS_BAND_FACTOR", "MAX_PAIR_FREQ_RATIO", "MIN_PAIR_MAC", "PAIR_
 ANALYSIS_BAND_FACTOR = 1.5
 #: Pairs with a lower MAC are not paired (no counterpart).
 MIN_PAIR_MAC = 0.5
-#: Nor are modes whose frequencies lie further apart than this factor, however alike their
-#: shapes at the sensors (:func:`ssid.correlate.pair_modes_by_mac_and_frequency`'s bound): at 16
-#: Z sensors a 54.6 Hz test mode had MAC 0.54 with the 1.29 Hz analysis mode (4140 % off) and a
-#: mode of the test model's with omega^2 < 0 MAC 0.51 with a 2310 Hz one (QA).
-MAX_PAIR_FREQ_RATIO = 2.0
+# Nor are modes further apart in frequency than ssid.correlate.MAX_PAIR_FREQ_RATIO: at 16 Z
+# sensors a 54.6 Hz test mode had MAC 0.54 with the 1.29 Hz analysis mode (4140 % off) and a
+# mode of the test model's with omega^2 < 0 MAC 0.51 with a 2310 Hz one (QA).
 #: A mode with |omega^2| at most this fraction of its set's largest is at rest (a rigid-body
 #: mode): looser than an FE model's round-off (``ssid.tam.RIGID_ROUNDOFF_RTOL``), as an
 #: identified model's rigid-body mode comes out at omega^2 of -0.04 (rad/s)^2 beside 4e5.
@@ -225,15 +225,13 @@ def _pair_rule(f_test: np.ndarray, f_an: np.ndarray):
 
     rigid_t, rigid_a = at_rest(f_test), at_rest(f_an)
     negative = (np.asarray(f_test) < 0) & ~rigid_t
-    fa, fb = np.abs(f_test)[:, None], np.abs(f_an)[None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        apart = np.maximum(fa, fb) / np.minimum(fa, fb)  # inf against 0 Hz
-    ok = ~negative[:, None] & (rigid_t[:, None] | rigid_a[None, :] | (apart <= MAX_PAIR_FREQ_RATIO))
+    ratio = frequency_ratio(f_test, f_an)
+    ok = ~negative[:, None] & (rigid_t[:, None] | rigid_a[None, :] | (ratio * MAX_PAIR_FREQ_RATIO >= 1.0))
 
     def why_not(i: int, j: int) -> str:
         if negative[i]:
             return "the test mode has omega^2 < 0 (K not positive semi-definite): not a physical mode"
-        return (f"frequencies a factor {apart[i, j]:.3g} apart (a pair needs {MAX_PAIR_FREQ_RATIO:g} or less): "
+        return (f"frequencies a factor {1 / ratio[i, j]:.3g} apart (a pair needs {MAX_PAIR_FREQ_RATIO:g} or less): "
                 "shapes alike at the sensors (spatial aliasing), not taken for the same mode")
 
     return ok, why_not

@@ -60,6 +60,7 @@ __all__ = [
     "Candidate",
     "OwnModesDamping",
     "adopt_parameters",
+    "alternate_line_folds",
     "SearchResult",
     "candidate_frf",
     "candidate_location",
@@ -366,6 +367,13 @@ def candidate_location(search: SearchResult, cand: Candidate) -> tuple[Locations
     return (search.singles if kind == "dof" else search.pairs), j
 
 
+def alternate_line_folds(n_lines: int) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """The two folds of the cross-validation over alternate lines: ``(fit, test)`` masks,
+    (n_lines,) each, even lines fitted and odd tested, then the other way round."""
+    even = np.arange(n_lines) % 2 == 0
+    return (even, ~even), (~even, even)
+
+
 def cross_validated_gain(search: SearchResult, cand: Candidate) -> float:
     """Two-fold cross-validated decrease of the weighted RSS by ``cand`` over alternate lines.
 
@@ -381,9 +389,8 @@ def cross_validated_gain(search: SearchResult, cand: Candidate) -> float:
     loc, j = candidate_location(search, cand)
     one = loc.subset(np.array([j]))
     omega = search.nominal.omega
-    lines = np.arange(omega.size)
     gain = 0.0
-    for fit_sel, test_sel in ((lines % 2 == 0, lines % 2 == 1), (lines % 2 == 1, lines % 2 == 0)):
+    for fit_sel, test_sel in alternate_line_folds(omega.size):
         part = one.lines(fit_sel)
         if cand.name == "attached_oscillator":
             f = fit_oscillator(omega[fit_sel], part, np.array([0]), resolution=omega)

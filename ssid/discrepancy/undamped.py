@@ -48,7 +48,15 @@ from .effects import PARAMETER_KEYS, Effect, apply_effect, effect_dynamic_stiffn
 from .fit import fit_one_parameter, fit_oscillator
 from .localise import Locations, compress
 from .response import fit_global_damping, modal_accelerance, to_inputs, unit_modal_damping
-from .search import NONNEGATIVE, Candidate, OwnModesDamping, SearchResult, rank_candidates, rerank_none
+from .search import (
+    NONNEGATIVE,
+    Candidate,
+    OwnModesDamping,
+    SearchResult,
+    alternate_line_folds,
+    rank_candidates,
+    rerank_none,
+)
 
 __all__ = ["damping_spread_warning", "joint_damping_fit", "modal_location", "own_modes_fit", "own_modes_reading",
            "search_undamped"]
@@ -185,9 +193,8 @@ def own_modes_heldout_gain(cand: Candidate, model: Model, omega, H, W, out_idx, 
     The round's C cannot stand in: a spring that moves the lowest modes far fits half the
     lines under it into another minimum (a held-out loss of 5e5 where this gives a gain).
     """
-    lines = np.arange(omega.size)
     gain = 0.0
-    for fit_sel, test_sel in ((lines % 2 == 0, lines % 2 == 1), (lines % 2 == 1, lines % 2 == 0)):
+    for fit_sel, test_sel in alternate_line_folds(omega.size):
         fit = own_modes_fit(cand, model, omega, H, W * fit_sel[:, None, None], out_idx, in_idx,
                             cand.own_modes.zeta)
         if fit is None:

@@ -117,17 +117,22 @@ def test_labels_without_node_direction_fail_cleanly(tmp_path, ssidlab):
 
 
 def test_unit_labels_convert_and_warn_in_one_line_each(tmp_path, ssidlab):
-    """A lab file in g per N without a 164 becomes SI in the FRF file; an unknown label is one
-    warning line; a label contradicting its axis is a one-line error, status 2."""
+    """A lab file in g per N without a 164 becomes SI in the FRF file; an unknown abscissa
+    label is one warning line; an unknown FRF label, or a label contradicting its axis, is a
+    one-line error, status 2."""
     frf = chain_frf(n_freq=8)
     labelled_file(tmp_path / "g.uff", frf, ordinate="g", scale=G, units_164=False)
     status, _, err = ssidlab("convert", tmp_path / "g.uff", tmp_path / "g.h5")
     assert status == 0 and err == ""
     np.testing.assert_allclose(read_frf(tmp_path / "g.h5").H, frf.H, rtol=1e-14)
-    labelled_file(tmp_path / "odd.uff", frf, denominator="poundal")
+    labelled_file(tmp_path / "odd.uff", frf, abscissa="cycles/sec")
     status, _, err = ssidlab("convert", tmp_path / "odd.uff", tmp_path / "odd.h5")
     assert status == 0 and err.count("\n") == 1 and err.startswith("warning: ")
-    assert "'poundal' not recognised" in err
+    assert "'cycles/sec' not recognised" in err
+    labelled_file(tmp_path / "poundal.uff", frf, denominator="poundal")
+    status, _, err = ssidlab("convert", tmp_path / "poundal.uff", tmp_path / "poundal.h5")
+    assert status == 2 and err.count("\n") == 1
+    assert "'poundal' is not a unit ssidlab knows" in err
     labelled_file(tmp_path / "bad.uff", frf, ordinate="mm/s")
     status, _, err = ssidlab("convert", tmp_path / "bad.uff", tmp_path / "bad.h5")
     assert status == 2 and err.count("\n") == 1 and "'mm/s' is a velocity unit" in err

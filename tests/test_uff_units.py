@@ -185,16 +185,98 @@ def test_a_scalar_dof_labelled_as_a_rotation_agrees_with_a_164(tmp_path):
     np.testing.assert_allclose(back.H, frf.H, rtol=SCALED_RTOL)
 
 
-def test_unrecognised_labels_are_reported_once_per_file(tmp_path):
+def test_an_unrecognised_frf_label_is_refused(tmp_path):
+    """An FRF labelled in a unit nobody can convert was read as SI behind a warning: a wrong
+    scale that the FRF file then carries silently (QA). It is refused, saying how to fix it."""
     frf = chain_frf(n_freq=8)
-    path = labelled_file(tmp_path / "odd.uff", frf, ordinate="furlong/fortnight^2",
-                         denominator="stone")
+    for edit, said in ((dict(ordinate_axis_units_lab="furlong/fortnight^2"),
+                        "ordinate unit label 'furlong/fortnight^2'"),
+                       (dict(orddenom_axis_units_lab="stone"), "denominator unit label 'stone'")):
+        path = labelled_file(tmp_path / "odd.uff", frf, edit=lambda d: d.update(edit))
+        with pytest.raises(InputError) as exc:
+            read_uff_frf(path)
+        message = str(exc.value)
+        assert f"dataset 2 (58): {said} is not a unit ssidlab knows" in message
+        assert "or to NONE" in message and "dataset 164" in message and "\n" not in message
+
+
+def test_an_unrecognised_abscissa_label_is_reported_once_and_read_in_hz(tmp_path):
+    """A frequency's unit does not depend on the 164: an unknown abscissa label stays one
+    warning per file, the abscissa read in Hz."""
+    frf = chain_frf(n_freq=8)
+    path = labelled_file(tmp_path / "odd.uff", frf, abscissa="cycles per second")
     with pytest.warns(UFFWarning) as record:
         back = read_uff_frf(path)
-    found = [m for m in messages(record) if "not recognised" in m]
-    assert len(found) == 1 and "\n" not in found[0]
-    assert "'furlong/fortnight^2', 'stone'" in found[0] and "dataset 164" in found[0]
-    np.testing.assert_array_equal(back.H, frf.H)  # read as unlabelled: the 164 (SI) rule
+    assert messages(record) == [f"{path}: abscissa unit label(s) 'cycles per second' not "
+                                "recognised (first in dataset 2); read as frequency in Hz"]
+    np.testing.assert_array_equal(back.H, frf.H)
+
+
+def mobility(d):
+    """Make an FRF dictionary of labelled_file a mobility (ordinate velocity, v = a / j omega)."""
+    d["ordinate_spec_data_type"] = 11
+    d["data"] = d["data"] / (1j * 2 * np.pi * d["x"])
+
+
+@pytest.mark.parametrize("ordinate, denominator, factor, edit", [
+    ("Gs/N", "NONE", G, None),  # ME'scope's accelerance label
+    ("g/lbf", "NONE", G / LBF, None),
+    ("G/N", "N", G, None),  # the denominator label agrees: converted once
+    ("(m/s^2)/N", "NONE", 1.0, None),
+    ("in/s^2/lbf", "", IN / LBF, None),
+    ("mm/s/N", "NONE", 1e-3, mobility),
+    ("mg/N", "NONE", 1e-3 * G, None),
+])
+def test_an_ordinate_label_carrying_the_whole_frf_unit(tmp_path, ordinate, denominator, factor,
+                                                        edit):
+    """'Gs/N' on the ordinate, NONE on the denominator, values in g per N: both units apply.
+    It was an unrecognised label read as SI with a warning, H off by 9.81 (QA)."""
+    frf = chain_frf(n_freq=8)
+    path = labelled_file(tmp_path / "ratio.uff", frf, ordinate=ordinate, denominator=denominator,
+                         scale=factor, units_164=False, edit=edit)
+    back = read_quietly(path)
+    np.testing.assert_allclose(back.H, frf.H, rtol=SCALED_RTOL, atol=0)
+
+
+def test_a_ratio_label_is_checked_against_the_164_part_by_part(tmp_path):
+    """With an SI 164 each part of 'g/lbf' disagrees: the labels win, one warning names the
+    first part and its label."""
+    frf = chain_frf(n_freq=8)
+    path = labelled_file(tmp_path / "ratio.uff", frf, ordinate="g/lbf", denominator="NONE",
+                         scale=G / LBF)
+    with pytest.warns(UFFWarning) as record:
+        back = read_uff_frf(path)
+    assert len(record) == 1
+    assert f"{2 * frf.n_out * frf.n_in} axis unit label(s) disagree" in messages(record)[0]
+    assert "'g' (of 'g/lbf') in dataset 2 (58)" in messages(record)[0]
+    np.testing.assert_allclose(back.H, frf.H, rtol=SCALED_RTOL)
+
+
+@pytest.mark.parametrize("ordinate, denominator, expected", [
+    ("mm/s/N", "NONE", "ordinate unit 'mm/s' (of 'mm/s/N') is a velocity unit, but the "
+                       "ordinate is acceleration"),
+    ("g/g", "NONE", "denominator unit 'g' (of 'g/g') is an acceleration unit, but the "
+                    "denominator is excitation force"),
+    ("g/N", "lbf", "ordinate unit label 'g/N' gives the denominator's unit ('N'), but the "
+                   "denominator label is 'lbf'"),
+    ("g/N*m", "NONE", "denominator unit 'N*m' (of 'g/N*m') is a moment unit, but 1+Z is a "
+                      "translation"),
+])
+def test_a_ratio_label_that_contradicts_the_function_is_refused(tmp_path, ordinate,
+                                                                 denominator, expected):
+    frf = chain_frf(n_freq=8)
+    path = labelled_file(tmp_path / "bad.uff", frf, ordinate=ordinate, denominator=denominator)
+    with pytest.raises(InputError) as exc:
+        read_uff_frf(path)
+    assert expected in str(exc.value) and "dataset 2 (58)" in str(exc.value)
+
+
+def test_milli_g_is_a_thousandth_of_g(tmp_path):
+    """'mg' on a motion axis is milli-g; it was an unrecognised label read as m/s^2 (x 102)."""
+    frf = chain_frf(n_freq=8)
+    path = labelled_file(tmp_path / "mg.uff", frf, ordinate="mg", scale=1e-3 * G,
+                         units_164=False)
+    np.testing.assert_allclose(read_quietly(path).H, frf.H, rtol=SCALED_RTOL)
 
 
 def test_our_own_labels_read_back_exactly_and_quietly(tmp_path):

@@ -65,11 +65,13 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
       ordinate reaction force (9) makes an interface reaction. Function types 6 and 26 are
       coherence. Others are skipped with a warning.
     * Units (:mod:`ssid.exchange.uff_units`): a recognised axis unit label (``g``,
-      ``in/s^2``, ``lbf``, ``rad/s`` on the abscissa) gives its axis's unit, and wins over a
+      ``in/s^2``, ``lbf``, ``rad/s`` on the abscissa; an ordinate ``Gs/N`` gives both the
+      ordinate's and the denominator's) gives its axis's unit, and wins over a
       dataset 164 that disagrees (with a warning); an axis without one is in the units of the
       dataset 164 (SI without one): ``H * force_factor / length_factor`` for a translation
       per force, a rotation (radians) taking no factor and a moment the force factor times
-      the length factor. Unrecognised labels are reported in one warning. An FRF must be per
+      the length factor. An unrecognised FRF label is refused (its scale cannot be known);
+      unrecognised abscissa labels are reported in one warning. An FRF must be per
       force (denominator type 13, or a force label; an unknown one is taken so, with a
       warning).
     * Lines at or below 0 Hz are dropped with a warning (the FRF file needs f > 0).

@@ -8,11 +8,16 @@ a function an accelerance in SI ((m/s^2)/N, (rad/s^2)/(N m) ...) over an absciss
 Rules (the reasons are in ``docs/exchange.md``, "Units of other programs' files"):
 
 * a **recognised label** gives its axis's unit outright, whatever a dataset 164 says; where
-  the two disagree the label is followed and the file gets one warning;
-* an axis without a label (``NONE``, blank), or with one not recognised (reported once per
-  file), is in the units of the dataset 164, SI without one; its length/force exponents are
-  used where the standard makes them relevant (specific data type general/unknown, or a
-  scalar DOF) and not all zero;
+  the two disagree the label is followed and the file gets one warning; an ordinate label
+  carrying the whole FRF unit as a ratio (``Gs/N``, ``g/lbf``, ``mm/s/N``, ``(m/s^2)/N``)
+  gives the ordinate's and the denominator's unit, each checked like a label of its own;
+* an axis without a label (``NONE``, blank) is in the units of the dataset 164, SI without
+  one; its length/force exponents are used where the standard makes them relevant (specific
+  data type general/unknown, or a scalar DOF) and not all zero;
+* an FRF's ordinate or denominator label that is not recognised is refused: the label says
+  the values are in a unit whose factor is unknown, and reading them as the 164 (or SI)
+  would be a wrong scale behind a warning; an unrecognised abscissa label is reported once
+  per file and read in Hz (a frequency's unit does not depend on the 164);
 * a label contradicting the axis's data type or its DOF (``mm/s`` on an acceleration,
   ``g`` on a rotation, a force over ``g``) is refused with a one-line ``InputError``.
 """
@@ -81,7 +86,9 @@ def _units(kind: str, entries: dict[str, float], rotational: bool = False) -> di
 _MOTION: dict[str, _Unit] = {
     **_units("acceleration", {
         "m/s^2": 1.0, "mm/s^2": 1e-3, "cm/s^2": 1e-2, "in/s^2": _IN, "inch/s^2": _IN,
-        "ft/s^2": _FT, "g": _G, "gs": _G, "g's": _G, "gn": _G}),
+        "ft/s^2": _FT, "g": _G, "gs": _G, "g's": _G, "gn": _G,
+        # On a motion axis "mg" is milli-g (a milligram is no motion unit).
+        "mg": 1e-3 * _G}),
     **_units("velocity", {
         "m/s": 1.0, "mm/s": 1e-3, "cm/s": 1e-2, "um/s": 1e-6, "in/s": _IN, "inch/s": _IN,
         "ips": _IN, "ft/s": _FT}),
@@ -132,6 +139,11 @@ def _describe(unit: _Unit) -> str:
     return ("an angular " if unit.rotational else "a" + "n" * (unit.kind[0] in "aeiou") + " ") + unit.kind
 
 
+def _text(label: Any) -> str:
+    """A units label as written, without the blanks that pad its field."""
+    return "" if label is None else str(label).strip()
+
+
 def _rotational(direction: int) -> bool | None:
     """Whether a DOF direction is a rotation; None for a scalar point (either)."""
     return None if direction == 0 else abs(direction) > 3
@@ -145,7 +157,7 @@ class FileUnits:
     length: float = 1.0
     force: float = 1.0
     has_164: bool = False
-    unrecognised: dict[str, int] = field(default_factory=dict)  # label -> first dataset
+    unrecognised: dict[str, int] = field(default_factory=dict)  # abscissa label -> dataset
     disagree: list[str] = field(default_factory=list)
 
     @classmethod
@@ -158,20 +170,19 @@ class FileUnits:
     def _where(self, d: dict) -> str:
         return f"{self.src}: dataset {d['_index'] + 1} (58)"
 
-    def _lookup(self, d: dict, label: Any, table: dict[str, _Unit],
-                other: dict[str, _Unit] | None = None) -> tuple[_Unit | None, bool]:
+    def _lookup(self, text: str, table: dict[str, _Unit],
+                other: dict[str, _Unit]) -> tuple[_Unit | None, bool] | None:
         """The unit a label names in ``table`` (or, as a contradiction, in ``other``) and
-        whether it came from ``other``. Unknown labels are noted for the file's warning."""
-        text = "" if label is None else str(label).strip()
+        whether it came from ``other``; ``(None, False)`` for no label, None for a label not
+        recognised."""
         key = normalise_label(text)
         if key in _BLANK:
             return None, False
         if key in table:
             return table[key], False
-        if other is not None and key in other:
+        if key in other:
             return other[key], True
-        self.unrecognised.setdefault(text, d["_index"])
-        return None, False
+        return None
 
     def _factor_164(self, d: dict, axis: str, spec: int, direction: int, is_force: bool,
                     unit: _Unit | None) -> float:
@@ -190,10 +201,24 @@ class FileUnits:
         return 1.0 if rotation else self.length  # radians take no factor
 
     def _axis(self, d: dict, axis: str, name: str, spec: int, direction: int,
-              table: dict[str, _Unit], other: dict[str, _Unit]) -> tuple[_Unit | None, float]:
-        """(unit the label names or None, SI per file unit) of the ordinate or denominator."""
-        label = d.get(f"{axis}_axis_units_lab")
-        unit, wrong_table = self._lookup(d, label, table, other)
+              table: dict[str, _Unit], other: dict[str, _Unit], label: str,
+              whole: str | None = None) -> tuple[_Unit | None, float]:
+        """(unit the label names or None, SI per file unit) of the ordinate or denominator.
+
+        ``label`` is the axis's units label, or its part of the ordinate label ``whole`` when
+        that carries the whole FRF unit (``Gs/N``); messages name both."""
+        shown = repr(label) if whole is None else f"{label!r} (of {whole!r})"
+        said = f"{name} unit label {label!r}" if whole is None else f"{name} unit {shown}"
+        found = self._lookup(label, table, other)
+        if found is None:
+            # The file says the values are in a unit whose factor is unknown: taking them as
+            # SI (or the 164's) would give a wrong scale behind a warning (docs/exchange.md).
+            units = "the units of dataset 164" if self.has_164 else "SI (the file has no dataset 164)"
+            raise InputError(f"{self._where(d)}: {said} is not a unit ssidlab knows, so the "
+                             "FRF's scale cannot be known; change it to a unit listed in "
+                             "docs/exchange.md (e.g. 'g', 'mm/s', 'N', 'g/N') or to NONE to "
+                             f"read the {name} in {units}")
+        unit, wrong_table = found
         f164 = self._factor_164(d, axis, spec, direction, table is _FORCE, unit)
         if unit is None:
             return None, 1.0 / f164
@@ -201,30 +226,61 @@ class FileUnits:
         if wrong_table or (expected is not None and unit.kind != expected):
             what = (f"{SPEC_NAMES.get(spec, spec)} (specific data type {spec})" if expected
                     else "a force" if table is _FORCE else "a response (motion)")
-            raise InputError(f"{self._where(d)}: {name} unit label {label.strip()!r} is "
-                             f"{_describe(unit)} unit, but the {name} is {what}")
+            raise InputError(f"{self._where(d)}: {said} is {_describe(unit)} unit, but the "
+                             f"{name} is {what}")
         rotation = _rotational(direction)
         if rotation is not None and unit.rotational != rotation:
             dof = format_dof_label(d.get(f"{'rsp' if axis == 'ordinate' else 'ref'}_node", 0), direction)
-            raise InputError(f"{self._where(d)}: {name} unit label {label.strip()!r} is "
-                             f"{_describe(unit)} unit, but {dof} is a "
-                             f"{'rotation' if rotation else 'translation'}")
+            raise InputError(f"{self._where(d)}: {said} is {_describe(unit)} unit, but {dof} "
+                             f"is a {'rotation' if rotation else 'translation'}")
         if self.has_164 and not math.isclose(unit.si * f164, 1.0, rel_tol=_AGREE_RTOL):
-            self.disagree.append(f"{label.strip()!r} in dataset {d['_index'] + 1} (58), where "
+            self.disagree.append(f"{shown} in dataset {d['_index'] + 1} (58), where "
                                  f"dataset 164 makes the unit {1 / f164:.6g} "
                                  f"{_SI_NAME[(unit.kind, unit.rotational)]}")
         return unit, unit.si
+
+    def _ratio(self, d: dict, ordinate: str, denominator: str, table: dict[str, _Unit],
+               other: dict[str, _Unit]) -> tuple[str, str] | None:
+        """(numerator, denominator) of an ordinate label that carries the whole FRF unit
+        (``Gs/N``, ``g/lbf``, ``mm/s/N``, ``(m/s^2)/N``: ME'scope and others write the FRF's
+        unit on the ordinate and NONE on the denominator), or None for a plain label.
+
+        The label is cut at the last ``/`` that leaves two known units (a motion or force unit
+        each; a part of the wrong kind is then refused by :meth:`_axis` with its reason). A
+        denominator label naming another unit than the ratio's contradicts it."""
+        if self._lookup(ordinate, table, other) is not None:
+            return None  # blank or a plain unit: "m/s" is no ratio
+        for k in reversed([i for i, c in enumerate(ordinate) if c == "/"]):
+            num, den = ordinate[:k].strip(), ordinate[k + 1:].strip()
+            num_found = self._lookup(num, table, other)
+            den_found = self._lookup(den, _FORCE, _MOTION)
+            if num_found and num_found[0] and den_found and den_found[0]:
+                break
+        else:
+            return None
+        given = self._lookup(denominator, _FORCE, _MOTION)
+        if given != (None, False) and given != den_found:
+            raise InputError(f"{self._where(d)}: ordinate unit label {ordinate!r} gives the "
+                             f"denominator's unit ({den!r}), but the denominator label is "
+                             f"{denominator!r}")
+        return num, den
 
     # -- what uff.py asks --------------------------------------------------------------------
 
     def abscissa_factor(self, d: dict) -> float:
         """Hz per abscissa unit of a function (1 without a recognised label)."""
-        label = d.get("abscissa_axis_units_lab")
-        unit, _ = self._lookup(d, label, _ABSCISSA)
+        label = _text(d.get("abscissa_axis_units_lab"))
+        found = self._lookup(label, _ABSCISSA, {})
+        if found is None:
+            # Reported, not refused: a frequency's unit does not depend on the 164 (which has
+            # no time factor), so an abscissa typed or taken as frequency is in Hz by default.
+            self.unrecognised.setdefault(label, d["_index"])
+            return 1.0
+        unit = found[0]
         if unit is None:
             return 1.0
         if unit.kind != "frequency":
-            raise InputError(f"{self._where(d)}: abscissa unit label {label.strip()!r} is "
+            raise InputError(f"{self._where(d)}: abscissa unit label {label!r} is "
                              f"{'a time' if unit.kind == 'time' else 'an order'}, not a frequency")
         return unit.si
 
@@ -246,10 +302,17 @@ class FileUnits:
                              "holds responses per input force (denominator: excitation force, "
                              "specific data type 13)")
         table, other = (_FORCE, _MOTION) if kind == "reaction" else (_MOTION, _FORCE)
+        ordinate = _text(d.get("ordinate_axis_units_lab"))
+        denominator = _text(d.get("orddenom_axis_units_lab"))
+        whole = None
+        ratio = self._ratio(d, ordinate, denominator, table, other)
+        if ratio is not None:
+            whole, (ordinate, denominator) = ordinate, ratio
         num_unit, k_num = self._axis(d, "ordinate", "ordinate", spec, int(d.get("rsp_dir") or 0),
-                                     table, other)
+                                     table, other, ordinate, whole)
         den_unit, k_den = self._axis(d, "orddenom", "denominator", den,
-                                     int(d.get("ref_dir") or 0), _FORCE, _MOTION)
+                                     int(d.get("ref_dir") or 0), _FORCE, _MOTION, denominator,
+                                     whole)
         known = den == SPEC_FORCE or den_unit is not None
         if kind == "reaction":
             return k_num / k_den, known
@@ -265,10 +328,8 @@ class FileUnits:
         if self.unrecognised:
             labels = ", ".join(map(repr, self.unrecognised))
             first = min(self.unrecognised.values()) + 1
-            units = "of dataset 164" if self.has_164 else "SI"
-            out.append(f"{self.src}: unit label(s) {labels} not recognised (first in dataset "
-                       f"{first}); those axes were read as unlabelled: in the units {units}, "
-                       "an abscissa in Hz")
+            out.append(f"{self.src}: abscissa unit label(s) {labels} not recognised (first in "
+                       f"dataset {first}); read as frequency in Hz")
         if self.disagree:
             out.append(f"{self.src}: {len(self.disagree)} axis unit label(s) disagree with "
                        f"dataset 164, e.g. {self.disagree[0]}; the labels were followed")

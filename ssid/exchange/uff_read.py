@@ -21,6 +21,7 @@ from ssid.io import validate_frf
 from ._uffio import read_datasets
 from .labels import format_dof_label
 from .uff import FUNC_COHERENCE, FUNC_FRF, FUNC_MULTIPLE_COHERENCE, UFFWarning
+from .uff_coherence import OUTPUT_ONLY, is_multiple, select_coherence
 from .uff_units import SPEC_FREQUENCY, SPEC_GENERAL, SPEC_NAMES, SPEC_REACTION, FileUnits
 
 __all__ = ["read_uff_frf"]
@@ -40,6 +41,11 @@ class _Function:
     ref: str
     x: np.ndarray
     y: np.ndarray
+    multiple: bool = False  # a coherence that is the output's multiple coherence
+
+
+class _Unplaced(Exception):
+    """A coherence dataset whose response or reference is no DOF (message: why)."""
 
 
 def read_uff_frf(path: str | os.PathLike) -> FRFData:
@@ -63,7 +69,9 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
       displacement (8) FRFs are converted with ``j omega`` and ``-omega^2``; an unknown
       ordinate type (0 or 1) is what its unit label says, else acceleration, with a warning;
       ordinate reaction force (9) makes an interface reaction. Function types 6 and 26 are
-      coherence. Others are skipped with a warning.
+      coherence, ordinary or multiple (:mod:`ssid.exchange.uff_coherence`: the multiple one
+      wins; with several inputs an ordinary one is left out with a warning; one that cannot
+      be placed is left out with a warning). Others are skipped with a warning.
     * Units (:mod:`ssid.exchange.uff_units`): a recognised axis unit label (``g``,
       ``in/s^2``, ``lbf``, ``rad/s`` on the abscissa; an ordinate ``Gs/N`` gives both the
       ordinate's and the denominator's) gives its axis's unit, and wins over a
@@ -107,7 +115,13 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
             unknown_units += not known
             (reacts if kind == "reaction" else frfs).append(f)
         elif ftype in (FUNC_COHERENCE, FUNC_MULTIPLE_COHERENCE):
-            cohs.append(_read_function(src, d, "coherence", units))
+            try:
+                cohs.append(_read_function(src, d, "coherence", units))
+            except _Unplaced as exc:
+                # Coherence is optional in the FRF file: the FRFs do not need this dataset.
+                warnings.warn(f"{src}: {_where(d)} is a coherence function that cannot be "
+                              f"placed ({exc}); left out (the FRFs are read without it)",
+                              UFFWarning, stacklevel=2)
         else:
             skipped += 1
     if not frfs:
@@ -124,9 +138,10 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
         warnings.warn(message, UFFWarning, stacklevel=2)
 
     _fold_opposite_directions(frfs + cohs + reacts)
-    freq, lines = _frequency_grid(src, frfs + cohs + reacts)
     outputs = _merged_order(frfs + cohs, "rsp", "ref")
     inputs = _merged_order(frfs + cohs, "ref", "rsp")
+    cohs = select_coherence(src, cohs, inputs)
+    freq, lines = _frequency_grid(src, frfs + cohs + reacts)
     nf, nc = len(frfs), len(cohs)
     H, have = _assemble(src, frfs, outputs, inputs, lines[:nf], freq.size, "FRF")
     valid = have & ~np.isnan(H)
@@ -213,13 +228,20 @@ def _merged_order(functions: list[_Function], key: str, group: str,
 def _read_function(src: str, d: dict, kind: str, units: FileUnits) -> _Function:
     where = _where(d)
     complex_ = kind != "coherence"
+    multiple = not complex_ and is_multiple(d, FUNC_MULTIPLE_COHERENCE)
     try:
         rsp = format_dof_label(d.get("rsp_node", 0), d.get("rsp_dir", 0))
     except ValueError as exc:
+        if not complex_:
+            raise _Unplaced(f"response {exc}") from None
         raise InputError(f"{src}: {where}: response {exc}") from None
     try:
-        ref = format_dof_label(d.get("ref_node", 0), d.get("ref_dir", 0))
+        # A multiple coherence belongs to its output: written without a reference (node 0).
+        ref = (OUTPUT_ONLY if multiple and not d.get("ref_node")
+               else format_dof_label(d.get("ref_node", 0), d.get("ref_dir", 0)))
     except ValueError as exc:
+        if not complex_:
+            raise _Unplaced(f"reference {exc}") from None
         raise InputError(f"{src}: {where}: reference (input) {exc}") from None
     x = np.asarray(d.get("x"), dtype=float).ravel()
     y = np.asarray(d.get("data")).ravel()
@@ -247,7 +269,7 @@ def _read_function(src: str, d: dict, kind: str, units: FileUnits) -> _Function:
             y = y.real
         y = y.astype(float)
     _refuse_infinite(src, d, f"{rsp}/{ref}", x, y)
-    return _Function(kind, d["_index"], rsp, ref, x, y)
+    return _Function(kind, d["_index"], rsp, ref, x, y, multiple)
 
 
 # Values per data line of an ASCII dataset 58 (record 12), by ordinate data type (2, 4: real

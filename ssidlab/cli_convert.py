@@ -107,11 +107,19 @@ def run_convert(args: argparse.Namespace) -> int:
         write_uff_modes(args.output, modes, geometry=geometry)
         summary = f"{modes.natural_freq_hz.size} modes of the model as UFF 55"
     elif in_kind == "result" and out_kind == "uff":
-        modes = modes_from_result(_read_json(args.input), source=args.input)
+        result = _read_json(args.input)
+        modes = modes_from_result(result, source=args.input)
         if modes.natural_freq_hz.size == 0:
             raise InputError(f"{args.input}: no mode with a determined frequency and damping")
         write_uff_modes(args.output, modes, geometry=geometry)
         summary = f"{modes.natural_freq_hz.size} identified modes as UFF 55"
+        # Modes keep their numbers in RESULT.json; say which numbers are missing and why.
+        left_out = sorted(set(range(1, len(result["natural_freq_hz"]) + 1))
+                          - set(modes.numbers().tolist()))
+        if left_out:
+            summary += (f" (numbered as in {Path(args.input).name}; left out, undetermined "
+                        f"frequency, damping or shape: mode{'s' * (len(left_out) > 1)} "
+                        f"{', '.join(map(str, left_out))})")
     else:
         names = {"frf": "an FRF file", "model": "a model file", "result": "a result JSON",
                  "uff": "a UFF file", "frf-h5": "an HDF5 FRF file"}

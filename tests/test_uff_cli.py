@@ -9,7 +9,7 @@ import pytest
 from conftest import chain_frf, chain_model, full_frf
 from test_uff_units import G, labelled_file
 
-from ssid.exchange import read_uff_frf, read_uff_geometry, read_uff_modes
+from ssid.exchange import modes_from_model, read_uff_frf, read_uff_geometry, read_uff_modes
 from ssid.io import read_frf, write_frf, write_model
 from ssidlab import cli
 from ssidlab.cli_convert import add_convert_subcommand
@@ -80,6 +80,28 @@ def test_model_and_result_to_mode_shapes(tmp_path, ssidlab):
     assert status == 0 and "1 identified modes" in out
     back = read_uff_modes(tmp_path / "r.uff", dofs=m.dofs)
     np.testing.assert_allclose(back.mode_shapes[:, 0], [1.0, 0.5 + 0.1j, 0.25], atol=1e-6)
+
+
+def test_a_result_with_a_null_mode_keeps_the_numbers_of_the_others(tmp_path, ssidlab):
+    """RESULT.json with mode 2 of 3 undetermined (null): mode 3 was written as 'Mode 2',
+    mode number 2, and the summary did not say that a mode was left out (QA)."""
+    m = chain_model()
+    modes = modes_from_model(m.M, m.C, m.K, m.dofs)
+    f, z = modes.natural_freq_hz.tolist(), modes.damping_ratio.tolist()
+    result = {"natural_freq_hz": [f[0], None, f[2]], "damping_ratio": [z[0], None, z[2]],
+              "dofs": m.dofs, "mode_shapes": {"real": modes.mode_shapes.real.tolist(),
+                                              "imag": modes.mode_shapes.imag.tolist()}}
+    (tmp_path / "result.json").write_text(json.dumps(result))
+    status, out, _ = ssidlab("convert", tmp_path / "result.json", tmp_path / "r.uff")
+    assert status == 0 and "2 identified modes" in out
+    assert "numbered as in result.json" in out and "mode 2)" in out
+    import pyuff
+
+    sets = [d for d in pyuff.UFF(str(tmp_path / "r.uff")).read_sets() if d["type"] == 55]
+    assert [(d["mode_n"], d["id1"].strip()) for d in sets] == [(1, "Mode 1"), (3, "Mode 3")]
+    back = read_uff_modes(tmp_path / "r.uff", dofs=m.dofs)
+    np.testing.assert_array_equal(back.numbers(), [1, 3])
+    np.testing.assert_allclose(back.natural_freq_hz, [f[0], f[2]], rtol=1e-5)
 
 
 @pytest.mark.parametrize("case, expected", [

@@ -47,12 +47,24 @@ class UFFModes:
         One column per mode.
     dofs : list of str, (n,)
         DOF label of each row.
+    mode_numbers : (m,) int, optional
+        Number of each mode in its source (dataset 55's mode number, ID line 1 ``Mode k``);
+        None: 1 .. m. A result whose undetermined modes are left out keeps the numbers of
+        the others (mode 3 of a result whose mode 2 is null stays mode 3).
     """
 
     natural_freq_hz: np.ndarray
     damping_ratio: np.ndarray
     mode_shapes: np.ndarray
     dofs: list[str]
+    mode_numbers: np.ndarray | None = None
+
+    def numbers(self) -> np.ndarray:
+        """(m,) int: the modes' numbers, 1 .. m unless :attr:`mode_numbers` says otherwise."""
+        m = np.asarray(self.natural_freq_hz).size
+        if self.mode_numbers is None:
+            return np.arange(1, m + 1)
+        return np.asarray(self.mode_numbers, dtype=int).ravel()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -63,7 +75,8 @@ class UFFModes:
 def modes_from_result(result: Any, *, source: str = "result") -> UFFModes:
     """Modes of an :class:`ssid.result.SSIDResult` or of its JSON dictionary.
 
-    Modes whose frequency or damping is undetermined (NaN, or null in JSON) are left out.
+    Modes whose frequency or damping is undetermined (NaN, or null in JSON) are left out;
+    the others keep their numbers in the result (``mode_numbers``).
 
     Parameters
     ----------
@@ -115,8 +128,8 @@ def modes_from_result(result: Any, *, source: str = "result") -> UFFModes:
                          f"{len(dofs)} labels")
     labels_to_node_dirs(source, dofs, "dofs", "UFF dataset 55")
     keep = np.isfinite(f) & np.isfinite(z) & np.all(np.isfinite(phi), axis=0)
-    modes = UFFModes(f[keep], z[keep], phi[:, keep], dofs)
-    _refuse_bad_modes(source, modes, np.flatnonzero(keep) + 1, complex_=True)
+    modes = UFFModes(f[keep], z[keep], phi[:, keep], dofs, np.flatnonzero(keep) + 1)
+    _refuse_bad_modes(source, modes, modes.numbers(), complex_=True)
     return modes
 
 
@@ -267,6 +280,10 @@ def mode_datasets(src: str, modes: UFFModes, *, real: bool | None = None,
     if phi.shape != (len(dofs), f.size) or zeta.size != f.size or f.size == 0:
         raise InputError(f"{src}: mode shapes {phi.shape} must be (n_dofs, n_modes) = "
                          f"({len(dofs)}, {f.size}) with one damping ratio per mode")
+    numbers = modes.numbers()
+    if numbers.size != f.size or np.any(numbers < 1) or np.unique(numbers).size != f.size:
+        raise InputError(f"{src}: mode numbers {numbers.tolist()} must be {f.size} different "
+                         "numbers >= 1")
     if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(f)) and np.all(np.isfinite(zeta))):
         raise InputError(f"{src}: mode data hold NaN or Inf")
     is_real = not np.iscomplexobj(phi) or not np.any(phi.imag)
@@ -276,7 +293,7 @@ def mode_datasets(src: str, modes: UFFModes, *, real: bool | None = None,
     if not real and np.any(np.abs(zeta) >= 1):
         raise InputError(f"{src}: a complex mode needs |damping ratio| < 1, got "
                          f"{zeta[np.abs(zeta) >= 1][0]:g}")
-    _refuse_bad_modes(src, modes, np.arange(1, f.size + 1), complex_=not real)
+    _refuse_bad_modes(src, modes, numbers, complex_=not real)
     node_dirs = labels_to_node_dirs(src, dofs, "dofs", "UFF dataset 55")
     nodes, slots = _node_slots(src, dofs, node_dirs, allow_rotations=real)
     n_per_node = 6 if any(abs(d) > 3 for _, d in node_dirs) else 3
@@ -289,10 +306,10 @@ def mode_datasets(src: str, modes: UFFModes, *, real: bool | None = None,
         for row, (i, c, sign) in enumerate(slots):
             values[i, c] = sign * (phi[row, k].real if real else phi[row, k])
         d: dict[str, Any] = {
-            "type": 55, "id1": f"Mode {k + 1}", "id2": "ssidlab", "id3": stamp,
+            "type": 55, "id1": f"Mode {numbers[k]}", "id2": "ssidlab", "id3": stamp,
             "id4": "NONE", "id5": "NONE", "model_type": 1,
             "data_ch": 3 if n_per_node == 6 else 2, "spec_data_type": 8,
-            "load_case": 1, "mode_n": k + 1, "node_nums": np.array(nodes),
+            "load_case": 1, "mode_n": int(numbers[k]), "node_nums": np.array(nodes),
         }
         if real:
             d.update(analysis_type=2, freq=float(f[k]), modal_m=0.0,
@@ -349,7 +366,7 @@ def read_uff_modes(path: str | os.PathLike, dofs: Sequence[str] | None = None) -
     Returns
     -------
     UFFModes
-        In file order; frequency and damping from the complex root (``|lambda|/2pi``,
+        In file order, with the file's mode numbers; frequency and damping from the complex root (``|lambda|/2pi``,
         ``-Re(lambda)/|lambda|``, lambda in rad/s) or, for normal modes, as stored.
 
     Raises
@@ -393,4 +410,8 @@ def read_uff_modes(path: str | os.PathLike, dofs: Sequence[str] | None = None) -
         phi[row] = [sign * col.get(key, 0.0) for col in columns]
     if all(d["analysis_type"] == 2 for d in datasets):
         phi = phi.real
-    return UFFModes(np.array(freq), np.array(zeta), phi, list(dofs))
+    # The modes' numbers as the file gives them, when they can be (distinct, >= 1).
+    numbers = [d.get("mode_n") for d in datasets]
+    known = all(isinstance(n, (int, np.integer)) and n >= 1 for n in numbers)
+    mode_numbers = np.array(numbers, dtype=int) if known and len(set(numbers)) == len(numbers) else None
+    return UFFModes(np.array(freq), np.array(zeta), phi, list(dofs), mode_numbers)

@@ -3,6 +3,7 @@
 * :mod:`ssid.exchange.uff`, :mod:`ssid.exchange.uff_read` -- FRFs and coherence as UFF
   dataset 58 / 58b (pyuff), written and read;
 * :mod:`ssid.exchange.uff_coherence` -- which coherence (ordinary, multiple) a UFF gives;
+* :mod:`ssid.exchange.uff_grid` -- one frequency grid from the functions' abscissae;
 * :mod:`ssid.exchange.uff_modes` -- mode shapes as dataset 55;
 * :mod:`ssid.exchange.uff_geometry` -- units (164) and nodes (2411, 15);
 * :mod:`ssid.exchange.uff_units` -- the units of dataset 58's axes (labels, exponents, 164);

@@ -22,13 +22,11 @@ from ._uffio import read_datasets
 from .labels import format_dof_label
 from .uff import FUNC_COHERENCE, FUNC_FRF, FUNC_MULTIPLE_COHERENCE, UFFWarning
 from .uff_coherence import OUTPUT_ONLY, is_multiple, select_coherence
+from .uff_grid import abscissa_tolerance, frequency_grid
 from .uff_units import SPEC_FREQUENCY, SPEC_GENERAL, SPEC_NAMES, SPEC_REACTION, FileUnits
 
 __all__ = ["read_uff_frf"]
 
-# Relative gap below which abscissa values of different functions are the same line (a few
-# ulp: even-spaced abscissae computed as min + k * inc by different readers).
-_SAME_LINE_RTOL = 1e-12
 # Single-precision files round coherence near 1 to values like 1.000001.
 _COHERENCE_ROUNDING = 1e-6
 
@@ -41,6 +39,8 @@ class _Function:
     ref: str
     x: np.ndarray
     y: np.ndarray
+    x_tol: np.ndarray  # Hz: how far each x may be from its frequency (format's rounding)
+    even: bool  # an even abscissa (min + k * inc): no line of its range left out
     multiple: bool = False  # a coherence that is the output's multiple coherence
 
 
@@ -82,7 +82,9 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
       unrecognised abscissa labels are reported in one warning. An FRF must be per
       force (denominator type 13, or a force label; an unknown one is taken so, with a
       warning).
-    * Lines at or below 0 Hz are dropped with a warning (the FRF file needs f > 0).
+    * Lines at or below 0 Hz are dropped with a warning (the FRF file needs f > 0). Values
+      of different functions that differ only by their abscissa formats' rounding are one
+      line; truly different grids are warned of (:mod:`ssid.exchange.uff_grid`).
 
     Raises
     ------
@@ -141,7 +143,7 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
     outputs = _merged_order(frfs + cohs, "rsp", "ref")
     inputs = _merged_order(frfs + cohs, "ref", "rsp")
     cohs = select_coherence(src, cohs, inputs)
-    freq, lines = _frequency_grid(src, frfs + cohs + reacts)
+    freq, lines = frequency_grid(src, frfs + cohs + reacts)
     nf, nc = len(frfs), len(cohs)
     H, have = _assemble(src, frfs, outputs, inputs, lines[:nf], freq.size, "FRF")
     valid = have & ~np.isnan(H)
@@ -255,7 +257,9 @@ def _read_function(src: str, d: dict, kind: str, units: FileUnits) -> _Function:
     if abscissa not in (0, SPEC_GENERAL, SPEC_FREQUENCY):
         name = SPEC_NAMES.get(abscissa, f"type {abscissa}")
         raise InputError(f"{src}: {where}: abscissa is {name}, not frequency")
-    x = x * units.abscissa_factor(d)  # in Hz (rad/s, rpm, kHz labels)
+    factor = units.abscissa_factor(d)  # Hz per file unit (rad/s, rpm, kHz labels)
+    x_tol = abscissa_tolerance(d, x) * abs(factor)
+    x = x * factor
     if not np.all(np.isfinite(x)) or np.any(np.diff(x) <= 0):
         raise InputError(f"{src}: {where}: abscissa (frequency) is not finite and strictly "
                          "increasing")
@@ -269,7 +273,8 @@ def _read_function(src: str, d: dict, kind: str, units: FileUnits) -> _Function:
             y = y.real
         y = y.astype(float)
     _refuse_infinite(src, d, f"{rsp}/{ref}", x, y)
-    return _Function(kind, d["_index"], rsp, ref, x, y, multiple)
+    return _Function(kind, d["_index"], rsp, ref, x, y, x_tol, d.get("abscissa_spacing") == 1,
+                     multiple)
 
 
 # Values per data line of an ASCII dataset 58 (record 12), by ordinate data type (2, 4: real
@@ -299,25 +304,6 @@ def _refuse_infinite(src: str, d: dict, pair: str, x: np.ndarray, y: np.ndarray)
     raise InputError(f"{src}: {_where(d)}: value {k + 1} of {pair} (at {x[k]:g} Hz{line}) is "
                      "infinite (Inf, or a number beyond the float64 range such as 1e+999); UFF "
                      "data must be finite")
-
-
-def _frequency_grid(src: str, functions: list[_Function]) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The union of all abscissae (lines > 0 Hz) and each function's line indices (-1: dropped)."""
-    allx = np.sort(np.concatenate([f.x for f in functions]))
-    tol = _SAME_LINE_RTOL * float(np.abs(allx).max() or 1.0)
-    grid = allx[np.r_[True, np.diff(allx) > tol]]
-    positive = grid > 0
-    if not positive.any():
-        raise InputError(f"{src}: no frequency line above 0 Hz")
-    if not positive.all():
-        warnings.warn(f"{src}: dropped {int((~positive).sum())} line(s) at or below 0 Hz "
-                      "(FRF files hold f > 0 only)", UFFWarning, stacklevel=3)
-    new_index = np.cumsum(positive) - 1
-    lines = []
-    for f in functions:
-        k = np.clip(np.searchsorted(grid, f.x - tol), 0, grid.size - 1)
-        lines.append(np.where(positive[k], new_index[k], -1))
-    return grid[positive], lines
 
 
 def _assemble(src: str, functions: list[_Function], rows: list[str], cols: list[str],

@@ -19,6 +19,8 @@ from ssid.exchange import (
     read_uff_geometry,
     write_uff_frf,
 )
+from ssid.exchange._uffio import write_datasets
+from ssid.exchange.uff import frf_datasets
 
 pytest.importorskip("pyuff")
 
@@ -419,3 +421,39 @@ def test_duplicate_functions_are_refused(tmp_path, ascii_uff):
     blocks = text.split("    -1\n")
     dup = text + "    -1\n" + blocks[3] + "    -1\n"
     assert "both" in _malformed(tmp_path, dup)
+
+
+def test_a_roving_hammer_file_is_refused_with_the_reciprocity_remedy(tmp_path):
+    """One accelerometer (1+Z), the hammer at 1, 2, 3: the inputs are no outputs, which the
+    FRF file refuses. The message said only "inputs label '2+Z' is not among outputs"; it
+    now says why and that swapping response and reference (reciprocity) gives the layout,
+    which then reads: the FRFs of a force at 1+Z."""
+    frf = chain_frf(inputs=["1+Z", "2+Z", "3+Z"], n_freq=8)
+    datasets = [d for d in frf_datasets("x", frf, binary=True)
+                if d["type"] != 58 or (d["rsp_node"], d["rsp_dir"]) == (1, 3)]
+    write_datasets(tmp_path / "roving.uff", datasets)
+    with pytest.raises(InputError) as exc:
+        read_uff_frf(tmp_path / "roving.uff")
+    message = one_line(exc)
+    assert "reference(s) '2+Z', '3+Z' of 3 are not among the 1 response(s)" in message
+    assert "every input is an output" in message and "roving-hammer" in message
+    assert "swap each dataset 58's response and reference" in message
+    for d in datasets[1:]:
+        d["rsp_node"], d["ref_node"] = d["ref_node"], d["rsp_node"]
+    write_datasets(tmp_path / "swapped.uff", datasets)
+    back = read_uff_frf(tmp_path / "swapped.uff")
+    assert back.outputs == ["1+Z", "2+Z", "3+Z"] and back.inputs == ["1+Z"]
+    np.testing.assert_array_equal(back.H[:, :, 0], frf.H[:, 0, :])
+
+
+def test_an_input_that_is_not_measured_says_why_it_is_refused(tmp_path):
+    frf = chain_frf(inputs=["1+Z"], n_freq=8)
+    datasets = frf_datasets("x", frf, binary=True)
+    for d in datasets[1:]:
+        d["ref_node"] = 9
+    write_datasets(tmp_path / "ref9.uff", datasets)
+    with pytest.raises(InputError) as exc:
+        read_uff_frf(tmp_path / "ref9.uff")
+    message = one_line(exc)
+    assert "reference(s) '9+Z' of 1 are not among the 3 response(s)" in message
+    assert "roving-hammer" not in message

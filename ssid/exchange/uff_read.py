@@ -142,6 +142,7 @@ def read_uff_frf(path: str | os.PathLike) -> FRFData:
     _fold_opposite_directions(frfs + cohs + reacts)
     outputs = _merged_order(frfs + cohs, "rsp", "ref")
     inputs = _merged_order(frfs + cohs, "ref", "rsp")
+    _refuse_inputs_not_measured(src, outputs, inputs)
     cohs = select_coherence(src, cohs, inputs)
     freq, lines = frequency_grid(src, frfs + cohs + reacts)
     nf, nc = len(frfs), len(cohs)
@@ -181,6 +182,28 @@ def _fold_opposite_directions(functions: list[_Function]) -> None:
         if n % 2 and f.kind != "coherence":
             f.y = -f.y
         f.rsp, f.ref = (lab.replace("-", "+") if lab in flip else lab for lab in (f.rsp, f.ref))
+
+
+def _refuse_inputs_not_measured(src: str, outputs: list[str], inputs: list[str]) -> None:
+    """Refuse references that are not responses too, as the FRF file does, saying why, and,
+    for a roving-hammer file (every response is also a reference: one accelerometer, the
+    hammer moved), that reciprocity gives the FRFs in the layout the file needs."""
+    stray = [label for label in inputs if label not in outputs]
+    if not stray:
+        return
+    shown = ", ".join(map(repr, stray[:3])) + (", ..." if len(stray) > 3 else "")
+    message = (f"{src}: reference(s) {shown} of {len(inputs)} are not among the "
+               f"{len(outputs)} response(s); an FRF file needs each input's driving-point "
+               "response measured too (every input is an output)")
+    if all(label in inputs for label in outputs):
+        # Maxwell-Betti: H(response a, force at b) = H(response b, force at a).
+        message += (f". This looks like a roving-hammer test (response(s) "
+                    f"{', '.join(map(repr, outputs))}, the hammer at {len(inputs)} points): by "
+                    "reciprocity the same FRFs are the responses at the impact points to a "
+                    "force at the response DOF(s), which the FRF file takes; swap each "
+                    "dataset 58's response and reference (record 6) in the program that "
+                    "wrote the file (ssidlab has no tool for it) and convert again")
+    raise InputError(message)
 
 
 def _where(d: dict) -> str:

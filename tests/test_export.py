@@ -170,6 +170,22 @@ def test_dmig_refuses_bad_names_and_labels(tmp_path):
         export_model_dmig(tmp_path / "m.bdf", damped_model(["1+Z", "2+Z", "x"]))
 
 
+@pytest.mark.parametrize("dofs, grid", [(["7", "7+X", "2+Z"], "7+X"),
+                                        (["7-RY", "2+Z", "7"], "7-RY")])
+@pytest.mark.parametrize("name", ["m.dmig", "m.op4"])
+def test_one_id_as_scalar_point_and_grid_is_refused(tmp_path, dofs, grid, name):
+    """Scalar point 7 and grid 7 in one model were exported (QA, em_spoint_grid.h5); Nastran
+    numbers GRID and SPOINT points in one space, so the file could not be used."""
+    if name.endswith(".op4"):
+        pytest.importorskip("pyyeti")
+    with pytest.raises(InputError) as exc:
+        export_model(tmp_path / name, damped_model(dofs))
+    message = str(exc.value)
+    assert f"DOFs '7' (scalar point 7) and '{grid}' (grid 7)" in message
+    assert "SPOINT and a GRID" in message and "\n" not in message
+    assert not (tmp_path / name).exists()
+
+
 def test_export_model_picks_the_format_from_the_extension(tmp_path):
     model = damped_model(["1+Z", "2+Z", "3+Z"])
     assert export_model(tmp_path / "a.bdf", model) == "dmig"

@@ -53,17 +53,29 @@ def grid_components(src: str, dofs: Sequence[str], target: str) -> tuple[np.ndar
     Raises
     ------
     InputError
-        A label without node+direction form, or two labels on one grid component.
+        A label without node+direction form, two labels on one grid component, or one ID
+        both a scalar point (``"7"``) and a grid (``"7+X"``): Nastran numbers GRID and
+        SPOINT points in one space ("all scalar point identification numbers must be unique
+        with respect to all other structural, scalar, and fluid points", SPOINT remarks), so
+        the model could not be defined, and a reader of ``[7, 0]`` and ``[7, 1]`` could not
+        tell whether 7 is a grid or a scalar point.
     """
     node_dirs = labels_to_node_dirs(src, dofs, "dofs", target)
     pairs = np.array([[n, abs(d)] for n, d in node_dirs], dtype=np.int64).reshape(-1, 2)
     signs = np.array([-1.0 if d < 0 else 1.0 for _, d in node_dirs])
     seen: dict[tuple[int, int], str] = {}
+    kind_of: dict[int, tuple[bool, str]] = {}  # ID -> (scalar point?, first label)
     for label, (g, c) in zip(dofs, pairs.tolist()):
         if (g, c) in seen:
             raise InputError(f"{src}: DOFs {seen[(g, c)]!r} and {label!r} are the same grid "
                              f"component ({g}, {c}) in {target}")
         seen[(g, c)] = label
+        scalar, first = kind_of.setdefault(g, (c == 0, label))
+        if scalar != (c == 0):
+            spoint, grid = (first, label) if scalar else (label, first)
+            raise InputError(f"{src}: DOFs {spoint!r} (scalar point {g}) and {grid!r} (grid "
+                             f"{g}) use one ID for an SPOINT and a GRID, which Nastran requires "
+                             f"to be distinct; give the scalar point a number no grid uses")
     return pairs, signs
 
 

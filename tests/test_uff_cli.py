@@ -9,7 +9,12 @@ import pytest
 from conftest import chain_frf, chain_model, full_frf
 from test_uff_units import G, labelled_file
 
-from ssid.exchange import modes_from_model, read_uff_frf, read_uff_geometry, read_uff_modes
+from ssid.exchange import (
+    modes_from_model,
+    read_uff_frf,
+    read_uff_geometry,
+    read_uff_modes,
+)
 from ssid.io import read_frf, write_frf, write_model
 from ssidlab import cli
 from ssidlab.cli_convert import add_convert_subcommand

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import chain_frf
 
-from ssid.exchange import UFFWarning, read_uff_frf
+from ssid.exchange import read_uff_frf
 from ssid.exchange._uffio import write_datasets
 from ssid.exchange.uff import frf_datasets
 
@@ -64,7 +64,7 @@ def test_ordinary_coherence_with_several_inputs_is_left_out_with_a_warning(tmp_p
     """An analyser's ordinary coherence per pair (type 6), two inputs: it was stored as the
     multiple coherence (0.5 where the truth is 1), and the noise weights trusted it (QA)."""
     frf = chain_frf(n_freq=8)
-    cohs = [dict(rsp=n, ref=r, value=0.5, type=6) for r in [(1, 3), (3, 3)] for n in NODES]
+    cohs = [{"rsp": n, "ref": r, "value": 0.5, "type": 6} for r in [(1, 3), (3, 3)] for n in NODES]
     back, found = read(uff_with_coherence(tmp_path / "ord.uff", frf, cohs))
     assert back.coherence is None
     np.testing.assert_allclose(back.H, frf.H, rtol=1e-11)
@@ -74,7 +74,7 @@ def test_ordinary_coherence_with_several_inputs_is_left_out_with_a_warning(tmp_p
 
 def test_ordinary_coherence_with_one_input_is_read(tmp_path):
     frf = chain_frf(inputs=["1+Z"], n_freq=8)
-    cohs = [dict(rsp=n, ref=(1, 3), value=0.5 + 0.1 * i, type=6) for i, n in enumerate(NODES)]
+    cohs = [{"rsp": n, "ref": (1, 3), "value": 0.5 + 0.1 * i, "type": 6} for i, n in enumerate(NODES)]
     back, found = read(uff_with_coherence(tmp_path / "one.uff", frf, cohs))
     assert found == []
     np.testing.assert_allclose(back.coherence[0, :, 0], [0.5, 0.6, 0.7], rtol=ASCII_RTOL)
@@ -83,7 +83,7 @@ def test_ordinary_coherence_with_one_input_is_read(tmp_path):
 def test_our_own_multiple_coherence_written_as_type_6_stays_multiple(tmp_path):
     """ssidlab writes multiple coherence as type 6 with ID line 1 saying so: still read."""
     frf = chain_frf(n_freq=8)
-    cohs = [dict(rsp=n, ref=r, value=0.9, type=6, id1="x/y multiple coherence")
+    cohs = [{"rsp": n, "ref": r, "value": 0.9, "type": 6, "id1": "x/y multiple coherence"}
             for r in [(1, 3), (3, 3)] for n in NODES]
     back, found = read(uff_with_coherence(tmp_path / "own.uff", frf, cohs))
     assert found == []
@@ -95,8 +95,8 @@ def test_multiple_coherence_wins_over_ordinary_for_the_same_pair(tmp_path):
     coherence 1+Z/1+Z' (QA); the multiple one is the FRF file's."""
     for inputs, refs in ((["1+Z"], [(1, 3)]), (None, [(1, 3), (3, 3)])):
         frf = chain_frf(inputs=inputs, n_freq=8)
-        cohs = [dict(rsp=n, ref=r, value=0.5, type=6) for r in refs for n in NODES]
-        cohs += [dict(rsp=n, ref=r, value=0.9, type=26) for r in refs for n in NODES]
+        cohs = [{"rsp": n, "ref": r, "value": 0.5, "type": 6} for r in refs for n in NODES]
+        cohs += [{"rsp": n, "ref": r, "value": 0.9, "type": 26} for r in refs for n in NODES]
         back, found = read(uff_with_coherence(tmp_path / "both.uff", frf, cohs))
         assert found == []
         np.testing.assert_allclose(back.coherence, 0.9, rtol=ASCII_RTOL)
@@ -110,9 +110,9 @@ def test_one_multiple_coherence_per_output_is_that_outputs_for_every_input(tmp_p
     node 0 it was refused ('reference (input) node number 0 is outside ...'), written against
     one of two inputs it was dropped for not covering the other (QA)."""
     frf = chain_frf(n_freq=8)
-    cohs = [dict(rsp=n, ref=ref, value=0.6 + 0.1 * i, type=26) for i, n in enumerate(NODES)]
+    cohs = [{"rsp": n, "ref": ref, "value": 0.6 + 0.1 * i, "type": 26} for i, n in enumerate(NODES)]
     if with_ordinary:
-        cohs = [dict(rsp=n, ref=r, value=0.5, type=6) for r in [(1, 3), (3, 3)]
+        cohs = [{"rsp": n, "ref": r, "value": 0.5, "type": 6} for r in [(1, 3), (3, 3)]
                 for n in NODES] + cohs
     back, found = read(uff_with_coherence(tmp_path / "out.uff", frf, cohs))
     assert found == []
@@ -124,8 +124,8 @@ def test_a_coherence_that_cannot_be_placed_is_left_out_and_the_frfs_read(tmp_pat
     """A coherence with response node 0 was a refusal naming a 'response node number' only;
     it is a coherence, which the FRFs do not need: left out with a warning saying so."""
     frf = chain_frf(inputs=["1+Z"], n_freq=8)
-    cohs = [dict(rsp=n, ref=(1, 3), value=0.9, type=6) for n in NODES]
-    cohs.append(dict(rsp=(0, 3), ref=(1, 3), value=0.9, type=6))
+    cohs = [{"rsp": n, "ref": (1, 3), "value": 0.9, "type": 6} for n in NODES]
+    cohs.append({"rsp": (0, 3), "ref": (1, 3), "value": 0.9, "type": 6})
     back, found = read(uff_with_coherence(tmp_path / "node0.uff", frf, cohs))
     assert len(found) == 1 and "dataset 8 (58) is a coherence function that cannot be placed" in found[0]
     assert "response node number 0" in found[0] and "FRFs are read without it" in found[0]
@@ -134,8 +134,8 @@ def test_a_coherence_that_cannot_be_placed_is_left_out_and_the_frfs_read(tmp_pat
 
 def test_two_multiple_coherences_of_one_pair_leave_the_coherence_out(tmp_path):
     frf = chain_frf(inputs=["1+Z"], n_freq=8)
-    cohs = [dict(rsp=n, ref=(1, 3), value=0.9, type=26) for n in NODES]
-    cohs.append(dict(rsp=(2, 3), ref=(1, 3), value=0.8, type=26))
+    cohs = [{"rsp": n, "ref": (1, 3), "value": 0.9, "type": 26} for n in NODES]
+    cohs.append({"rsp": (2, 3), "ref": (1, 3), "value": 0.8, "type": 26})
     back, found = read(uff_with_coherence(tmp_path / "dup.uff", frf, cohs))
     assert back.coherence is None and len(found) == 1
     assert "are both the multiple coherence of 2+Z/1+Z" in found[0]

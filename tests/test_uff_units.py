@@ -189,10 +189,10 @@ def test_an_unrecognised_frf_label_is_refused(tmp_path):
     """An FRF labelled in a unit nobody can convert was read as SI behind a warning: a wrong
     scale that the FRF file then carries silently (QA). It is refused, saying how to fix it."""
     frf = chain_frf(n_freq=8)
-    for edit, said in ((dict(ordinate_axis_units_lab="furlong/fortnight^2"),
+    for edit, said in (({"ordinate_axis_units_lab": "furlong/fortnight^2"},
                         "ordinate unit label 'furlong/fortnight^2'"),
-                       (dict(orddenom_axis_units_lab="stone"), "denominator unit label 'stone'")):
-        path = labelled_file(tmp_path / "odd.uff", frf, edit=lambda d: d.update(edit))
+                       ({"orddenom_axis_units_lab": "stone"}, "denominator unit label 'stone'")):
+        path = labelled_file(tmp_path / "odd.uff", frf, edit=lambda d, e=edit: d.update(e))
         with pytest.raises(InputError) as exc:
             read_uff_frf(path)
         message = str(exc.value)
@@ -207,8 +207,8 @@ def test_an_unrecognised_abscissa_label_is_reported_once_and_read_in_hz(tmp_path
     path = labelled_file(tmp_path / "odd.uff", frf, abscissa="cycles per second")
     with pytest.warns(UFFWarning) as record:
         back = read_uff_frf(path)
-    assert messages(record) == [f"{path}: abscissa unit label(s) 'cycles per second' not "
-                                "recognised (first in dataset 2); read as frequency in Hz"]
+    assert messages(record) == [(f"{path}: abscissa unit label(s) 'cycles per second' not "
+                                 "recognised (first in dataset 2); read as frequency in Hz")]
     np.testing.assert_array_equal(back.H, frf.H)
 
 
@@ -253,14 +253,14 @@ def test_a_ratio_label_is_checked_against_the_164_part_by_part(tmp_path):
 
 
 @pytest.mark.parametrize("ordinate, denominator, expected", [
-    ("mm/s/N", "NONE", "ordinate unit 'mm/s' (of 'mm/s/N') is a velocity unit, but the "
-                       "ordinate is acceleration"),
-    ("g/g", "NONE", "denominator unit 'g' (of 'g/g') is an acceleration unit, but the "
-                    "denominator is excitation force"),
-    ("g/N", "lbf", "ordinate unit label 'g/N' gives the denominator's unit ('N'), but the "
-                   "denominator label is 'lbf'"),
-    ("g/N*m", "NONE", "denominator unit 'N*m' (of 'g/N*m') is a moment unit, but 1+Z is a "
-                      "translation"),
+    ("mm/s/N", "NONE", ("ordinate unit 'mm/s' (of 'mm/s/N') is a velocity unit, but the "
+                        "ordinate is acceleration")),
+    ("g/g", "NONE", ("denominator unit 'g' (of 'g/g') is an acceleration unit, but the "
+                     "denominator is excitation force")),
+    ("g/N", "lbf", ("ordinate unit label 'g/N' gives the denominator's unit ('N'), but the "
+                    "denominator label is 'lbf'")),
+    ("g/N*m", "NONE", ("denominator unit 'N*m' (of 'g/N*m') is a moment unit, but 1+Z is a "
+                       "translation")),
 ])
 def test_a_ratio_label_that_contradicts_the_function_is_refused(tmp_path, ordinate,
                                                                  denominator, expected):

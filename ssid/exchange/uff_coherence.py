@@ -65,7 +65,7 @@ def select_coherence(src: str, cohs: list[Any], inputs: list[str]) -> list[Any]:
     by_output: dict[str, list[Any]] = {}
     for c in cohs:
         by_output.setdefault(c.rsp, []).append(c)
-    for rsp, group in by_output.items():
+    for group in by_output.values():
         multiple = [c for c in group if c.multiple]
         ordinary = [c for c in group if not c.multiple]
         if len(multiple) == 1:

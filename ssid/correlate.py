@@ -23,6 +23,7 @@ __all__ = [
     "CROSS_ORTHOGONALITY_DIAG_MIN",
     "MAX_PAIR_FREQ_RATIO",
     "ORTHOGONALITY_OFFDIAG_MAX",
+    "PAIR_REST_RTOL",
     "ModePair",
     "OrthogonalityCheck",
     "auto_mac",
@@ -31,6 +32,7 @@ __all__ = [
     "frequency_error_percent",
     "frequency_ratio",
     "modal_assurance",
+    "modes_at_rest",
     "normalize_modal_mass",
     "orthogonality",
     "pair_modes_by_mac",
@@ -299,6 +301,22 @@ def pair_modes_by_mac_and_frequency(
     score = np.where(ok, mac * ratio, 0.0)
     return [ModePair(p.test, p.analysis, float(mac[p.test, p.analysis]))
             for p in pair_modes_by_mac(score, 0.0) if ok[p.test, p.analysis]]
+
+
+#: A mode with |omega^2| at most this fraction of its set's largest is at rest (a rigid-body
+#: mode): looser than an FE model's round-off (``ssid.tam.RIGID_ROUNDOFF_RTOL``), as an
+#: identified model's rigid-body mode comes out at omega^2 of -0.04 (rad/s)^2 beside 4e5.
+PAIR_REST_RTOL = 1e-6
+
+
+def modes_at_rest(f_hz: np.ndarray) -> np.ndarray:
+    """Which modes of one set are at rest (rigid-body modes), (n,) bool.
+
+    ``|omega^2| <= PAIR_REST_RTOL * max |omega^2|`` over the same set, with ``f_hz`` signed
+    (a negative frequency for omega^2 < 0, as :func:`ssid.tam.natural_frequencies_hz` gives).
+    """
+    w2 = (2 * np.pi * np.asarray(f_hz, dtype=float)) ** 2
+    return w2 <= PAIR_REST_RTOL * (np.max(w2) if w2.size else 0.0)
 
 
 def frequency_error_percent(f_test_hz: np.ndarray, f_ref_hz: np.ndarray) -> np.ndarray:

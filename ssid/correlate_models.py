@@ -20,20 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .correlate import (
-    CROSS_ORTHOGONALITY_DIAG_MIN,
-    MAX_PAIR_FREQ_RATIO,
-    ORTHOGONALITY_OFFDIAG_MAX,
-    auto_mac,
-    check_orthogonality,
-    cross_orthogonality,
-    frequency_error_percent,
-    frequency_ratio,
-    modal_assurance,
-    orthogonality,
-    pair_modes_by_mac,
-    real_mode_from_complex,
-)
+from .correlate import MAX_PAIR_FREQ_RATIO, PAIR_REST_RTOL
 from .correlate_frf import (
     FRF_GAP_METRIC,
     cmif,
@@ -44,6 +31,7 @@ from .correlate_frf import (
     frf_gap_db,
     refine_peak_frequencies,
 )
+from .correlate_pairs import MIN_PAIR_MAC, mode_correlation
 from .errors import InputError
 from .frf import FRFData, requested_band, require_response
 from .io import Model
@@ -67,15 +55,6 @@ __all__ = ["ANALYSIS_BAND_FACTOR", "MAX_PAIR_FREQ_RATIO", "MIN_PAIR_MAC", "PAIR_
 
 #: Analysis modes up to this multiple of the highest test frequency take part in the MAC.
 ANALYSIS_BAND_FACTOR = 1.5
-#: Pairs with a lower MAC are not paired (no counterpart).
-MIN_PAIR_MAC = 0.5
-# Nor are modes further apart in frequency than ssid.correlate.MAX_PAIR_FREQ_RATIO: at 16 Z
-# sensors a 54.6 Hz test mode had MAC 0.54 with the 1.29 Hz analysis mode (4140 % off) and a
-# mode of the test model's with omega^2 < 0 MAC 0.51 with a 2310 Hz one (QA).
-#: A mode with |omega^2| at most this fraction of its set's largest is at rest (a rigid-body
-#: mode): looser than an FE model's round-off (``ssid.tam.RIGID_ROUNDOFF_RTOL``), as an
-#: identified model's rigid-body mode comes out at omega^2 of -0.04 (rad/s)^2 beside 4e5.
-PAIR_REST_RTOL = 1e-6
 
 
 @dataclass
@@ -142,101 +121,6 @@ def _tam(analysis: Model, retained: np.ndarray, tam: str, interface: Sequence[st
     return tam, red.M, red.K
 
 
-def _mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarray,
-                      f_an: np.ndarray, M_tam: np.ndarray) -> tuple[dict, np.ndarray, list]:
-    """MAC, pairing, frequency errors, orthogonality and cross-orthogonality."""
-    mac = modal_assurance(phi_test, phi_an)
-    admissible, why_not = _pair_rule(f_test, f_an)
-    pairs = pair_modes_by_mac(np.where(admissible, mac, 0.0), MIN_PAIR_MAC)
-    phi_test_r = real_mode_from_complex(phi_test)
-    xo = cross_orthogonality(phi_test_r, phi_an, M_tam)
-    ti = [p.test for p in pairs]
-    ai = [p.analysis for p in pairs]
-    xo_paired = xo[np.ix_(ti, ai)]
-    ortho = orthogonality(phi_test_r, M_tam)
-    ferr = frequency_error_percent(f_test[ti], f_an[ai]) if pairs else np.zeros(0)
-    paired = [
-        {
-            "test_mode": p.test + 1,
-            "analysis_mode": p.analysis + 1,
-            "mac": p.mac,
-            "test_freq_hz": float(f_test[p.test]),
-            "analysis_freq_hz": float(f_an[p.analysis]),
-            "freq_error_percent": float(e),
-            "cross_orthogonality": float(xo[p.test, p.analysis]),
-        }
-        for p, e in zip(pairs, ferr)
-    ]
-    # A test mode left without a pair whose best MAC would have paired it by MAC alone: shown,
-    # with the reason, so that the pair the rule refused is not silently missing.
-    paired_tests = {p.test for p in pairs}
-    not_paired = []
-    for i in range(mac.shape[0]):
-        j = int(np.argmax(mac[i])) if mac.shape[1] else 0
-        if i in paired_tests or not mac.shape[1] or mac[i, j] < MIN_PAIR_MAC or admissible[i, j]:
-            continue
-        not_paired.append({"test_mode": i + 1, "analysis_mode": j + 1, "mac": float(mac[i, j]),
-                           "test_freq_hz": float(f_test[i]), "analysis_freq_hz": float(f_an[j]),
-                           "freq_error_percent": float(frequency_error_percent(f_test[i], f_an[j])),
-                           "reason": why_not(i, j)})
-    o_chk = check_orthogonality(ortho, diag_min=0.0)
-    x_chk = check_orthogonality(xo_paired)
-    if not pairs:  # nothing paired: the criterion cannot be met
-        x_chk.passed = False
-    summary = {
-        "mac": mac,
-        "auto_mac_test": auto_mac(phi_test),
-        "auto_mac_analysis": auto_mac(phi_an),
-        "paired_modes": paired,
-        "pairing": {"min_mac": MIN_PAIR_MAC, "max_freq_ratio": MAX_PAIR_FREQ_RATIO},
-        "not_paired": not_paired,
-        "freq_error_percent": [float(e) for e in ferr],
-        "orthogonality": {
-            "matrix": ortho,
-            **o_chk.to_dict(),
-            "criterion": {"offdiag_max": ORTHOGONALITY_OFFDIAG_MAX},
-        },
-        "cross_orthogonality": {
-            "matrix": xo,
-            "paired_matrix": xo_paired,
-            **x_chk.to_dict(),
-            "criterion": {"diag_min": CROSS_ORTHOGONALITY_DIAG_MIN,
-                          "offdiag_max": ORTHOGONALITY_OFFDIAG_MAX},
-        },
-    }
-    return summary, mac, pairs
-
-
-def _pair_rule(f_test: np.ndarray, f_an: np.ndarray):
-    """Which (test, analysis) modes may pair, and a function saying why a pair may not.
-
-    A test mode with omega^2 < 0 (a negative frequency, :func:`_modes`) is no mode of a
-    structure and pairs with nothing, unless it is at rest to :data:`PAIR_REST_RTOL` (a
-    rigid-body mode an identification put a little below zero). Two elastic modes pair only
-    with frequencies within :data:`MAX_PAIR_FREQ_RATIO` of each other. A pair with a mode at
-    rest on either side is decided by the MAC alone: a free-free model's rigid-body mode is
-    measured as a suspension mode on soft supports (0.74 Hz on 60 N/m bungees, MAC 1.000),
-    which no frequency ratio with 0 Hz admits.
-    """
-    def at_rest(f):
-        # On the scale of the largest |omega^2| of the same set.
-        w2 = (2 * np.pi * np.asarray(f, dtype=float)) ** 2
-        return w2 <= PAIR_REST_RTOL * (np.max(w2) if w2.size else 0.0)
-
-    rigid_t, rigid_a = at_rest(f_test), at_rest(f_an)
-    negative = (np.asarray(f_test) < 0) & ~rigid_t
-    ratio = frequency_ratio(f_test, f_an)
-    ok = ~negative[:, None] & (rigid_t[:, None] | rigid_a[None, :] | (ratio * MAX_PAIR_FREQ_RATIO >= 1.0))
-
-    def why_not(i: int, j: int) -> str:
-        if negative[i]:
-            return "the test mode has omega^2 < 0 (K not positive semi-definite): not a physical mode"
-        return (f"frequencies a factor {1 / ratio[i, j]:.3g} apart (a pair needs {MAX_PAIR_FREQ_RATIO:g} or less): "
-                "shapes alike at the sensors (spatial aliasing), not taken for the same mode")
-
-    return ok, why_not
-
-
 def _analysis_band(f_an: np.ndarray, f_test_max: float, n_test: int) -> int:
     """How many analysis modes take part: up to 1.5 x the top test frequency, at least n_test."""
     n = int(np.count_nonzero(f_an <= ANALYSIS_BAND_FACTOR * f_test_max))
@@ -281,7 +165,7 @@ def correlate_models(
     n_an = _analysis_band(f_all, float(np.max(f_test)), f_test.size)
     f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
     f_tam = _tam_frequencies(M_tam, K_tam, warnings)
-    corr, mac, pairs = _mode_correlation(phi_test, f_test, phi_an, f_an, M_tam)
+    corr, mac, pairs = mode_correlation(phi_test, f_test, phi_an, f_an, M_tam)
     summary = {
         "mode": "model-model",
         "tam": tam_used,
@@ -410,7 +294,7 @@ def correlate_with_frf(
     f_all, phi_all = _modes(analysis, "analysis")
     n_an = _analysis_band(f_all, float(hi), max(peaks.size, 1))
     f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
-    corr, mac, pairs = _mode_correlation(phi_test, f_test, phi_an, f_an, M_tam)
+    corr, mac, pairs = mode_correlation(phi_test, f_test, phi_an, f_an, M_tam)
     frac = frf_assurance(test.H, model.H, valid)
     summary = {
         "mode": "model-frf",

@@ -9,6 +9,8 @@ TAM mass at the test DOFs.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from .correlate import (
@@ -26,6 +28,7 @@ from .correlate import (
     pair_modes_by_mac,
     real_mode_from_complex,
 )
+from .correlate_groups import compare_subspaces
 
 __all__ = ["MIN_PAIR_MAC", "mode_correlation", "pair_rule"]
 
@@ -36,11 +39,40 @@ MIN_PAIR_MAC = 0.5
 # mode of the test model's with omega^2 < 0 MAC 0.51 with a 2310 Hz one (QA).
 
 
-def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarray,
-                     f_an: np.ndarray, M_tam: np.ndarray) -> tuple[dict, np.ndarray, list]:
-    """MAC, pairing, frequency errors, orthogonality and cross-orthogonality."""
-    mac = modal_assurance(phi_test, phi_an)
+def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarray, f_an: np.ndarray,
+                     M_tam: np.ndarray, test_groups: Sequence[Sequence[int]] | None = None,
+                     ) -> tuple[dict, np.ndarray, list]:
+    """MAC, pairing, frequency errors, orthogonality and cross-orthogonality.
+
+    Test modes that share a frequency, matched by analysis modes that also do, are first
+    rotated within their span (:func:`ssid.correlate_groups.compare_subspaces`); every
+    measure is of the rotated shapes, and ``subspaces`` says which were rotated.
+
+    Parameters
+    ----------
+    phi_test : (n, m_t)
+        Test shapes at the test DOFs, real or complex.
+    f_test : (m_t,)
+        Their natural frequencies, Hz (signed: negative for omega^2 < 0).
+    phi_an : (n, m_a), f_an : (m_a,)
+        Analysis shapes at the test DOFs and frequencies, Hz.
+    M_tam : (n, n)
+        TAM mass.
+    test_groups : sequence of sequences of int, optional
+        0-based test modes known to share a frequency; default: by their frequencies
+        (:func:`ssid.correlate_groups.frequency_groups`).
+
+    Returns
+    -------
+    summary : dict
+        The JSON keys ``mac`` ... ``cross_orthogonality`` and ``subspaces``.
+    mac : (m_t, m_a)
+    pairs : list of ModePair
+    """
     admissible, why_not = pair_rule(f_test, f_an)
+    phi_test, subspaces = compare_subspaces(phi_test, f_test, phi_an, f_an, M_tam, admissible,
+                                            MIN_PAIR_MAC, test_groups)
+    mac = modal_assurance(phi_test, phi_an)
     pairs = pair_modes_by_mac(np.where(admissible, mac, 0.0), MIN_PAIR_MAC)
     phi_test_r = real_mode_from_complex(phi_test)
     xo = cross_orthogonality(phi_test_r, phi_an, M_tam)
@@ -48,31 +80,33 @@ def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarra
     ai = [p.analysis for p in pairs]
     xo_paired = xo[np.ix_(ti, ai)]
     ortho = orthogonality(phi_test_r, M_tam)
-    ferr = frequency_error_percent(f_test[ti], f_an[ai]) if pairs else np.zeros(0)
-    paired = [
-        {
-            "test_mode": p.test + 1,
-            "analysis_mode": p.analysis + 1,
-            "mac": p.mac,
-            "test_freq_hz": float(f_test[p.test]),
-            "analysis_freq_hz": float(f_an[p.analysis]),
-            "freq_error_percent": float(e),
-            "cross_orthogonality": float(xo[p.test, p.analysis]),
-        }
-        for p, e in zip(pairs, ferr)
-    ]
-    # A test mode left without a pair whose best MAC would have paired it by MAC alone: shown,
-    # with the reason, so that the pair the rule refused is not silently missing.
+    rigid = modes_at_rest(f_an)
+    paired = [{"test_mode": p.test + 1, "analysis_mode": p.analysis + 1, "mac": p.mac,
+               **_frequencies(f_test, f_an, rigid, p.test, p.analysis),
+               "cross_orthogonality": float(xo[p.test, p.analysis])} for p in pairs]
+    # Every test mode is paired or listed here with why: a mode that meets no analysis mode
+    # (MAC below 0.5: a rigid-body mode compared in an arbitrary basis had 0.46) had vanished
+    # from both lists.
+    taken = {p.analysis: p for p in pairs}
     paired_tests = {p.test for p in pairs}
     not_paired = []
     for i in range(mac.shape[0]):
-        j = int(np.argmax(mac[i])) if mac.shape[1] else 0
-        if i in paired_tests or not mac.shape[1] or mac[i, j] < MIN_PAIR_MAC or admissible[i, j]:
+        if i in paired_tests:
             continue
+        if not mac.shape[1]:
+            not_paired.append({"test_mode": i + 1, "reason": "no analysis mode takes part"})
+            continue
+        j = int(np.argmax(mac[i]))
+        if mac[i, j] < MIN_PAIR_MAC:
+            why = f"no analysis mode has a MAC of {MIN_PAIR_MAC:g} or more with it (the best is this one)"
+        elif not admissible[i, j]:
+            why = why_not(i, j)
+        else:
+            other = taken[j]
+            why = (f"analysis mode {j + 1} is paired with test mode {other.test + 1} (MAC {other.mac:.3f}): "
+                   "pairs are one to one")
         not_paired.append({"test_mode": i + 1, "analysis_mode": j + 1, "mac": float(mac[i, j]),
-                           "test_freq_hz": float(f_test[i]), "analysis_freq_hz": float(f_an[j]),
-                           "freq_error_percent": float(frequency_error_percent(f_test[i], f_an[j])),
-                           "reason": why_not(i, j)})
+                           **_frequencies(f_test, f_an, rigid, i, j), "reason": why})
     o_chk = check_orthogonality(ortho, diag_min=0.0)
     x_chk = check_orthogonality(xo_paired)
     if not pairs:  # nothing paired: the criterion cannot be met
@@ -84,7 +118,8 @@ def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarra
         "paired_modes": paired,
         "pairing": {"min_mac": MIN_PAIR_MAC, "max_freq_ratio": MAX_PAIR_FREQ_RATIO},
         "not_paired": not_paired,
-        "freq_error_percent": [float(e) for e in ferr],
+        "subspaces": [s.to_dict() for s in subspaces],
+        "freq_error_percent": [p["freq_error_percent"] for p in paired],
         "orthogonality": {
             "matrix": ortho,
             **o_chk.to_dict(),
@@ -99,6 +134,16 @@ def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarra
         },
     }
     return summary, mac, pairs
+
+
+def _frequencies(f_test: np.ndarray, f_an: np.ndarray, rigid: np.ndarray, i: int, j: int) -> dict:
+    """The frequency fields of a (test i, analysis j) record. Against an analysis mode at rest
+    the error is in Hz only: a percentage of 0 Hz is round-off over round-off (-107 % and
+    -88 % for two exact rigid-body modes at 1e-6 Hz), or infinite for a suspension mode."""
+    err = float(frequency_error_percent(f_test[i], f_an[j]))
+    return {"test_freq_hz": float(f_test[i]), "analysis_freq_hz": float(f_an[j]),
+            "rigid": bool(rigid[j]), "freq_error_hz": float(f_test[i] - f_an[j]),
+            "freq_error_percent": float("nan") if rigid[j] else err}
 
 
 def pair_rule(f_test: np.ndarray, f_an: np.ndarray):

@@ -100,22 +100,33 @@ def plot_frequency_errors(
     """Bar chart of ``freq_error_percent`` of each pair, annotated with its MAC.
 
     ``paired_modes`` are the JSON pair records (``test_mode``, ``analysis_mode``, ``mac``,
-    ``freq_error_percent``).
+    ``freq_error_percent``, ``rigid``). A pair with an analysis mode at rest (``rigid``) has no
+    percentage error (one against 0 Hz is round-off over round-off, -107 % for two exact
+    rigid-body modes, and took the axis): it gets no bar, a grey mark on the zero line labelled
+    "rigid" and its error in Hz (``freq_error_hz``), and "R" after its mode numbers.
     """
     plt = _pyplot()
     n = len(paired_modes)
     fig, ax = plt.subplots(figsize=(max(4.0, 0.5 * n + 2), 3.5))
-    err = np.array([p["freq_error_percent"] for p in paired_modes], dtype=float)
+    rigid = np.array([bool(p.get("rigid")) for p in paired_modes], dtype=bool)
+    err = np.array([np.nan if r else p["freq_error_percent"] for p, r in zip(paired_modes, rigid)], dtype=float)
     x = np.arange(n)
-    colors = ["tab:red" if abs(e) > 10 else "tab:blue" for e in err]
-    ax.bar(x, err, color=colors)
+    elastic = ~rigid & np.isfinite(err)
+    ax.bar(x[elastic], err[elastic], color=["tab:red" if abs(e) > 10 else "tab:blue" for e in err[elastic]])
     for k, p in enumerate(paired_modes):
-        ax.annotate(f"{p['mac']:.2f}", (k, err[k]), ha="center", fontsize=6,
-                    va="bottom" if err[k] >= 0 else "top")
+        if rigid[k]:
+            ax.plot(k, 0.0, "s", color="0.5", ms=5)
+            df = p.get("freq_error_hz")
+            ax.annotate(f"rigid {p['mac']:.2f}" + ("" if df is None else f"\n{df:+.2g} Hz"), (k, 0.0),
+                        ha="center", va="bottom", fontsize=6, color="0.3", xytext=(0, 4), textcoords="offset points")
+        elif elastic[k]:
+            ax.annotate(f"{p['mac']:.2f}", (k, err[k]), ha="center", fontsize=6,
+                        va="bottom" if err[k] >= 0 else "top")
     ax.axhline(0, color="k", lw=0.8)
-    ax.set_xticks(x, [f"{p['test_mode']}/{p['analysis_mode']}" for p in paired_modes],
-                  fontsize=7, rotation=45)
-    ax.set_xlabel("test / analysis mode (label: MAC)")
+    ax.set_xticks(x, [f"{p['test_mode']}/{p['analysis_mode']}{' R' if r else ''}"
+                      for p, r in zip(paired_modes, rigid)], fontsize=7, rotation=45)
+    ax.set_xlabel("test / analysis mode (label: MAC; R: rigid, no % error)" if rigid.any()
+                  else "test / analysis mode (label: MAC)")
     ax.set_ylabel("frequency error (%)")
     ax.set_title(title)
     ax.grid(True, axis="y", alpha=0.3)

@@ -241,25 +241,33 @@ def pair_table(summary: dict) -> str:
     ]
     for p in summary["paired_modes"]:
         lines.append(f"{p['test_mode']:>4} {p['test_freq_hz']:>12.4f} {p['analysis_mode']:>4} "
-                     f"{p['analysis_freq_hz']:>12.4f} {p['freq_error_percent']:>9.3f} "
+                     f"{p['analysis_freq_hz']:>12.4f} {_error(p):>9} "
                      f"{p['mac']:>6.3f} {p['cross_orthogonality']:>7.3f}")
+    if any(p.get("rigid") for p in summary["paired_modes"]):
+        lines.append("rigid: paired with an analysis mode at rest (0 Hz), whose error is no percentage")
+    for g in summary.get("subspaces") or []:
+        lines.append(f"test modes {_numbers(g['test_modes'])}{' (at rest)' if g['at_rest'] else ''} share a "
+                     f"frequency, as analysis modes {_numbers(g['analysis_modes'])} do: compared as subspaces")
+        lines.append(f"  principal angles {', '.join(f'{a:.2g}' for a in g['principal_angles_deg'])} deg; "
+                     f"test modes rotated within their span onto analysis modes {_numbers(g['aligned_with'])} "
+                     f"({g['weighting']})")
     refused = summary.get("not_paired") or []
     if refused:
         # Below the pairs, apart from them: a row among them would read as a pair (the QA's
         # 54.57 Hz test mode "paired" with the 1.29 Hz analysis mode, 4140 % off).
-        lines.append("not paired (MAC 0.5 or more, but not the same mode):")
+        lines.append("not paired (the best MAC of each, and why it is no pair):")
         for p in refused:
             negative = p["test_freq_hz"] < 0 and "omega^2 < 0" in p["reason"]
             f_test = "omega^2 < 0" if negative else f"{p['test_freq_hz']:.4f}"
-            err = "-" if negative else f"{p['freq_error_percent']:.1f}"
+            if "analysis_mode" not in p:
+                lines.append(f"{p['test_mode']:>4} {f_test:>12}  {p['reason']}")
+                continue
+            err = "-" if negative else _error(p, 1)
             lines.append(f"{p['test_mode']:>4} {f_test:>12} {p['analysis_mode']:>4} {p['analysis_freq_hz']:>12.4f} "
                          f"{err:>9} {p['mac']:>6.3f}  {p['reason']}")
     xo = summary["cross_orthogonality"]
     if xo["min_abs_diag"] is None:  # nothing paired: no numbers to show, only the verdict
-        from ssid.correlate_models import MIN_PAIR_MAC
-
-        why = ("those with a MAC of 0.5 or more are not the same modes, above" if refused else
-               f"no test mode has a MAC of {MIN_PAIR_MAC:g} or more with an analysis mode")
+        why = "above, why" if refused else "there are no test modes"
         lines.append(f"cross-orthogonality: no modes were paired ({why}) -> fail")
     else:
         lines.append(f"cross-orthogonality: min |diag| {xo['min_abs_diag']:.3f}, max |off-diag| "
@@ -270,6 +278,15 @@ def pair_table(summary: dict) -> str:
     if summary.get("reactions", {}).get("text"):
         lines.append(summary["reactions"]["text"])
     return "\n".join(lines)
+
+
+def _error(p: dict, digits: int = 3) -> str:
+    """A record's frequency error for the table: "rigid" against an analysis mode at rest."""
+    return "rigid" if p.get("rigid") else f"{p['freq_error_percent']:.{digits}f}"
+
+
+def _numbers(modes: list[int]) -> str:
+    return ", ".join(str(k) for k in modes)
 
 
 def jsonable(obj: Any) -> Any:

@@ -297,7 +297,7 @@ def test_a_non_physical_mode_or_one_far_off_in_frequency_is_not_paired(tmp_path,
     assert s["not_paired"][1]["reason"].startswith("frequencies a factor 10 apart (a pair needs 2 or less)")
     assert s["pairing"] == {"min_mac": 0.5, "max_freq_ratio": 2.0}
     out = capsys.readouterr().out.splitlines()
-    below = out[out.index("not paired (MAC 0.5 or more, but not the same mode):"):]
+    below = out[out.index("not paired (the best MAC of each, and why it is no pair):"):]
     assert below[1].split()[:7] == ["1", "omega^2", "<", "0", "1", "10.0000", "-"]
     assert below[2].split()[:6] == ["3", "200.0000", "2", "20.0000", "900.0", "1.000"]
     assert below[3].startswith("cross-orthogonality: min |diag| 1.000")

@@ -1,0 +1,244 @@
+"""Modes that share a frequency, compared as subspaces.
+
+A repeated natural frequency (a symmetric structure's pairs, a free body's rigid-body modes)
+has an eigenspace, not modes: any orthonormal combination of its modes is as much a set of
+its modes as the one an eigensolver or an identification happened to return. Compared one by
+one, two exact sets of such modes give MACs and cross-orthogonality terms of an arbitrary
+rotation (a free-free beam's rigid-body modes against themselves: MAC 0.79 and 0.87, the
+cross-orthogonality block ``[[0.41, -0.91], [0.91, 0.41]]``). Here the modes of each set
+that share a frequency are grouped (:func:`frequency_groups`); where a test group meets an
+analysis group, the test modes are rotated within their own span to match the analysis
+modes (:func:`compare_subspaces`), and the principal angles between the two spans say how
+alike the spaces are, whatever the basis.
+
+Shapes are columns at the test DOFs, ``(n_dof, n_modes)``; frequencies in Hz, signed as
+:func:`ssid.tam.natural_frequencies_hz` gives them (negative for omega^2 < 0).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+from scipy.optimize import linear_sum_assignment
+
+from .correlate import (
+    modal_assurance,
+    modes_at_rest,
+    normalize_modal_mass,
+    real_mode_from_complex,
+)
+
+__all__ = ["REPEATED_FREQ_RTOL", "Subspace", "compare_subspaces", "frequency_groups", "procrustes_rotation"]
+
+#: Elastic modes of one set whose natural frequencies differ by at most this fraction share a
+#: frequency (a repeated root). An eigensolver returns a repeated root of a double-precision
+#: model split by round-off, about eps x the largest eigenvalue, relative to a mode 1e4 below
+#: the top of the spectrum in omega^2 some 1e-12 in frequency; and no test resolves two modes
+#: 1e-6 apart (1 microhertz at 1 Hz would take a record of 1e6 s), so an identified model that
+#: returns them so is one frequency of the data. A real split, a symmetric structure made a
+#: little asymmetric, is 1e-4 (0.01 %) and more, and those modes are distinct: each has its
+#: own shape, which is not rotated.
+REPEATED_FREQ_RTOL = 1e-6
+
+
+def frequency_groups(f_hz: np.ndarray, rtol: float = REPEATED_FREQ_RTOL) -> list[np.ndarray]:
+    """Groups of two or more modes of one set that share a frequency, 0-based indices.
+
+    The modes at rest (:func:`ssid.correlate.modes_at_rest`, rigid-body modes) are one group;
+    elastic modes (omega^2 > 0, not at rest) form a group when each is within ``rtol`` of the
+    next in frequency. A mode with omega^2 < 0 that is not at rest belongs to no group (no
+    mode of a structure). Groups are in ascending order of their first mode.
+
+    Parameters
+    ----------
+    f_hz : (n,)
+        Natural frequencies, Hz, signed.
+
+    Returns
+    -------
+    list of (n_g,) int arrays, each ascending.
+    """
+    f = np.asarray(f_hz, dtype=float)
+    rest = modes_at_rest(f)
+    groups = [np.flatnonzero(rest)] if np.count_nonzero(rest) > 1 else []
+    elastic = np.flatnonzero(~rest & (f > 0))
+    elastic = elastic[np.argsort(f[elastic], kind="stable")]
+    run: list[int] = []
+    for k in elastic:
+        if run and f[k] - f[run[-1]] > rtol * f[k]:
+            if len(run) > 1:
+                groups.append(np.sort(np.asarray(run)))
+            run = []
+        run.append(int(k))
+    if len(run) > 1:
+        groups.append(np.sort(np.asarray(run)))
+    return sorted(groups, key=lambda g: int(g[0]))
+
+
+def procrustes_rotation(phi_t: np.ndarray, phi_a: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """Orthogonal ``Q`` (m_t, m_t) that turns ``phi_t`` within its span towards ``phi_a``.
+
+    The first ``min(m_t, m_a)`` columns of ``phi_t @ Q`` match the columns of ``phi_a`` in
+    order: ``Q`` maximises ``trace(Q^T phi_t^T W phi_a)`` (orthogonal Procrustes with the
+    weight ``W``); with ``m_t > m_a`` the remaining columns span what of ``phi_t`` is left.
+
+    Parameters
+    ----------
+    phi_t : (n, m_t)
+        Shapes to rotate, real, as they are scaled (their rotation keeps their own
+        orthonormality, in whatever inner product they have it).
+    phi_a : (n, m_a)
+        Target shapes, real, with ``m_a <= m_t``; scaled to unit modal mass in ``W`` here.
+    W : (n, n)
+        Weight (the TAM mass, or the identity).
+    """
+    phi_a = normalize_modal_mass(phi_a, W)
+    A = phi_t.T @ W @ phi_a
+    U, _, Vt = np.linalg.svd(A, full_matrices=True)
+    m_a = phi_a.shape[1]
+    Q = U.copy()
+    Q[:, :m_a] = U[:, :m_a] @ Vt
+    return Q
+
+
+@dataclass
+class Subspace:
+    """A test group and an analysis group sharing a frequency, compared as subspaces.
+
+    Attributes
+    ----------
+    test, analysis : (n_t,), (n_a,) int
+        0-based mode numbers of the two groups.
+    aligned_with : (min(n_t, n_a),) int
+        The analysis modes the rotated test modes were turned towards, in the order of
+        ``test``; with more analysis than test modes those best represented in the test span.
+    at_rest : bool
+        The groups are the two sets' modes at rest (rigid-body modes).
+    angles_deg : (min(n_t, n_a),) float
+        Principal angles between the spans at the test DOFs (unweighted, as the MAC),
+        ascending, degrees: 0 for one space.
+    rotation : (n_t, n_t)
+        Orthogonal ``Q``: rotated test modes = ``phi_test[:, test] @ Q``.
+    weighting : str
+        Inner product of the rotation.
+    mac_before : (n_t, n_a)
+        MAC of the test modes as given with the analysis group.
+    """
+
+    test: np.ndarray
+    analysis: np.ndarray
+    aligned_with: np.ndarray
+    at_rest: bool
+    angles_deg: np.ndarray
+    rotation: np.ndarray
+    weighting: str
+    mac_before: np.ndarray
+
+    def to_dict(self) -> dict:
+        return {
+            "test_modes": [int(k) + 1 for k in self.test],
+            "analysis_modes": [int(k) + 1 for k in self.analysis],
+            "aligned_with": [int(k) + 1 for k in self.aligned_with],
+            "at_rest": bool(self.at_rest),
+            "principal_angles_deg": self.angles_deg,
+            "rotation": self.rotation,
+            "weighting": self.weighting,
+            "mac_before_rotation": self.mac_before,
+        }
+
+
+def compare_subspaces(
+    phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarray, f_an: np.ndarray,
+    M_tam: np.ndarray, admissible: np.ndarray, min_score: float,
+    test_groups: Sequence[Sequence[int]] | None = None,
+) -> tuple[np.ndarray, list[Subspace]]:
+    """Rotate each test group that meets an analysis group sharing a frequency.
+
+    Groups (:func:`frequency_groups`, or ``test_groups`` for test modes known to share a
+    frequency, as the CMIF curves of one peak) of two or more modes on both sides are matched
+    one to one (Hungarian) on the mean squared cosine of their principal angles, among the
+    pairs of groups the pairing rule admits (``admissible`` for every member) with a mean of
+    at least ``min_score`` (the MAC a pair needs: the same bar for a space as for a mode).
+    The test modes of a matched group are rotated within their span
+    (:func:`procrustes_rotation`). Test modes whose frequencies are split are distinct modes
+    and are never rotated; nor is a test group whose analysis counterpart is a single mode.
+
+    Why an orthogonal rotation weighted with the TAM mass: a rotation of a repeated root's
+    modes gives modes of that root again, orthogonal and of unit modal mass as before, so the
+    test result is re-expressed, not changed; a least-squares fit (any matrix) would also
+    stretch and shear the test space towards the analysis modes and make up agreement the
+    test does not show. Weighted with the TAM mass it maximises the sum of the group's paired
+    cross-orthogonality terms, the quantity the criterion checks. When the TAM mass is not
+    positive definite (a SEREP TAM of fewer target modes than DOFs) it cannot weigh every
+    direction, and the rotation is unweighted (the MAC's inner product).
+
+    Parameters
+    ----------
+    phi_test : (n, m_t), real or complex; f_test : (m_t,) Hz
+    phi_an : (n, m_a) real; f_an : (m_a,) Hz
+    M_tam : (n, n)
+    admissible : (m_t, m_a) bool
+        Which pairs the pairing rule allows.
+    min_score : float
+    test_groups : sequence of sequences of int, optional
+        0-based; default ``frequency_groups(f_test)``.
+
+    Returns
+    -------
+    phi_test : (n, m_t)
+        The test shapes with each rotated group's columns replaced (real there).
+    subspaces : list of Subspace
+    """
+    groups_t = [np.asarray(g, dtype=int) for g in (frequency_groups(f_test) if test_groups is None
+                                                   else test_groups) if len(g) > 1]
+    groups_a = frequency_groups(f_an)
+    out = np.array(phi_test, copy=True)
+    if not groups_t or not groups_a:
+        return out, []
+    real_t = real_mode_from_complex(phi_test)
+    score = np.zeros((len(groups_t), len(groups_a)))
+    for i, g in enumerate(groups_t):
+        for j, h in enumerate(groups_a):
+            if admissible[np.ix_(g, h)].all() and _has_motion(real_t[:, g]) and _has_motion(phi_an[:, h]):
+                score[i, j] = np.mean(np.cos(sla.subspace_angles(real_t[:, g], phi_an[:, h])) ** 2)
+    W, weighting = _weight(M_tam)
+    rest_t, rest_a = modes_at_rest(f_test), modes_at_rest(f_an)
+    found = []
+    for i, j in zip(*linear_sum_assignment(score, maximize=True)):
+        if score[i, j] < min_score:
+            continue
+        g, h = groups_t[i], groups_a[j]
+        pt, pa = real_t[:, g], np.asarray(phi_an[:, h], dtype=float)
+        sel = h if h.size <= g.size else h[np.sort(np.argsort(-_captured(pt, pa), kind="stable")[:g.size])]
+        Q = procrustes_rotation(pt, np.asarray(phi_an[:, sel], dtype=float), W)
+        out = out.astype(np.result_type(out, float))
+        out[:, g] = pt @ Q
+        angles = np.sort(np.degrees(sla.subspace_angles(pt, pa)))
+        found.append(Subspace(g, h, sel, bool(rest_t[g].all() and rest_a[h].all()), angles, Q, weighting,
+                              modal_assurance(pt, pa)))
+    return out, sorted(found, key=lambda s: int(s.test[0]))
+
+
+def _has_motion(phi: np.ndarray) -> bool:
+    """Every column nonzero: a span of zero shapes (modes at rest at every test DOF) has no angles."""
+    return bool(np.all(np.linalg.norm(phi, axis=0) > 0))
+
+
+def _captured(pt: np.ndarray, pa: np.ndarray) -> np.ndarray:
+    """Share of each column of ``pa`` inside the span of ``pt`` (its MAC with its projection)."""
+    q, _ = np.linalg.qr(pt)
+    size = np.sum(pa**2, axis=0)
+    return np.sum((q.T @ pa) ** 2, axis=0) / np.where(size > 0, size, 1.0)
+
+
+def _weight(M_tam: np.ndarray) -> tuple[np.ndarray, str]:
+    """The TAM mass when it is positive definite, else the identity (and which, in words)."""
+    M = np.asarray(M_tam, dtype=float)
+    try:
+        np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        return np.eye(M.shape[0]), "unweighted (the TAM mass is not positive definite)"
+    return M, "TAM mass"

@@ -22,9 +22,10 @@ import numpy as np
 
 from .correlate import MAX_PAIR_FREQ_RATIO, PAIR_REST_RTOL
 from .correlate_frf import (
+    CMIF_REPEATED_MIN_RATIO,
     FRF_GAP_METRIC,
     cmif,
-    cmif_peaks,
+    cmif_modes,
     cmif_shapes,
     frf_assurance,
     frf_gap,
@@ -225,8 +226,9 @@ def correlate_with_frf(
     The model's accelerances at the FRF's outputs and inputs come from the full model (exact
     at the measured DOFs); with no C in the model, modal damping ``zeta`` is used for every
     mode. FRAC and the gap compare the FRFs; the test "modes" are the CMIF peaks (frequency
-    and first left singular vector), correlated with the full model's modes at the outputs
-    using the TAM mass of ``tam``.
+    and first left singular vector; at a repeated root also the later curves that peak there,
+    :func:`ssid.correlate_frf.cmif_modes`), correlated with the full model's modes at the
+    outputs using the TAM mass of ``tam``.
 
     Parameters
     ----------
@@ -286,15 +288,20 @@ def correlate_with_frf(
 
     sv_test = cmif(test.H, valid)
     sv_model = cmif(model.H)
-    peaks = cmif_peaks(test.freq_hz, sv_test)
-    if peaks.size == 0:
+    found = cmif_modes(test.freq_hz, sv_test)
+    if found.lines.size == 0:
         warnings.append("no CMIF peak in the measured FRFs: no test modes to correlate")
-    f_test = refine_peak_frequencies(test.freq_hz, sv_test[:, 0], peaks)
-    phi_test = cmif_shapes(test.H, peaks, valid)
+    for f_hz, c, ratio in found.weak:
+        warnings.append(f"CMIF curve {c + 1} also peaks at {f_hz:.4g} Hz, at {20 * np.log10(max(ratio, 1e-300)):.0f} dB "
+                        f"below curve 1: perhaps a second mode at that frequency, driven weakly; not taken (a "
+                        f"mode needs {20 * np.log10(CMIF_REPEATED_MIN_RATIO):.0f} dB or more)")
+    f_test = np.array([refine_peak_frequencies(test.freq_hz, sv_test[:, c], [k])[0]
+                       for k, c in zip(found.lines, found.curves)], dtype=float)
+    phi_test = cmif_shapes(test.H, found.shape_lines, valid, found.curves)
     f_all, phi_all = _modes(analysis, "analysis")
-    n_an = _analysis_band(f_all, float(hi), max(peaks.size, 1))
+    n_an = _analysis_band(f_all, float(hi), max(found.lines.size, 1))
     f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
-    corr, mac, pairs = mode_correlation(phi_test, f_test, phi_an, f_an, M_tam)
+    corr, mac, pairs = mode_correlation(phi_test, f_test, phi_an, f_an, M_tam, test_groups=found.groups)
     frac = frf_assurance(test.H, model.H, valid)
     summary = {
         "mode": "model-frf",
@@ -305,6 +312,7 @@ def correlate_with_frf(
         "target_modes": None if targets is None else [int(t) for t in targets],
         "band_hz": [float(test.freq_hz[0]), float(test.freq_hz[-1])],
         "test_natural_freq_hz": f_test,
+        "test_cmif_curve": found.curves + 1,
         "test_freq_source": "CMIF peaks (damped peak frequency, parabolic interpolation between lines)",
         "analysis_natural_freq_hz": f_an,
         "analysis_n_dofs": analysis.n,

@@ -166,7 +166,7 @@ def correlate_models(
     n_an = _analysis_band(f_all, float(np.max(f_test)), f_test.size)
     f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
     f_tam = _tam_frequencies(M_tam, K_tam, warnings)
-    corr, mac, pairs = mode_correlation(phi_test, f_test, phi_an, f_an, M_tam)
+    corr, mac, pairs = mode_correlation(phi_test, f_test, phi_an, f_an, M_tam, warnings=warnings)
     summary = {
         "mode": "model-model",
         "tam": tam_used,
@@ -301,7 +301,8 @@ def correlate_with_frf(
     f_all, phi_all = _modes(analysis, "analysis")
     n_an = _analysis_band(f_all, float(hi), max(found.lines.size, 1))
     f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
-    corr, mac, pairs = mode_correlation(phi_test, f_test, phi_an, f_an, M_tam, test_groups=found.groups)
+    corr, mac, pairs = mode_correlation(phi_test, f_test, phi_an, f_an, M_tam, test_groups=found.groups,
+                                        warnings=warnings)
     frac = frf_assurance(test.H, model.H, valid)
     summary = {
         "mode": "model-frf",

@@ -18,7 +18,6 @@ from .correlate import (
     MAX_PAIR_FREQ_RATIO,
     ORTHOGONALITY_OFFDIAG_MAX,
     auto_mac,
-    check_orthogonality,
     cross_orthogonality,
     frequency_error_percent,
     frequency_ratio,
@@ -29,6 +28,7 @@ from .correlate import (
     real_mode_from_complex,
 )
 from .correlate_groups import compare_subspaces
+from .correlate_scope import TAM_SPAN_MIN_SHARE, mass_check, mass_range, share_in_range
 
 __all__ = ["MIN_PAIR_MAC", "mode_correlation", "pair_rule"]
 
@@ -41,7 +41,7 @@ MIN_PAIR_MAC = 0.5
 
 def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarray, f_an: np.ndarray,
                      M_tam: np.ndarray, test_groups: Sequence[Sequence[int]] | None = None,
-                     ) -> tuple[dict, np.ndarray, list]:
+                     warnings: list[str] | None = None) -> tuple[dict, np.ndarray, list]:
     """MAC, pairing, frequency errors, orthogonality and cross-orthogonality.
 
     Test modes that share a frequency, matched by analysis modes that also do, are first
@@ -61,6 +61,10 @@ def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarra
     test_groups : sequence of sequences of int, optional
         0-based test modes known to share a frequency; default: by their frequencies
         (:func:`ssid.correlate_groups.frequency_groups`).
+    warnings : list of str, optional
+        Appended to: which mass-weighted checks are not applicable, and why
+        (:mod:`ssid.correlate_scope`); those checks get ``status`` "not applicable" and
+        ``pass`` None, their numbers kept.
 
     Returns
     -------
@@ -69,6 +73,7 @@ def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarra
     mac : (m_t, m_a)
     pairs : list of ModePair
     """
+    warnings = [] if warnings is None else warnings
     admissible, why_not = pair_rule(f_test, f_an)
     phi_test, subspaces = compare_subspaces(phi_test, f_test, phi_an, f_an, M_tam, admissible,
                                             MIN_PAIR_MAC, test_groups)
@@ -107,10 +112,9 @@ def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarra
                    "pairs are one to one")
         not_paired.append({"test_mode": i + 1, "analysis_mode": j + 1, "mac": float(mac[i, j]),
                            **_frequencies(f_test, f_an, rigid, i, j), "reason": why})
-    o_chk = check_orthogonality(ortho, diag_min=0.0)
-    x_chk = check_orthogonality(xo_paired)
-    if not pairs:  # nothing paired: the criterion cannot be met
-        x_chk.passed = False
+    o_chk, x_chk = _mass_checks(phi_test_r, phi_an, M_tam, ortho, xo_paired, pairs, warnings)
+    for rec, ok in zip(paired, x_chk.pop("applicable")):
+        rec["cross_orthogonality_applicable"] = ok
     summary = {
         "mac": mac,
         "auto_mac_test": auto_mac(phi_test),
@@ -122,18 +126,45 @@ def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarra
         "freq_error_percent": [p["freq_error_percent"] for p in paired],
         "orthogonality": {
             "matrix": ortho,
-            **o_chk.to_dict(),
+            **o_chk,
             "criterion": {"offdiag_max": ORTHOGONALITY_OFFDIAG_MAX},
         },
         "cross_orthogonality": {
             "matrix": xo,
             "paired_matrix": xo_paired,
-            **x_chk.to_dict(),
+            **x_chk,
             "criterion": {"diag_min": CROSS_ORTHOGONALITY_DIAG_MIN,
                           "offdiag_max": ORTHOGONALITY_OFFDIAG_MAX},
         },
     }
     return summary, mac, pairs
+
+
+def _mass_checks(phi_test: np.ndarray, phi_an: np.ndarray, M_tam: np.ndarray, ortho: np.ndarray,
+                 xo_paired: np.ndarray, pairs: list, warnings: list[str]) -> tuple[dict, dict]:
+    """The orthogonality and cross-orthogonality verdicts over the terms that apply
+    (:mod:`ssid.correlate_scope`); notes of what does not apply are added to ``warnings``.
+    The cross-orthogonality dict carries ``applicable``, one bool per pair, for the caller."""
+    basis = mass_range(M_tam)
+    rank, n_dof = basis.shape[1], np.shape(M_tam)[0]
+    in_t = share_in_range(phi_test, basis) >= TAM_SPAN_MIN_SHARE
+    in_a = share_in_range(phi_an, basis) >= TAM_SPAN_MIN_SHARE
+    applicable = [bool(in_t[p.test] and in_a[p.analysis]) for p in pairs]
+    out_t = np.flatnonzero(~in_t)
+    out_a = sorted({p.analysis for p in pairs if not in_a[p.analysis]})
+    if out_t.size or out_a:
+        names = [f"test mode{'s' if out_t.size > 1 else ''} {', '.join(str(k + 1) for k in out_t)}"] if out_t.size else []
+        names += [f"paired analysis mode{'s' if len(out_a) > 1 else ''} {', '.join(str(k + 1) for k in out_a)}"] if out_a else []
+        warnings.append(f"the TAM mass has rank {rank} of {n_dof} (a SEREP TAM of fewer target modes than DOFs?): "
+                        f"{' and '.join(names)} lie mostly outside its range (less than "
+                        f"{100 * TAM_SPAN_MIN_SHARE:g} % inside), where the mass sees only their projection: "
+                        "their orthogonality and cross-orthogonality terms are not applicable")
+    o_chk, o_note = mass_check(ortho, np.flatnonzero(in_t), rank, n_dof, "orthogonality", "test modes", 0.0)
+    x_chk, x_note = mass_check(xo_paired, np.flatnonzero(applicable), rank, n_dof, "cross-orthogonality",
+                               "paired modes", CROSS_ORTHOGONALITY_DIAG_MIN)
+    warnings.extend(n for n in (o_note, x_note) if n)
+    x_chk["applicable"] = [ok and x_note is None for ok in applicable]
+    return o_chk, x_chk
 
 
 def _frequencies(f_test: np.ndarray, f_an: np.ndarray, rigid: np.ndarray, i: int, j: int) -> dict:

@@ -240,9 +240,13 @@ def pair_table(summary: dict) -> str:
          f"{'err [%]':>9} {'MAC':>6} {'XOR':>7}"),
     ]
     for p in summary["paired_modes"]:
+        # A term the TAM mass cannot judge (ssid.correlate_scope) in brackets: kept, not counted.
+        xo = f"{p['cross_orthogonality']:.3f}"
         lines.append(f"{p['test_mode']:>4} {p['test_freq_hz']:>12.4f} {p['analysis_mode']:>4} "
-                     f"{p['analysis_freq_hz']:>12.4f} {_error(p):>9} "
-                     f"{p['mac']:>6.3f} {p['cross_orthogonality']:>7.3f}")
+                     f"{p['analysis_freq_hz']:>12.4f} {_error(p):>9} {p['mac']:>6.3f} "
+                     f"{xo if p.get('cross_orthogonality_applicable', True) else f'({xo})':>7}")
+    if not all(p.get("cross_orthogonality_applicable", True) for p in summary["paired_modes"]):
+        lines.append("(XOR): not applicable (the warnings say why), not counted in the verdict")
     if any(p.get("rigid") for p in summary["paired_modes"]):
         lines.append("rigid: paired with an analysis mode at rest (0 Hz), whose error is no percentage")
     for g in summary.get("subspaces") or []:
@@ -271,7 +275,10 @@ def pair_table(summary: dict) -> str:
         lines.append(f"cross-orthogonality: no modes were paired ({why}) -> fail")
     else:
         lines.append(f"cross-orthogonality: min |diag| {xo['min_abs_diag']:.3f}, max |off-diag| "
-                     f"{xo['max_abs_offdiag']:.3f} -> {'pass' if xo['pass'] else 'fail'}")
+                     f"{xo['max_abs_offdiag']:.3f} -> {_verdict(xo)}")
+    o = summary.get("orthogonality") or {}
+    if o.get("max_abs_offdiag") is not None:
+        lines.append(f"orthogonality of the test modes: max |off-diag| {o['max_abs_offdiag']:.3f} -> {_verdict(o)}")
     if "frf_gap" in summary:
         lines.append(f"FRAC mean {summary['frac']['mean']:.3f}, gap ({summary['frf_gap_metric']}) "
                      f"{summary['frf_gap']:.4g}, {summary['frf_gap_db']:.3g} dB rms")
@@ -283,6 +290,14 @@ def pair_table(summary: dict) -> str:
 def _error(p: dict, digits: int = 3) -> str:
     """A record's frequency error for the table: "rigid" against an analysis mode at rest."""
     return "rigid" if p.get("rigid") else f"{p['freq_error_percent']:.{digits}f}"
+
+
+def _verdict(check: dict) -> str:
+    """pass, fail, or "not applicable (see the warnings)": more shapes than DOFs, or shapes
+    outside a singular TAM mass's range, cannot be mass-orthogonal (ssid.correlate_scope)."""
+    if check.get("status") == "not applicable":
+        return "not applicable (the warnings say why)"
+    return "pass" if check["pass"] else "fail"
 
 
 def _numbers(modes: list[int]) -> str:

@@ -309,14 +309,15 @@ def pair_modes_by_mac_and_frequency(
 PAIR_REST_RTOL = 1e-6
 
 
-def modes_at_rest(f_hz: np.ndarray) -> np.ndarray:
+def modes_at_rest(f_hz: np.ndarray, rtol: float = PAIR_REST_RTOL) -> np.ndarray:
     """Which modes of one set are at rest (rigid-body modes), (n,) bool.
 
-    ``|omega^2| <= PAIR_REST_RTOL * max |omega^2|`` over the same set, with ``f_hz`` signed
-    (a negative frequency for omega^2 < 0, as :func:`ssid.tam.natural_frequencies_hz` gives).
+    ``|omega^2| <= rtol * max |omega^2|`` over the same set, with ``f_hz`` signed (a negative
+    frequency for omega^2 < 0, as :func:`ssid.tam.natural_frequencies_hz` gives). With
+    ``ssid.tam.RIGID_ROUNDOFF_RTOL`` (1e-8): at 0 Hz to an FE model's round-off.
     """
     w2 = (2 * np.pi * np.asarray(f_hz, dtype=float)) ** 2
-    return w2 <= PAIR_REST_RTOL * (np.max(w2) if w2.size else 0.0)
+    return w2 <= rtol * (np.max(w2) if w2.size else 0.0)
 
 
 def frequency_error_percent(f_test_hz: np.ndarray, f_ref_hz: np.ndarray) -> np.ndarray:

@@ -100,7 +100,7 @@ def plot_frequency_errors(
     """Bar chart of ``freq_error_percent`` of each pair, annotated with its MAC.
 
     ``paired_modes`` are the JSON pair records (``test_mode``, ``analysis_mode``, ``mac``,
-    ``freq_error_percent``, ``rigid``). A pair with an analysis mode at rest (``rigid``) has no
+    ``freq_error_percent``, ``rigid``). A pair with an analysis mode at 0 Hz (``rigid``) has no
     percentage error (one against 0 Hz is round-off over round-off, -107 % for two exact
     rigid-body modes, and took the axis): it gets no bar, a grey mark on the zero line labelled
     "rigid" and its error in Hz (``freq_error_hz``), and "R" after its mode numbers.

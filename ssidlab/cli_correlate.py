@@ -248,7 +248,7 @@ def pair_table(summary: dict) -> str:
     if not all(p.get("cross_orthogonality_applicable", True) for p in summary["paired_modes"]):
         lines.append("(XOR): not applicable (the warnings say why), not counted in the verdict")
     if any(p.get("rigid") for p in summary["paired_modes"]):
-        lines.append("rigid: paired with an analysis mode at rest (0 Hz), whose error is no percentage")
+        lines.append("rigid: paired with an analysis mode at 0 Hz (rigid-body), whose error is no percentage")
     for g in summary.get("subspaces") or []:
         lines.append(f"test modes {_numbers(g['test_modes'])}{' (at rest)' if g['at_rest'] else ''} share a "
                      f"frequency, as analysis modes {_numbers(g['analysis_modes'])} do: compared as subspaces")
@@ -288,7 +288,7 @@ def pair_table(summary: dict) -> str:
 
 
 def _error(p: dict, digits: int = 3) -> str:
-    """A record's frequency error for the table: "rigid" against an analysis mode at rest."""
+    """A record's frequency error for the table: "rigid" against an analysis mode at 0 Hz."""
     return "rigid" if p.get("rigid") else f"{p['freq_error_percent']:.{digits}f}"
 
 

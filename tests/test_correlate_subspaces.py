@@ -121,7 +121,7 @@ def test_rigid_pairs_print_as_rigid_and_their_subspace_is_shown(tmp_path, capsys
     assert run(["--model", str(tmp_path / "test.h5"), "--model", str(tmp_path / "fem.h5"), "--json", str(js)]) == (0, "")
     out = capsys.readouterr().out.splitlines()
     assert [line.split()[4] for line in out[2:4]] == ["rigid", "rigid"]
-    k = out.index("rigid: paired with an analysis mode at rest (0 Hz), whose error is no percentage")
+    k = out.index("rigid: paired with an analysis mode at 0 Hz (rigid-body), whose error is no percentage")
     assert out[k + 1] == "test modes 1, 2 (at rest) share a frequency, as analysis modes 1, 2 do: compared as subspaces"
     assert out[k + 2].startswith("  principal angles ") and "onto analysis modes 1, 2 (TAM mass)" in out[k + 2]
     s = json.loads(js.read_text())
@@ -148,3 +148,15 @@ def test_rigid_pairs_get_no_bar_on_the_percentage_axis(tmp_path, monkeypatch):
              {"test_mode": 3, "analysis_mode": 3, "mac": 1.0, "freq_error_percent": 0.4, "rigid": False}]
     plot_frequency_errors(pairs, tmp_path / "f.png")
     assert heights == [0.4]
+
+
+def test_a_low_elastic_mode_keeps_its_percentage_error():
+    """Only an analysis mode at 0 Hz to round-off is rigid: a payload's 1.29 Hz mode beside
+    2600 Hz (omega^2 ratio 2.5e-7, at rest by the pairing's looser bound) has a real error
+    against a 1.26 Hz test mode, -2.3 % (the lab demo printed "rigid" for it)."""
+    phi = np.linalg.qr(np.random.default_rng(7).normal(size=(3, 3)))[0]
+    f_an = np.array([1.29, 1000.0, 2600.0])
+    f_t = np.array([1.26, 1000.0, 2600.0])
+    s, _, _ = mode_correlation(phi, f_t, phi, f_an, np.eye(3))
+    first = s["paired_modes"][0]
+    assert not first["rigid"] and first["freq_error_percent"] == pytest.approx(100 * (1.26 / 1.29 - 1))

@@ -125,8 +125,15 @@ def cmif_peaks(freq_hz: np.ndarray, sv: np.ndarray, prominence_db: float = 3.0, 
 
     A peak is a local maximum of one of the first ``curves`` singular-value curves that
     stands ``prominence_db`` above its surroundings (scipy ``find_peaks`` prominence on the dB
-    curve). The peak frequency of a damped mode is its damped natural frequency to within the
-    line spacing; peaks of later curves within two lines of an earlier one are merged.
+    curve). Peaks of later curves within two lines of an earlier one are merged.
+
+    The peak line is where the FRFs' response peaks, which is not the natural frequency. The
+    FRFs here are accelerances: for one mode ``|H| ~ omega^2 / |omega_n^2 - omega^2 + 2 j zeta
+    omega_n omega|``, largest at ``omega_n / sqrt(1 - 2 zeta^2)``, above the natural frequency
+    by about ``zeta^2`` (0.04 % at 2 % damping, 1 % at 10 %: 10.10 Hz for a 10 Hz mode) and
+    above the damped natural frequency ``omega_n sqrt(1 - zeta^2)`` by about ``1.5 zeta^2``.
+    (A receptance would peak at ``omega_n sqrt(1 - 2 zeta^2)``, a mobility at ``omega_n``.)
+    Neighbouring modes move it further, by their residual slope there.
     """
     freq_hz = np.asarray(freq_hz, dtype=float)
     found: list[int] = []

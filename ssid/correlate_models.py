@@ -314,7 +314,8 @@ def correlate_with_frf(
         "band_hz": [float(test.freq_hz[0]), float(test.freq_hz[-1])],
         "test_natural_freq_hz": f_test,
         "test_cmif_curve": found.curves + 1,
-        "test_freq_source": "CMIF peaks (damped peak frequency, parabolic interpolation between lines)",
+        "test_freq_source": ("CMIF peaks of the accelerances (parabolic interpolation between lines): for one mode "
+                             "at f_n / sqrt(1 - 2 zeta^2), about zeta^2 above its natural frequency"),
         "analysis_natural_freq_hz": f_an,
         "analysis_n_dofs": analysis.n,
         "tam_natural_freq_hz": _tam_frequencies(M_tam, K_tam, warnings),

@@ -38,13 +38,13 @@ from .frf import FRFData, requested_band, require_response
 from .io import Model
 from .reaction_loads import choose_reactions, model_frf_under_loads
 from .rigid_body import semi_definite
+from .semidefinite_modes import normal_modes_semidefinite
 from .tam import (
     _MODE_RCOND,
     TAM_METHODS,
+    MassNotPositiveDefinite,
     dof_indices,
     n_unstable_modes,
-    natural_frequencies_hz,
-    normal_modes,
     reduce_to_tam,
     require_elastic_modes,
     require_stable_stiffness,
@@ -74,16 +74,23 @@ class CorrelationStudy:
     warnings: list[str] = field(default_factory=list)
 
 
-def _modes(model: Model, who: str) -> tuple[np.ndarray, np.ndarray]:
+def _modes(model: Model, who: str, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Normal modes: frequencies in Hz (a negative omega^2 as a negative frequency) and
     shapes. An analysis model with a clearly negative omega^2 is refused (not a stable
     structure: as ``ssidlab place`` and ``discrepancy`` refuse it); a test model's is said
     in a warning (an identified model that is not physical is still worth correlating).
-    Either model with K zero is refused (:func:`ssid.tam.require_elastic_modes`)."""
+    Either model with K zero is refused (:func:`ssid.tam.require_elastic_modes`). A model with
+    massless DOFs (M positive semi-definite) has its finite modes
+    (:func:`ssid.semidefinite_modes.normal_modes_semidefinite`), and ``notes`` says so; an M
+    that is indefinite is refused."""
     try:
-        lam, phi = normal_modes(model.M, model.K)
-    except np.linalg.LinAlgError:
-        raise InputError(f"{who} model: M is not positive definite, it has no normal modes") from None
+        lam, phi = normal_modes_semidefinite(model.M, model.K)
+    except MassNotPositiveDefinite as exc:
+        raise InputError(f"{who} model: {exc}") from None
+    if lam.size < model.n:
+        notes.append(f"{who} model: M is singular ({model.n - lam.size} massless direction(s), as massless "
+                     f"rotations of a lumped-mass model): its {lam.size} finite modes are computed with them "
+                     "condensed out statically (exact), the others are at infinite frequency")
     if who == "analysis":
         require_stable_stiffness(lam, "analysis model")
     unstable = n_unstable_modes(lam)
@@ -161,8 +168,8 @@ def correlate_models(
         raise InputError(f"test DOF {missing[0]!r} is not among the analysis model's DOFs")
     retained = dof_indices(analysis.dofs, test.dofs)
     tam_used, M_tam, K_tam = _tam(analysis, retained, tam, interface, targets, test.dofs)
-    f_test, phi_test = _modes(test, "test")
-    f_all, phi_all = _modes(analysis, "analysis")
+    f_test, phi_test = _modes(test, "test", warnings)
+    f_all, phi_all = _modes(analysis, "analysis", warnings)
     n_an = _analysis_band(f_all, float(np.max(f_test)), f_test.size)
     f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
     f_tam = _tam_frequencies(M_tam, K_tam, warnings)
@@ -201,12 +208,18 @@ def _analysis_shapes(phi: np.ndarray, retained: np.ndarray, warnings: list[str])
 
 
 def _tam_frequencies(M_tam: np.ndarray, K_tam: np.ndarray, warnings: list[str]) -> np.ndarray | None:
+    """The TAM's natural frequencies, Hz: its finite ones when its mass is singular and its
+    stiffness holds the massless directions (a Guyan TAM at a massless retained DOF)."""
     try:
-        return natural_frequencies_hz(M_tam, K_tam)
-    except np.linalg.LinAlgError:
+        lam, _ = normal_modes_semidefinite(M_tam, K_tam)
+    except (MassNotPositiveDefinite, InputError):
         warnings.append("the TAM mass is singular (fewer target modes than DOFs?): "
                         "no TAM natural frequencies")
         return None
+    if lam.size < np.shape(M_tam)[0]:
+        warnings.append(f"the TAM mass is singular ({np.shape(M_tam)[0] - lam.size} massless direction(s)): "
+                        f"tam_natural_freq_hz holds its {lam.size} finite frequencies")
+    return np.sign(lam) * np.sqrt(np.abs(lam)) / (2 * np.pi)
 
 
 def correlate_with_frf(
@@ -298,7 +311,7 @@ def correlate_with_frf(
     f_test = np.array([refine_peak_frequencies(test.freq_hz, sv_test[:, c], [k])[0]
                        for k, c in zip(found.lines, found.curves)], dtype=float)
     phi_test = cmif_shapes(test.H, found.shape_lines, valid, found.curves)
-    f_all, phi_all = _modes(analysis, "analysis")
+    f_all, phi_all = _modes(analysis, "analysis", warnings)
     n_an = _analysis_band(f_all, float(hi), max(found.lines.size, 1))
     f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
     corr, mac, pairs = mode_correlation(phi_test, f_test, phi_an, f_an, M_tam, test_groups=found.groups,

@@ -160,7 +160,8 @@ def _mass_checks(phi_test: np.ndarray, phi_an: np.ndarray, M_tam: np.ndarray, or
     if out_t.size or out_a:
         names = [f"test mode{'s' if out_t.size > 1 else ''} {', '.join(str(k + 1) for k in out_t)}"] if out_t.size else []
         names += [f"paired analysis mode{'s' if len(out_a) > 1 else ''} {', '.join(str(k + 1) for k in out_a)}"] if out_a else []
-        warnings.append(f"the TAM mass has rank {rank} of {n_dof} (a SEREP TAM of fewer target modes than DOFs?): "
+        warnings.append(f"the TAM mass has rank {rank} of {n_dof} (a SEREP TAM of fewer target modes than DOFs, or a "
+                        "massless retained DOF?): "
                         f"{' and '.join(names)} lie mostly outside its range (less than "
                         f"{100 * TAM_SPAN_MIN_SHARE:g} % inside), where the mass sees only their projection: "
                         "their orthogonality and cross-orthogonality terms are not applicable")

@@ -41,6 +41,7 @@ from .model_checks import (
     require_elastic_modes,
     require_stable_stiffness,
 )
+from .semidefinite_modes import normal_modes_semidefinite
 
 __all__ = [
     "MassNotPositiveDefinite",
@@ -270,8 +271,8 @@ def _target_modes(
     M: np.ndarray, K: np.ndarray, targets: Sequence[int] | None, n_default: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mass-normalised full-model modes at 0-based ``targets`` (default: the lowest n), and
-    their 1-based mode numbers (for messages)."""
-    lam, phi = normal_modes(M, K)
+    their 1-based mode numbers (for messages); the finite modes when M has massless DOFs."""
+    lam, phi = normal_modes_semidefinite(M, K)
     t = np.arange(n_default) if targets is None else np.asarray(targets, dtype=int)
     if t.size == 0 or t.min() < 0 or t.max() >= lam.size or np.unique(t).size != t.size:
         raise InputError(f"target modes must be distinct mode numbers between 1 and {lam.size}")

@@ -1,0 +1,90 @@
+"""Models with massless DOFs (M positive semi-definite: a lumped-mass model's rotations) have
+their finite normal modes; ``ssidlab correlate`` refused them ("M is not positive definite, it
+has no normal modes"), even with a Guyan TAM, which handles them exactly (QA)."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+import scipy.linalg as sla
+from test_correlate_cli import run
+from test_tam_models import beam_model, translations
+
+from ssid.correlate_models import correlate_models
+from ssid.errors import InputError
+from ssid.io import Model, write_model
+from ssid.tam import guyan_reduce
+
+
+def _qa_chain():
+    """The QA's 6-mass chain with the masses at DOFs 1, 3 and 4 (0-based 0, 2, 3) removed."""
+    m = np.array([1.0, 2.0, 1.5, 1.0, 3.0, 2.0])
+    m[[0, 2, 3]] = 0.0
+    k = np.array([100.0, 200.0, 150.0, 300.0, 250.0, 120.0])
+    K = np.diag(k + np.r_[k[1:], 0.0]) - np.diag(k[1:], 1) - np.diag(k[1:], -1)
+    return np.diag(m), K
+
+
+def _finite_eig(M, K):
+    lam = sla.eig(K, M, right=False)
+    return np.sort(np.real(lam[np.isfinite(lam)]))
+
+
+def test_the_finite_modes_of_a_model_with_massless_dofs():
+    from ssid.semidefinite_modes import normal_modes_semidefinite
+
+    M, K = _qa_chain()
+    lam, phi = normal_modes_semidefinite(M, K)
+    np.testing.assert_allclose(lam, [5.939982, 66.666667, 120.250495], rtol=1e-6)  # the QA's numbers
+    np.testing.assert_allclose(lam, _finite_eig(M, K), rtol=1e-10)
+    np.testing.assert_allclose(phi.T @ M @ phi, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(K @ phi, M @ phi * lam, atol=1e-9 * np.abs(K).max())
+    # A mass that is singular along no DOF (a consistent-mass-like null vector): the same.
+    rng = np.random.default_rng(2)
+    B = rng.normal(size=(7, 4))
+    M2, K2 = B @ B.T, np.eye(7) * 50 + (lambda A: A @ A.T)(rng.normal(size=(7, 7)))
+    lam2, phi2 = normal_modes_semidefinite(M2, K2)
+    np.testing.assert_allclose(lam2, _finite_eig(M2, K2), rtol=1e-8)
+    np.testing.assert_allclose(phi2.T @ M2 @ phi2, np.eye(4), atol=1e-10)
+
+
+@pytest.mark.parametrize("M, K, message", [
+    (np.diag([1.0, -1.0, 1.0]), np.diag([1.0, 2.0, 3.0]),
+     "M is not positive semi-definite (an eigenvalue of -1, a negative mass)"),
+    # the middle DOF has neither mass nor stiffness: nothing fixes its motion
+    (np.diag([1.0, 0.0, 1.0]), np.diag([100.0, 0.0, 100.0]), "massless direction(s) that K does not hold"),
+])
+def test_an_indefinite_mass_or_a_massless_mechanism_is_refused(M, K, message):
+    from ssid.semidefinite_modes import normal_modes_semidefinite
+
+    with pytest.raises(InputError, match=re.escape(message)):
+        normal_modes_semidefinite(M, K)
+    with pytest.raises(InputError, match="NaN"):
+        normal_modes_semidefinite(np.diag([1.0, np.nan, 1.0]), np.eye(3))
+
+
+def test_a_lumped_beam_correlates_with_its_guyan_tam(tmp_path):
+    """Lumped mass, no rotary inertia: every rotation is massless. Measured at every
+    translation, the Guyan TAM omits the massless rotations only and is exact: its modes are
+    the beam's, paired with MAC 1 and a cross-orthogonality of the identity."""
+    M, K, dofs = beam_model(n_elem=6, lumped=True)
+    a = translations(dofs, list(range(1, 8)))
+    red = guyan_reduce(M, K, a)
+    test = Model(red.M, red.K, None, [dofs[i] for i in a])
+    s = correlate_models(test, Model(M, K, None, dofs), tam="guyan").summary
+    assert len(s["paired_modes"]) == 7 and min(p["mac"] for p in s["paired_modes"]) > 1 - 1e-9
+    assert s["cross_orthogonality"]["pass"] and s["cross_orthogonality"]["max_abs_offdiag"] < 1e-8
+    assert max(abs(e) for e in s["freq_error_percent"]) < 1e-8
+    assert any(w.startswith("analysis model: M is singular (7 massless direction(s)") for w in s["warnings"])
+    # SEREP's target modes are the finite ones: exact as well.
+    s = correlate_models(test, Model(M, K, None, dofs), tam="serep").summary
+    assert min(p["mac"] for p in s["paired_modes"]) > 1 - 1e-9 and s["cross_orthogonality"]["pass"]
+    write_model(tmp_path / "test.h5", test)
+    write_model(tmp_path / "fem.h5", Model(M, K, None, dofs))
+    status, err = run(["--model", str(tmp_path / "test.h5"), "--model", str(tmp_path / "fem.h5"), "--json",
+                       str(tmp_path / "c.json"), "--quiet"])
+    assert (status, err) == (0, "")
+    assert len(json.loads((tmp_path / "c.json").read_text())["analysis_natural_freq_hz"]) == 7

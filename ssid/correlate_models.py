@@ -124,6 +124,8 @@ def _tam(analysis: Model, retained: np.ndarray, tam: str, interface: Sequence[st
     t0 = None if targets is None else [t - 1 for t in targets]
     try:
         red = reduce_to_tam(tam, analysis.M, analysis.K, retained, targets=t0, boundary=boundary)
+    except InputError as exc:  # named as the analysis model's, so that the CLI names its file
+        raise InputError(f"analysis model: {exc}") from None
     except np.linalg.LinAlgError as exc:
         raise InputError(f"analysis model: the {tam} reduction failed ({exc})") from None
     return tam, red.M, red.K

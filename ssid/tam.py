@@ -43,30 +43,11 @@ from .model_checks import (
 )
 from .semidefinite_modes import normal_modes_semidefinite
 
-__all__ = [
-    "MassNotPositiveDefinite",
-    "RIGID_ROUNDOFF_RTOL",
-    "TAM_METHODS",
-    "ReducedModel",
-    "dof_indices",
-    "guyan_reduce",
-    "guyan_transform",
-    "hybrid_tam",
-    "hybrid_transform",
-    "irs_reduce",
-    "irs_transform",
-    "natural_frequencies_hz",
-    "normal_modes",
-    "n_unstable_modes",
-    "require_elastic_modes",
-    "require_stable_stiffness",
-    "omitted_indices",
-    "retained_share",
-    "reduce_by_transform",
-    "reduce_to_tam",
-    "serep_reduce",
-    "serep_transform",
-]
+__all__ = ["RIGID_ROUNDOFF_RTOL", "TAM_METHODS", "MassNotPositiveDefinite", "ReducedModel", "dof_indices",
+           "guyan_reduce", "guyan_transform", "hybrid_tam", "hybrid_transform", "irs_reduce",
+           "irs_transform", "n_unstable_modes", "natural_frequencies_hz", "normal_modes",
+           "omitted_indices", "reduce_by_transform", "reduce_to_tam", "require_elastic_modes",
+           "require_stable_stiffness", "retained_share", "serep_reduce", "serep_transform"]
 
 #: Names accepted by :func:`reduce_to_tam` (and ``ssidlab correlate --tam``).
 TAM_METHODS = ("guyan", "irs", "serep", "hybrid", "cb")
@@ -244,7 +225,18 @@ def irs_transform(M: np.ndarray, K: np.ndarray, retained: Sequence[int]) -> np.n
     Ts = guyan_transform(K, a)
     Ms = reduce_by_transform(M, Ts)
     Ks = reduce_by_transform(K, Ts)
-    # omega^2 of the Guyan model acting on x_a; M_s is positive definite whenever M is.
+    # omega^2 of the Guyan model acting on x_a. M_s is positive definite whenever M is; with
+    # massless DOFs it is singular when a retained one drags no mass statically (a massless DOF
+    # whose neighbours are all retained), and IRS has no Guyan frequencies to work with.
+    w, V = np.linalg.eigh(Ms)
+    null = np.abs(V[:, w <= w[-1] / _COND_MAX])
+    if null.size:
+        k = np.flatnonzero(null.max(axis=1) > 0.5 * null.max())
+        raise InputError(
+            f"the Guyan mass M_s is singular: retained DOF {', '.join(f'no. {i + 1} (model index {a[i]})' for i in k)} "
+            "moves no mass, nor do the omitted DOFs it drags statically (a massless DOF whose neighbours are "
+            "retained); IRS estimates the omitted inertia with the Guyan frequencies M_s^-1 K_s, which a singular "
+            "M_s does not have: use Guyan (exact for massless omitted DOFs), or retain a DOF with mass")
     dyn = sla.solve(Ms, Ks, assume_a="sym")
     inertia = (M @ Ts)[o] @ dyn  # (n_o, n_a): o-rows of M T_s M_s^-1 K_s
     T = Ts.copy()

@@ -88,3 +88,25 @@ def test_a_lumped_beam_correlates_with_its_guyan_tam(tmp_path):
                        str(tmp_path / "c.json"), "--quiet"])
     assert (status, err) == (0, "")
     assert len(json.loads((tmp_path / "c.json").read_text())["analysis_natural_freq_hz"]) == 7
+
+
+def test_irs_with_a_singular_guyan_mass_says_what_is_singular(tmp_path):
+    """The QA's chain with DOF index 2 massless, retained with both neighbours: its Guyan shape
+    moves no mass, M_s is singular, and IRS (which needs the Guyan frequencies M_s^-1 K_s)
+    ended in numpy's "A singular matrix detected: slice(s) [0] are singular"."""
+    from ssid.tam import irs_reduce
+
+    _, K = _qa_chain()
+    M = np.diag([1.0, 2.0, 0.0, 1.0, 3.0, 2.0])
+    with pytest.raises(InputError, match=re.escape("the Guyan mass M_s is singular: retained DOF no. 2 (model "
+                                                   "index 2) moves no mass")) as info:
+        irs_reduce(M, K, [1, 2, 3])
+    assert "use Guyan" in str(info.value) and not isinstance(info.value, np.linalg.LinAlgError)
+    dofs = [f"{i}+X" for i in range(1, 7)]
+    write_model(tmp_path / "fem.h5", Model(M, K, None, dofs))
+    write_model(tmp_path / "test.h5", Model(np.diag([2.0, 1.0, 1.0]), K[1:4, 1:4], None, dofs[1:4]))
+    status, err = run(["--model", str(tmp_path / "test.h5"), "--model", str(tmp_path / "fem.h5"), "--tam", "irs",
+                       "--json", str(tmp_path / "c.json")])
+    assert status == 2 and "\n" not in err
+    assert err.startswith(f"ssidlab correlate: error: {tmp_path / 'fem.h5'} (analysis model): the Guyan mass M_s "
+                          "is singular: retained DOF no. 2 (model index 2)"), err

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .correlate import MAX_PAIR_FREQ_RATIO, PAIR_REST_RTOL
+from .correlate import MAX_PAIR_FREQ_RATIO, PAIR_REST_RTOL, modes_at_rest
 from .correlate_frf import (
     CMIF_REPEATED_MIN_RATIO,
     FRF_GAP_METRIC,
@@ -41,6 +41,7 @@ from .rigid_body import semi_definite
 from .semidefinite_modes import normal_modes_semidefinite
 from .tam import (
     _MODE_RCOND,
+    RIGID_ROUNDOFF_RTOL,
     TAM_METHODS,
     MassNotPositiveDefinite,
     dof_indices,
@@ -172,6 +173,7 @@ def correlate_models(
     tam_used, M_tam, K_tam = _tam(analysis, retained, tam, interface, targets, test.dofs)
     f_test, phi_test = _modes(test, "test", warnings)
     f_all, phi_all = _modes(analysis, "analysis", warnings)
+    _rigid_targets_left_out(tam_used, targets, f_all, warnings)
     n_an = _analysis_band(f_all, float(np.max(f_test)), f_test.size)
     f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
     f_tam = _tam_frequencies(M_tam, K_tam, warnings)
@@ -207,6 +209,21 @@ def _analysis_shapes(phi: np.ndarray, retained: np.ndarray, warnings: list[str])
                         f"{'are' if blind.size > 1 else 'is'} at rest at every test DOF (a node at each): not "
                         "observable by this test, MAC 0 with every test mode")
     return part
+
+
+def _rigid_targets_left_out(tam_used: str, targets: Sequence[int] | None, f_all: np.ndarray,
+                            warnings: list[str]) -> None:
+    """Warn when a hybrid TAM's targets (1-based) leave out analysis modes at 0 Hz: the TAM
+    moves them off 0 Hz (0.97 and 8.0 Hz on a free beam; :func:`ssid.tam.hybrid_tam`)."""
+    if tam_used != "hybrid" or targets is None:
+        return
+    rigid = [k + 1 for k in np.flatnonzero(modes_at_rest(f_all, RIGID_ROUNDOFF_RTOL)) if k + 1 not in set(targets)]
+    if rigid:
+        warnings.append(f"the hybrid TAM's target modes leave out analysis mode{'s' if len(rigid) > 1 else ''} "
+                        f"{', '.join(map(str, rigid))}, at rest (rigid-body): the TAM moves "
+                        f"{'them' if len(rigid) > 1 else 'it'} off 0 Hz, as its projector Phi_ta Phi_ta^T M_m "
+                        "does not vanish on a rigid motion and adds the targets' elastic part to it; include "
+                        "the modes at rest in the targets")
 
 
 def _tam_frequencies(M_tam: np.ndarray, K_tam: np.ndarray, warnings: list[str]) -> np.ndarray | None:
@@ -314,6 +331,7 @@ def correlate_with_frf(
                        for k, c in zip(found.lines, found.curves)], dtype=float)
     phi_test = cmif_shapes(test.H, found.shape_lines, valid, found.curves)
     f_all, phi_all = _modes(analysis, "analysis", warnings)
+    _rigid_targets_left_out(tam_used, targets, f_all, warnings)
     n_an = _analysis_band(f_all, float(hi), max(found.lines.size, 1))
     f_an, phi_an = f_all[:n_an], _analysis_shapes(phi_all[:, :n_an], retained, warnings)
     corr, mac, pairs = mode_correlation(phi_test, f_test, phi_an, f_an, M_tam, test_groups=found.groups,

@@ -160,3 +160,18 @@ def test_a_low_elastic_mode_keeps_its_percentage_error():
     s, _, _ = mode_correlation(phi, f_t, phi, f_an, np.eye(3))
     first = s["paired_modes"][0]
     assert not first["rigid"] and first["freq_error_percent"] == pytest.approx(100 * (1.26 / 1.29 - 1))
+
+
+def test_a_hybrid_tam_whose_targets_leave_out_the_rigid_body_modes_is_warned_of():
+    """Targets 3-5 on the free beam: the hybrid TAM's rigid-body modes moved to 0.97 and 8.0 Hz
+    (its projector does not vanish on a rigid motion), without a word. With the rigid modes
+    among the targets they stay at 0 Hz, and nothing is said."""
+    M, K, dofs, a = _free_beam()
+    red = reduce_to_tam("guyan", M, K, a)
+    test, fem = Model(red.M, red.K, None, [dofs[i] for i in a]), Model(M, K, None, dofs)
+    s = correlate_models(test, fem, tam="hybrid", targets=[3, 4, 5]).summary
+    assert min(s["tam_natural_freq_hz"][:2]) > 0.5
+    assert ("the hybrid TAM's target modes leave out analysis modes 1, 2, at rest (rigid-body): the TAM moves them "
+            "off 0 Hz") in " ".join(s["warnings"])
+    s = correlate_models(test, fem, tam="hybrid", targets=[1, 2, 3, 4, 5]).summary
+    assert max(np.abs(s["tam_natural_freq_hz"][:2])) < 1e-3 and not any("leave out" in w for w in s["warnings"])

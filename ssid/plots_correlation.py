@@ -11,6 +11,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .correlate import modes_at_rest
+
 __all__ = ["plot_cmif", "plot_frequency_errors", "plot_frf_overlay", "plot_mac_matrix"]
 
 
@@ -46,7 +48,8 @@ def plot_mac_matrix(
     def ticks(freqs, n):
         if freqs is None:
             return [str(k + 1) for k in range(n)]
-        return [f"{k + 1}\n{f:.4g}" for k, f in enumerate(freqs)]
+        rest = modes_at_rest(freqs)
+        return [f"{k + 1}\n{_frequency_label(f, r)}" for k, (f, r) in enumerate(zip(freqs, rest))]
 
     ax.set_xticks(range(n_a), ticks(analysis_freq_hz, n_a), fontsize=6)
     ax.set_yticks(range(n_t), [t.replace("\n", "  ") for t in ticks(test_freq_hz, n_t)], fontsize=6)
@@ -57,6 +60,14 @@ def plot_mac_matrix(
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return os.fspath(path)
+
+
+def _frequency_label(f_hz: float, at_rest: bool) -> str:
+    """A tick's frequency: "0" for a mode at rest (its round-off, "-8.123e-06", overlapped the
+    next labels), four significant digits otherwise, without an exponent from 0.01 Hz to 100 kHz."""
+    if at_rest:
+        return "0"
+    return f"{f_hz:.4g}" if 0.01 <= abs(f_hz) < 1e5 else f"{f_hz:.1e}"
 
 
 def plot_frf_overlay(

@@ -242,8 +242,8 @@ def pair_table(summary: dict) -> str:
     for p in summary["paired_modes"]:
         # A term the TAM mass cannot judge (ssid.correlate_scope) in brackets: kept, not counted.
         xo = f"{p['cross_orthogonality']:.3f}"
-        lines.append(f"{p['test_mode']:>4} {p['test_freq_hz']:>12.4f} {p['analysis_mode']:>4} "
-                     f"{p['analysis_freq_hz']:>12.4f} {_error(p):>9} {p['mac']:>6.3f} "
+        lines.append(f"{p['test_mode']:>4} {_fixed(p['test_freq_hz'], 4):>12} {p['analysis_mode']:>4} "
+                     f"{_fixed(p['analysis_freq_hz'], 4):>12} {_error(p):>9} {p['mac']:>6.3f} "
                      f"{xo if p.get('cross_orthogonality_applicable', True) else f'({xo})':>7}")
     if not all(p.get("cross_orthogonality_applicable", True) for p in summary["paired_modes"]):
         lines.append("(XOR): not applicable (the warnings say why), not counted in the verdict")
@@ -262,12 +262,12 @@ def pair_table(summary: dict) -> str:
         lines.append("not paired (the best MAC of each, and why it is no pair):")
         for p in refused:
             negative = p["test_freq_hz"] < 0 and "omega^2 < 0" in p["reason"]
-            f_test = "omega^2 < 0" if negative else f"{p['test_freq_hz']:.4f}"
+            f_test = "omega^2 < 0" if negative else _fixed(p["test_freq_hz"], 4)
             if "analysis_mode" not in p:
                 lines.append(f"{p['test_mode']:>4} {f_test:>12}  {p['reason']}")
                 continue
             err = "-" if negative else _error(p, 1)
-            lines.append(f"{p['test_mode']:>4} {f_test:>12} {p['analysis_mode']:>4} {p['analysis_freq_hz']:>12.4f} "
+            lines.append(f"{p['test_mode']:>4} {f_test:>12} {p['analysis_mode']:>4} {_fixed(p['analysis_freq_hz'], 4):>12} "
                          f"{err:>9} {p['mac']:>6.3f}  {p['reason']}")
     xo = summary["cross_orthogonality"]
     if xo["min_abs_diag"] is None:  # nothing paired: no numbers to show, only the verdict
@@ -289,7 +289,14 @@ def pair_table(summary: dict) -> str:
 
 def _error(p: dict, digits: int = 3) -> str:
     """A record's frequency error for the table: "rigid" against an analysis mode at 0 Hz."""
-    return "rigid" if p.get("rigid") else f"{p['freq_error_percent']:.{digits}f}"
+    return "rigid" if p.get("rigid") else _fixed(p["freq_error_percent"], digits)
+
+
+def _fixed(x: float, digits: int) -> str:
+    """``x`` with ``digits`` decimals, without the sign of a value that rounds to zero: a
+    rigid-body mode at -3e-6 Hz printed as "-0.0000", an exact error as "-0.000"."""
+    text = f"{x:.{digits}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0 else text
 
 
 def _verdict(check: dict) -> str:

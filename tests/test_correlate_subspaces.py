@@ -175,3 +175,33 @@ def test_a_hybrid_tam_whose_targets_leave_out_the_rigid_body_modes_is_warned_of(
             "off 0 Hz") in " ".join(s["warnings"])
     s = correlate_models(test, fem, tam="hybrid", targets=[1, 2, 3, 4, 5]).summary
     assert max(np.abs(s["tam_natural_freq_hz"][:2])) < 1e-3 and not any("leave out" in w for w in s["warnings"])
+
+
+def test_modes_at_rest_print_as_zero_without_a_sign_and_label_the_mac_plot_as_zero(tmp_path, capsys, monkeypatch):
+    """Rigid-body test modes printed as "-0.0000" Hz, and mac.png's labels of the analysis
+    modes' round-off ("-8.123e-06") overlapped."""
+    from matplotlib.axes import Axes
+
+    from ssid.plots_correlation import plot_mac_matrix
+
+    M, K, dofs, a = _free_beam()
+    red = reduce_to_tam("guyan", M, K, a)
+    write_model(tmp_path / "test.h5", Model(red.M, red.K, None, [dofs[i] for i in a]))
+    write_model(tmp_path / "fem.h5", Model(M, K, None, dofs))
+    js = tmp_path / "c.json"
+    assert run(["--model", str(tmp_path / "test.h5"), "--model", str(tmp_path / "fem.h5"), "--json", str(js)]) == (0, "")
+    out = capsys.readouterr().out
+    assert "-0.0000" not in out
+    s = json.loads(js.read_text())
+    assert min(s["test_natural_freq_hz"][:2]) < 0 and min(s["analysis_natural_freq_hz"][:2]) < 0  # round-off
+    assert [line.split()[1] for line in out.splitlines()[2:4]] == ["0.0000", "0.0000"]
+    labels = []
+    real = Axes.set_xticks
+
+    def set_xticks(self, ticks, tick_labels=None, **kwargs):
+        labels.extend(tick_labels or [])
+        return real(self, ticks, tick_labels, **kwargs)
+
+    monkeypatch.setattr(Axes, "set_xticks", set_xticks)
+    plot_mac_matrix(np.asarray(s["mac"]), tmp_path / "mac.png", s["test_natural_freq_hz"], s["analysis_natural_freq_hz"])
+    assert labels[:3] == ["1\n0", "2\n0", f"3\n{s['analysis_natural_freq_hz'][2]:.4g}"]

@@ -106,26 +106,30 @@ def procrustes_rotation(phi_t: np.ndarray, phi_a: np.ndarray, W: np.ndarray) -> 
 
 @dataclass
 class Subspace:
-    """A test group and an analysis group sharing a frequency, compared as subspaces.
+    """Test modes and an analysis group sharing a frequency, compared as subspaces.
 
     Attributes
     ----------
     test, analysis : (n_t,), (n_a,) int
-        0-based mode numbers of the two groups.
+        0-based mode numbers: a test group and an analysis group (``rotated`` "test"), or an
+        analysis group and the distinct test modes it was rotated onto ("analysis").
     aligned_with : (min(n_t, n_a),) int
-        The analysis modes the rotated test modes were turned towards, in the order of
-        ``test``; with more analysis than test modes those best represented in the test span.
+        What the rotated modes were turned towards, in order: with ``rotated`` "test" the
+        analysis modes (with more analysis than test modes those best represented in the
+        test span), with "analysis" the test modes.
     at_rest : bool
-        The groups are the two sets' modes at rest (rigid-body modes).
+        The analysis group (and a rotated test group) are modes at rest (rigid-body modes).
     angles_deg : (min(n_t, n_a),) float
         Principal angles between the spans at the test DOFs (unweighted, as the MAC),
         ascending, degrees: 0 for one space.
-    rotation : (n_t, n_t)
-        Orthogonal ``Q``: rotated test modes = ``phi_test[:, test] @ Q``.
+    rotation : (n_t, n_t) or (n_a, n_a)
+        Orthogonal ``Q``: rotated modes = ``phi[:, group] @ Q`` of the side ``rotated``.
     weighting : str
         Inner product of the rotation.
     mac_before : (n_t, n_a)
-        MAC of the test modes as given with the analysis group.
+        MAC of the test modes with the analysis group, before the rotation.
+    rotated : {"test", "analysis"}
+        Which side's modes were rotated.
     """
 
     test: np.ndarray
@@ -136,9 +140,11 @@ class Subspace:
     rotation: np.ndarray
     weighting: str
     mac_before: np.ndarray
+    rotated: str = "test"
 
     def to_dict(self) -> dict:
         return {
+            "rotated": self.rotated,
             "test_modes": [int(k) + 1 for k in self.test],
             "analysis_modes": [int(k) + 1 for k in self.analysis],
             "aligned_with": [int(k) + 1 for k in self.aligned_with],
@@ -154,26 +160,35 @@ def compare_subspaces(
     phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarray, f_an: np.ndarray,
     M_tam: np.ndarray, admissible: np.ndarray, min_score: float,
     test_groups: Sequence[Sequence[int]] | None = None,
-) -> tuple[np.ndarray, list[Subspace]]:
-    """Rotate each test group that meets an analysis group sharing a frequency.
+) -> tuple[np.ndarray, np.ndarray, list[Subspace]]:
+    """Rotate the modes of a group sharing a frequency within their span, where they meet
+    modes of the other set.
 
     Groups (:func:`frequency_groups`, or ``test_groups`` for test modes known to share a
     frequency, as the CMIF curves of one peak) of two or more modes on both sides are matched
     one to one (Hungarian) on the mean squared cosine of their principal angles, among the
     pairs of groups the pairing rule admits (``admissible`` for every member) with a mean of
     at least ``min_score`` (the MAC a pair needs: the same bar for a space as for a mode).
-    The test modes of a matched group are rotated within their span
-    (:func:`procrustes_rotation`). Test modes whose frequencies are split are distinct modes
-    and are never rotated; nor is a test group whose analysis counterpart is a single mode.
+    The test modes of a matched group are rotated within their span onto the analysis modes
+    (:func:`procrustes_rotation`).
+
+    Test modes whose frequencies are split are distinct modes and are never rotated. Where an
+    analysis group that no test group matched meets such test modes (a free-free model's
+    rigid-body modes and the suspension modes a test on bungees measures, at 1.06 and 1.84
+    Hz: in the eigensolver's basis the bounce mode had MAC 0.44 with everything and was not
+    paired), it is the analysis modes, an arbitrary basis of their root, that are rotated
+    onto the test modes: those (not otherwise rotated, admitted by the pairing rule) with at
+    least ``min_score`` of their shape in the analysis span and no better match outside it,
+    the best represented first, at most as many as the group has modes.
 
     Why an orthogonal rotation weighted with the TAM mass: a rotation of a repeated root's
     modes gives modes of that root again, orthogonal and of unit modal mass as before, so the
-    test result is re-expressed, not changed; a least-squares fit (any matrix) would also
-    stretch and shear the test space towards the analysis modes and make up agreement the
-    test does not show. Weighted with the TAM mass it maximises the sum of the group's paired
-    cross-orthogonality terms, the quantity the criterion checks. When the TAM mass is not
-    positive definite (a SEREP TAM of fewer target modes than DOFs) it cannot weigh every
-    direction, and the rotation is unweighted (the MAC's inner product).
+    result is re-expressed, not changed; a least-squares fit (any matrix) would also stretch
+    and shear one space towards the other and make up agreement the test does not show.
+    Weighted with the TAM mass it maximises the sum of the group's paired cross-orthogonality
+    terms, the quantity the criterion checks. When the TAM mass is not positive definite (a
+    SEREP TAM of fewer target modes than DOFs) it cannot weigh every direction, and the
+    rotation is unweighted (the MAC's inner product).
 
     Parameters
     ----------
@@ -189,37 +204,68 @@ def compare_subspaces(
     Returns
     -------
     phi_test : (n, m_t)
-        The test shapes with each rotated group's columns replaced (real there).
+        The test shapes, each rotated group's columns replaced (real there).
+    phi_an : (n, m_a)
+        The analysis shapes, each rotated group's columns replaced.
     subspaces : list of Subspace
     """
     groups_t = [np.asarray(g, dtype=int) for g in (frequency_groups(f_test) if test_groups is None
                                                    else test_groups) if len(g) > 1]
     groups_a = frequency_groups(f_an)
-    out = np.array(phi_test, copy=True)
-    if not groups_t or not groups_a:
-        return out, []
+    out_t = np.array(phi_test, copy=True)
+    out_a = np.array(phi_an, dtype=float, copy=True)
+    if not groups_a:
+        return out_t, out_a, []
     real_t = real_mode_from_complex(phi_test)
     score = np.zeros((len(groups_t), len(groups_a)))
     for i, g in enumerate(groups_t):
         for j, h in enumerate(groups_a):
-            if admissible[np.ix_(g, h)].all() and _has_motion(real_t[:, g]) and _has_motion(phi_an[:, h]):
-                score[i, j] = np.mean(np.cos(sla.subspace_angles(real_t[:, g], phi_an[:, h])) ** 2)
+            if admissible[np.ix_(g, h)].all() and _has_motion(real_t[:, g]) and _has_motion(out_a[:, h]):
+                score[i, j] = np.mean(np.cos(sla.subspace_angles(real_t[:, g], out_a[:, h])) ** 2)
     W, weighting = _weight(M_tam)
     rest_t, rest_a = modes_at_rest(f_test), modes_at_rest(f_an)
-    found = []
-    for i, j in zip(*linear_sum_assignment(score, maximize=True)):
+    found, used_a, rotated_t = [], set(), set()
+    for i, j in zip(*linear_sum_assignment(score, maximize=True)) if score.size else ():
         if score[i, j] < min_score:
             continue
         g, h = groups_t[i], groups_a[j]
-        pt, pa = real_t[:, g], np.asarray(phi_an[:, h], dtype=float)
+        pt, pa = real_t[:, g], out_a[:, h]
         sel = h if h.size <= g.size else h[np.sort(np.argsort(-_captured(pt, pa), kind="stable")[:g.size])]
-        Q = procrustes_rotation(pt, np.asarray(phi_an[:, sel], dtype=float), W)
-        out = out.astype(np.result_type(out, float))
-        out[:, g] = pt @ Q
-        angles = np.sort(np.degrees(sla.subspace_angles(pt, pa)))
-        found.append(Subspace(g, h, sel, bool(rest_t[g].all() and rest_a[h].all()), angles, Q, weighting,
-                              modal_assurance(pt, pa)))
-    return out, sorted(found, key=lambda s: int(s.test[0]))
+        Q = procrustes_rotation(pt, out_a[:, sel], W)
+        out_t = out_t.astype(np.result_type(out_t, float))
+        out_t[:, g] = pt @ Q
+        found.append(Subspace(g, h, sel, bool(rest_t[g].all() and rest_a[h].all()), _angles(pt, pa), Q,
+                              weighting, modal_assurance(pt, pa)))
+        used_a.add(j)
+        rotated_t.update(g.tolist())
+    for j, h in enumerate(groups_a):
+        pa = out_a[:, h]
+        if j in used_a or not _has_motion(pa):
+            continue
+        # Test modes the group's span holds at least as well as any analysis mode outside it
+        # holds them: a tower's 6.3 Hz test mode has 0.64 of itself in the span of the 9.1 Hz
+        # pair, but MAC 1 with a 6.3 Hz mode.
+        others = np.setdiff1d(np.arange(out_a.shape[1]), h)
+        elsewhere = modal_assurance(real_t, out_a[:, others]).max(axis=1) if others.size else np.zeros(real_t.shape[1])
+        within = _captured(pa, real_t)
+        free = np.array([i for i in range(real_t.shape[1]) if i not in rotated_t and admissible[i, h].all()
+                         and within[i] >= elsewhere[i]], dtype=int)
+        share = within[free]
+        best = np.argsort(-share, kind="stable")[: h.size]
+        keep = np.sort(free[best][share[best] >= min_score])
+        if not keep.size:
+            continue
+        pt = real_t[:, keep]
+        Q = procrustes_rotation(pa, pt, W)
+        out_a[:, h] = pa @ Q
+        found.append(Subspace(keep, h, keep, bool(rest_a[h].all()), _angles(pt, pa), Q, weighting,
+                              modal_assurance(pt, pa), rotated="analysis"))
+    return out_t, out_a, sorted(found, key=lambda s: (int(s.test[0]), s.rotated))
+
+
+def _angles(pt: np.ndarray, pa: np.ndarray) -> np.ndarray:
+    """Principal angles between two spans, degrees, ascending."""
+    return np.sort(np.degrees(sla.subspace_angles(pt, pa)))
 
 
 def _has_motion(phi: np.ndarray) -> bool:

@@ -46,7 +46,8 @@ def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarra
     """MAC, pairing, frequency errors, orthogonality and cross-orthogonality.
 
     Test modes that share a frequency, matched by analysis modes that also do, are first
-    rotated within their span (:func:`ssid.correlate_groups.compare_subspaces`); every
+    rotated within their span, and analysis modes that share a frequency, met by distinct
+    test modes, within theirs (:func:`ssid.correlate_groups.compare_subspaces`); every
     measure is of the rotated shapes, and ``subspaces`` says which were rotated.
 
     Parameters
@@ -76,8 +77,8 @@ def mode_correlation(phi_test: np.ndarray, f_test: np.ndarray, phi_an: np.ndarra
     """
     warnings = [] if warnings is None else warnings
     admissible, why_not = pair_rule(f_test, f_an)
-    phi_test, subspaces = compare_subspaces(phi_test, f_test, phi_an, f_an, M_tam, admissible,
-                                            MIN_PAIR_MAC, test_groups)
+    phi_test, phi_an, subspaces = compare_subspaces(phi_test, f_test, phi_an, f_an, M_tam, admissible,
+                                                    MIN_PAIR_MAC, test_groups)
     mac = modal_assurance(phi_test, phi_an)
     pairs = pair_modes_by_mac(np.where(admissible, mac, 0.0), MIN_PAIR_MAC)
     phi_test_r = real_mode_from_complex(phi_test)

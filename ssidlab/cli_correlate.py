@@ -250,11 +250,18 @@ def pair_table(summary: dict) -> str:
     if any(p.get("rigid") for p in summary["paired_modes"]):
         lines.append("rigid: paired with an analysis mode at 0 Hz (rigid-body), whose error is no percentage")
     for g in summary.get("subspaces") or []:
-        lines.append(f"test modes {_numbers(g['test_modes'])}{' (at rest)' if g['at_rest'] else ''} share a "
-                     f"frequency, as analysis modes {_numbers(g['analysis_modes'])} do: compared as subspaces")
-        lines.append(f"  principal angles {', '.join(f'{a:.2g}' for a in g['principal_angles_deg'])} deg; "
-                     f"test modes rotated within their span onto analysis modes {_numbers(g['aligned_with'])} "
-                     f"({g['weighting']})")
+        rest = " (at rest)" if g["at_rest"] else ""
+        angles = f"  principal angles {', '.join(f'{a:.2g}' for a in g['principal_angles_deg'])} deg; "
+        if g.get("rotated", "test") == "test":
+            lines.append(f"test modes {_numbers(g['test_modes'])}{rest} share a frequency, as analysis modes "
+                         f"{_numbers(g['analysis_modes'])} do: compared as subspaces")
+            lines.append(f"{angles}test modes rotated within their span onto analysis modes "
+                         f"{_numbers(g['aligned_with'])} ({g['weighting']})")
+        else:  # distinct test modes: the analysis group's basis is the one turned
+            lines.append(f"analysis modes {_numbers(g['analysis_modes'])}{rest} share a frequency, test modes "
+                         f"{_numbers(g['test_modes'])} do not (distinct modes): compared as subspaces")
+            lines.append(f"{angles}analysis modes rotated within their span onto test modes "
+                         f"{_numbers(g['aligned_with'])} ({g['weighting']})")
     refused = summary.get("not_paired") or []
     if refused:
         # Below the pairs, apart from them: a row among them would read as a pair (the QA's

@@ -409,3 +409,18 @@ def test_an_abort_before_the_run_file_exists_does_not_say_it_is_kept(tmp_path, m
             assert app.outcome.state == "interrupted"
 
     asyncio.run(go())
+
+
+def test_a_rigid_body_pair_reads_rigid_in_the_mac_table_not_nan():
+    """A free model's rigid-body pair has no percentage frequency error (``ssid.correlate``
+    gives NaN: round-off over round-off); the results tab's MAC table printed "+nan"."""
+    from ssid.correlate_models import correlate_models
+    from ssid.io import Model
+    from tui.results_pane import mac_row
+
+    k = 1e4
+    free = Model(M=np.diag([1.0, 2.0, 1.0]), C=None, K=k * np.array([[1.0, -1, 0], [-1, 2, -1], [0, -1, 1]]),
+                 dofs=["1+Z", "2+Z", "3+Z"])
+    rows = [mac_row(p) for p in correlate_models(free, free).summary["paired_modes"]]
+    assert rows[0][2] == "rigid" and all("nan" not in cell for row in rows for cell in row), rows
+    assert rows[1][2] == "+0.00" and rows[1][3] == "1.000"

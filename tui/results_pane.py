@@ -15,9 +15,17 @@ from textual.widgets import Button, DataTable, Select, Static
 from .results import RunResults
 from .widgets import FrfPlot
 
-__all__ = ["EXPORT_KINDS", "ResultsPane"]
+__all__ = ["EXPORT_KINDS", "ResultsPane", "mac_row"]
 
 EXPORT_KINDS = ("hdf5", "uff", "png")
+
+
+def mac_row(pair: dict) -> tuple[str, str, str, str]:
+    """One MAC table row from a ``paired_modes`` entry of :func:`ssid.correlate_models.correlate_models`:
+    test and analysis frequency (Hz), frequency error (%), MAC. A rigid-body pair has no
+    percentage error (one of 0 Hz is round-off over round-off): its row says "rigid"."""
+    err = "rigid" if pair.get("rigid") else f"{pair['freq_error_percent']:+.2f}"
+    return (f"{pair['test_freq_hz']:.2f}", f"{pair['analysis_freq_hz']:.2f}", err, f"{pair['mac']:.3f}")
 
 
 class ResultsPane(VerticalScroll):
@@ -80,8 +88,7 @@ class ResultsPane(VerticalScroll):
                 modes.add_row(f"{r.mode}{'' if r.in_band else '*'}", f"{r.freq_hz:.2f}",
                               f"{100 * r.damping_ratio:.2f}", f"{r.mpc:.2f}")
             for p in results.pairs:
-                mac.add_row(f"{p['test_freq_hz']:.2f}", f"{p['analysis_freq_hz']:.2f}",
-                            f"{p['freq_error_percent']:+.2f}", f"{p['mac']:.3f}")
+                mac.add_row(*mac_row(p))
             notes = [n for n in results.notes if not n.startswith("discrepancy")]
             message = (message + ("; * outside the band" if any(not r.in_band for r in results.modes) else "")
                        + (f"\nMAC (right): undamped modes of the identified M, K vs the "

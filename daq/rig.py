@@ -238,6 +238,10 @@ class InstrumentRig(Rig):
             self._status[name] = {"enabled": st.enabled, "interlock_closed": st.interlock_closed,
                                   "fault": st.fault_name if st.fault_latched else ""}
             if not st.enabled or st.fault_latched:
+                # The driver's monitor may have disabled it for a reason of its own (a stalled
+                # heartbeat) between the check above and this read: that reason, not the
+                # status's "tripped (none)" (a fault run under load said so).
+                amp.check()
                 if st.fault_code == 1 or not st.interlock_closed:
                     raise InterlockOpen(f"{name}: interlock open (door or E-stop): amplifier disabled")
                 raise AmplifierFault(f"{name}: amplifier tripped ({st.fault_name})", st.fault_code)

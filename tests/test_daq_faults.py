@@ -438,3 +438,33 @@ def test_an_instrument_gone_silent_costs_the_stop_one_safe_state_attempt(tmp_pat
     msg, _ = stopped_run(tmp_path, lambda lab: lab.amplifiers[0].stop())
     assert msg.startswith("safe state NOT confirmed (check the instruments): amp0:"), msg
     assert attempts.count("amp0") == 1, attempts
+
+
+def test_a_heartbeat_fault_found_while_the_line_reads_the_status_is_named(tmp_path):
+    """The driver's monitor found the stalled heartbeat and disabled the amplifier between
+    the line check's look at the driver's faults and its status read (a CI run under load):
+    the status then reads disabled with no fault latched in the amplifier, and the run
+    stopped saying "amplifier tripped (none)". The monitor's reason is what is said."""
+    from daq.rig import InstrumentRig
+    from drivers.errors import HeartbeatLost
+
+    setup = parse_setup(sine_setup(), str(tmp_path / "s.toml"))
+    handle, inst = start_sim_lab(setup)
+    rig = InstrumentRig(inst)
+    try:
+        rig.prepare()
+        (amp,) = rig.amps.values()
+        read = amp.read_status
+
+        def monitor_fires_then_read():
+            amp._call(amp.amp._set_fault(HeartbeatLost("amp0: heartbeat stopped at 7 for 1.0 s")))
+            return read()
+
+        amp.read_status = monitor_fires_then_read
+        with pytest.raises(HeartbeatLost, match="heartbeat stopped"):
+            rig.line_check()
+    finally:
+        problems = rig.safe_state()
+        rig.close()
+        handle.stop()
+    assert not problems

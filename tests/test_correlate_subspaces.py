@@ -234,3 +234,31 @@ def test_modes_at_rest_print_as_zero_without_a_sign_and_label_the_mac_plot_as_ze
     monkeypatch.setattr(Axes, "set_xticks", set_xticks)
     plot_mac_matrix(np.asarray(s["mac"]), tmp_path / "mac.png", s["test_natural_freq_hz"], s["analysis_natural_freq_hz"])
     assert labels[:3] == ["1\n0", "2\n0", f"3\n{s['analysis_natural_freq_hz'][2]:.4g}"]
+
+
+def test_suspension_modes_at_different_frequencies_are_not_one_repeated_root():
+    """A free beam hung on bungees near its centre (pitch 0.46 Hz below bounce 1.06 Hz)
+    against a model with the bungees at its ends (bounce 0.61 Hz below pitch 1.06 Hz), in a
+    2 kHz band. Counted at rest by the pairing's bound (frequencies up to 1e-3 of the highest),
+    both sets' suspension modes were one "repeated root", rotated onto each other: MAC 1.000
+    for modes 57 % and 73 % apart, where pitch pairs with pitch. Only modes at 0 Hz to
+    round-off share a frequency as rigid-body modes."""
+    from ssid.correlate_groups import frequency_groups
+
+    def beam(springs):
+        M, K, dofs = beam_model(n_elem=8, length_m=1.0, ei_n_m2=3.2e4, k_ground_n_per_m=(0.0, 0.0))
+        for node, k in springs.items():
+            i = dofs.index(f"{node}+Z")
+            K[i, i] += k
+        return M, K, dofs
+
+    Mt, Kt, dofs = beam({4: 60.0, 6: 60.0})
+    Ma, Ka, _ = beam({1: 20.0, 9: 20.0})
+    a = [dofs.index(f"{k}+Z") for k in (1, 3, 5, 7, 9)]
+    red = reduce_to_tam("serep", Mt, Kt, a)
+    f_test = np.sqrt(sla.eigh(red.K, red.M, eigvals_only=True)) / (2 * np.pi)
+    assert f_test[1] < 1.1 and f_test[-1] > 1900 and frequency_groups(f_test) == []
+    res = correlate_models(Model(red.M, red.K, None, [dofs[i] for i in a]), Model(Ma, Ka, None, dofs))
+    pairs = res.summary["paired_modes"][:2]
+    assert [(p["test_mode"], p["analysis_mode"]) for p in pairs] == [(1, 2), (2, 1)], pairs
+    assert not res.summary["subspaces"]

@@ -82,12 +82,14 @@ def test_a_mode_hidden_under_its_neighbours_peak_is_taken_but_not_grouped():
 
 
 def test_a_weakly_driven_second_mode_is_warned_of():
-    """The y input scaled by 0.03: the second curve still peaks with the first, 30 dB down;
-    not taken (below -20 dB), but the warning names the frequencies."""
+    """The y input scaled by 0.15: the second curve still peaks with the first, 16.5 dB down;
+    not taken (below -10.5 dB, where an isolated mode's second curve can peak), but the
+    warning names the frequencies. (Down at 30 dB, -20 dB and below, it is not said: at 3 %
+    noise on each value such peaks came at half of all isolated modes.)"""
     model = _tower()
     frf = _frf(model)
     H = frf.H.copy()
-    H[:, :, 1] *= 0.03
+    H[:, :, 1] *= 0.15
     s = correlate_with_frf(FRFData(frf.freq_hz, H, frf.outputs, frf.inputs), model).summary
     assert list(s["test_cmif_curve"]) == [1, 1, 1]
     weak = [w for w in s["warnings"] if w.startswith("CMIF curve 2 also peaks at")]
@@ -109,3 +111,31 @@ def test_the_peak_reported_is_the_accelerance_peak_and_the_json_says_so():
     assert s["test_natural_freq_hz"][0] == pytest.approx(10.0 / np.sqrt(1 - 2 * z * z), rel=3e-4)
     assert "f_n / sqrt(1 - 2 zeta^2), about zeta^2 above its natural frequency" in s["test_freq_source"]
     assert "omega_n / sqrt(1 - 2 zeta^2)" in cmif_peaks.__doc__ and "damped natural frequency to" not in cmif_peaks.__doc__
+
+
+def test_a_peak_on_the_second_to_last_line_does_not_crash():
+    """A sharp mode on the band's second-to-last line: the half-power band around it was taken
+    two lines beyond the peak without a bound, an IndexError that ended `correlate --frf`."""
+    from ssid.correlate_frf import cmif_modes
+
+    f = np.arange(2.0, 28.0, 0.2)
+    sv = np.ones((f.size, 2)) * [1.0, 0.5]
+    sv[-2] = [100.0, 60.0]  # both curves peak there
+    found = cmif_modes(f, sv)
+    assert list(found.lines) == [f.size - 2, f.size - 2] and found.groups
+
+
+def test_a_later_cmif_curve_is_a_mode_only_at_a_resonant_level():
+    """At an isolated mode a later curve holds what the other modes and the noise leave, and
+    can peak there: 0.20 of the first curve on a noise-free 6-DOF system with distinct modes
+    (the bar was 0.1, and that made a spurious seventh test mode). A second mode at the same
+    frequency peaks at its own resonant level (0.45 to 1 of the first curve)."""
+    from ssid.correlate_frf import cmif_modes
+
+    f = np.linspace(10.0, 20.0, 201)
+    peak = 1.0 / np.abs(15.0**2 - f**2 + 0.3j * f)
+    for ratio, taken in ((0.20, False), (0.45, True)):
+        sv = np.stack([peak, ratio * peak + 1e-6], axis=1)
+        found = cmif_modes(f, sv)
+        assert (len(found.lines) == 2) is taken, (ratio, found)
+        assert bool(found.weak) is not taken

@@ -20,6 +20,7 @@ __all__ = [
     "line_spacing_at",
     "lines_evenly_spaced",
     "low_edge_band",
+    "min_lines_for_two_bands",
     "overlapping_bands",
 ]
 
@@ -64,14 +65,24 @@ def default_band_width_hz(freq_hz: np.ndarray, overlap: float = 0.5, min_lines: 
     span, at least 24 lines (a band then holds one or two modes of a sparse spectrum, and
     enough lines per unknown for step 1 at a few sensors), and at least wide enough that the
     part-bands at the ends (``overlap`` of a band) hold ``min_lines``
-    (:func:`band_min_lines`; with many sensors and one input, more than 12)."""
+    (:func:`band_min_lines`; with many sensors and one input, more than 12); never wider than
+    the record, whose bands are then the record and its two part-bands
+    (:func:`default_bands`)."""
     f = np.asarray(freq_hz, dtype=float)
     span = float(f[-1] - f[0])
     df = span / max(f.size - 1, 1)
     # The rule of _default_band_spacings, in Hz: span / 12 is kept as written so that the
     # band edges of an even record stay exactly what they were (a line on an edge belongs to
     # both bands only if the arithmetic puts it there).
-    return max(span / 12.0, 24 * df, min_lines / overlap * df)
+    return min(max(span / 12.0, 24 * df, min_lines / overlap * df), span)
+
+
+def min_lines_for_two_bands(min_lines: int, overlap: float = 0.5) -> int:
+    """Fewest lines a record needs for overlapping bands whose every line lies in two bands
+    that step 1 can fit (criterion 4 needs that): the smallest layout is the record and its
+    two part-bands (``overlap`` of it), each holding ``min_lines`` (:func:`band_min_lines`),
+    so ``overlap (L - 1)`` spacings must hold ``min_lines - 1``."""
+    return int(np.ceil((min_lines - 1) / overlap - 1e-9)) + 1
 
 
 def lines_evenly_spaced(freq_hz: np.ndarray, rtol: float = 1e-3) -> bool:
@@ -95,6 +106,21 @@ def default_bands(freq_hz: np.ndarray, overlap: float = 0.5,
     width in Hz holds few lines where a log grid is coarse: on the payload's 16 Z sensors over
     20-1500 Hz in 152 lines 2.9 % apart, the 1/12 bands above 450 Hz held fewer than the 10
     lines step 1 needs with two shakers, and the modes at 567, 828 and 1320 Hz were lost.
+    On an even grid the whole steps are taken too when the last part-band would otherwise
+    hold fewer than ``min_lines`` (it would be skipped, and the lines it alone shares with
+    its neighbour found in one band).
+
+    A record shorter than one such band (a zoom sweep, a narrow --fmin/--fmax) gets the
+    record as its band, with its two part-bands (``overlap`` of it): every line in two bands
+    that step 1 can fit, so criterion 4 can confirm a root, as long as each part-band holds
+    ``min_lines`` (:func:`min_lines_for_two_bands`; the smallest band accepted: 19 lines for
+    16 sensors and two shakers, whose part-bands hold the 10 step 1 needs). A narrower
+    part-band is not fitted at all (:func:`ssid.bands.process_bands` skips it), so its lines
+    would lie in one fitted band again. With fewer lines than that no layout lets criterion 4
+    confirm anything: the record is returned as one band, and
+    :func:`ssid.bands.process_bands` warns that no root can be confirmed. (Rounded to whole
+    steps of at least 12 lines as before, a 22-line zoom sweep became one band and its
+    78.39 Hz mode, a perfect root, was rejected as "not repeated".)
 
     ``min_lines`` (:func:`band_min_lines`): the fewest lines step 1 needs; the bands are made
     wide enough that the part-bands at the ends hold that many.
@@ -104,13 +130,21 @@ def default_bands(freq_hz: np.ndarray, overlap: float = 0.5,
     list of (lo, hi) in Hz.
     """
     f = np.asarray(freq_hz, dtype=float)
+    span = float(f.size - 1)  # in line spacings
+    if f.size < 2 or f.size < min_lines_for_two_bands(min_lines, overlap):
+        return [(float(f[0]), float(f[-1]))]  # no two overlapping bands step 1 can fit
     if lines_evenly_spaced(f):
         width = default_band_width_hz(f, overlap, min_lines)
-        return overlapping_bands(float(f[0]), float(f[-1]), width, overlap)
+        bands = overlapping_bands(float(f[0]), float(f[-1]), width, overlap)
+        if np.count_nonzero(f >= bands[-1][0] - 1e-9 * width) >= min_lines:
+            return bands
+        # Too short a last part-band: whole steps, as on an uneven grid (below).
     # The same layout in line-index space, mapped back to Hz.
-    span = float(f.size - 1)
     step = _default_band_spacings(f.size, overlap, min_lines) * (1 - overlap)
-    step = span / max(1, int(span / step))  # whole steps, each no shorter than asked
+    if step / (1 - overlap) >= span:
+        step = span * (1 - overlap)  # the record is the band: itself and its two part-bands
+    else:
+        step = span / max(1, int(span / step))  # whole steps, each no shorter than asked
     index = np.arange(f.size, dtype=float)
 
     def at(x: float) -> float:  # an edge on a line (up to rounding) is that line's frequency
@@ -126,14 +160,18 @@ def band_layout(frf: FRFData, width_hz: float | None = None,
 
     With ``width_hz``, bands of that width (:func:`overlapping_bands`). Without,
     :func:`default_bands`, wide enough for step 1 at the record's outputs and inputs
-    (:func:`band_min_lines`); the width returned is then None when they hold equal numbers
-    of lines instead (unevenly spaced lines)."""
+    (:func:`band_min_lines`); the width returned is then that of its widest band on evenly
+    spaced lines, None on unevenly spaced ones (the bands hold equal numbers of lines
+    instead)."""
     f = frf.freq_hz
     if width_hz is not None:
         return overlapping_bands(float(f[0]), float(f[-1]), width_hz, overlap), width_hz
-    need = band_min_lines(frf.n_out, frf.n_in, frf.n_react)
-    width = default_band_width_hz(f, overlap, need) if lines_evenly_spaced(f) else None
-    return default_bands(f, overlap, need), width
+    bands = default_bands(f, overlap, band_min_lines(frf.n_out, frf.n_in, frf.n_react))
+    if not lines_evenly_spaced(f):
+        return bands, None
+    width = max(hi - lo for lo, hi in bands)  # the rule's, unless the record or whole steps cut it
+    rule = default_band_width_hz(f, overlap, band_min_lines(frf.n_out, frf.n_in, frf.n_react))
+    return bands, rule if abs(width - rule) <= 1e-9 * rule else width
 
 
 def line_spacing_at(line_freq_hz: np.ndarray, freq_hz) -> np.ndarray:

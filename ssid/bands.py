@@ -48,6 +48,7 @@ from .band_edges import (
     line_spacing_at,
     lines_evenly_spaced,
     low_edge_band,
+    min_lines_for_two_bands,
     overlapping_bands,
 )
 from .band_scaling import (
@@ -78,6 +79,7 @@ __all__ = [
     "line_spacing_at",
     "lines_evenly_spaced",
     "low_edge_band",
+    "min_lines_for_two_bands",
     "normal_mode_mck",
     "overlapping_bands",
     "plot_band_roots",
@@ -127,6 +129,11 @@ class BandResult:
     selected: list[BandRoot]
     data: list[Step1Data] = field(default_factory=list)  # per band (weights included)
     low_edge_band: int | None = None  # index of the low-edge band in bands_hz, if one was added
+    #: Indices (in ``bands_hz``) of the bands not fitted: fewer lines than ``min_lines``.
+    skipped: list[int] = field(default_factory=list)
+    min_lines: int = 0  # the fewest lines a band needed for step 1
+    #: What the analyst must know to read the result: where criterion 4 cannot confirm a root.
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def freq_hz(self) -> np.ndarray:
@@ -233,5 +240,40 @@ def process_bands(
     reject_inside_resolved(roots, all_bands, frf.freq_hz)
     reject_echoes(roots, all_bands, data)
     selected = pick_representatives(roots, all_bands)
+    skipped = [b for b, d in enumerate(data) if d is None]
     return BandResult(bands_hz=all_bands, roots=roots, selected=selected, data=data,
-                      low_edge_band=len(bands_hz) if extra is not None else None)
+                      low_edge_band=len(bands_hz) if extra is not None else None,
+                      skipped=skipped, min_lines=need,
+                      warnings=_unconfirmable_lines(frf.freq_hz, bands_hz, data, need))
+
+
+def _unconfirmable_lines(line_freq_hz: np.ndarray, bands_hz: list[tuple[float, float]],
+                         data: list, need: int) -> list[str]:
+    """A warning where lines lie in fewer than two fitted bands of the layout (``data[b]``
+    None: skipped for fewer than ``need`` lines), so that criterion 4 cannot confirm a root
+    there: "not repeated" then says nothing about the structure, and 0 modes found does not
+    mean there are none. The low-edge band is not counted: it confirms unresolved roots only.
+    """
+    f = np.asarray(line_freq_hz, dtype=float)
+    fitted = [(lo, hi) for (lo, hi), d in zip(bands_hz, data) if d is not None]
+    cover = sum(((f >= lo) & (f <= hi)).astype(int) for lo, hi in fitted) if fitted else 0 * f
+    alone = np.asarray(cover) < 2
+    if not alone.any():
+        return []
+    if len(bands_hz) > 1:
+        why = (f"{len(fitted)} of the {len(bands_hz)} bands hold{'s' if len(fitted) == 1 else ''} "
+               f"the {need} lines step 1 needs")
+        fix = "wider bands"
+    else:
+        why = (f"the {f.size} lines make one band only, too few for two overlapping bands "
+               f"whose part-bands hold the {need} lines step 1 needs")
+        fix = "a wider frequency range or more lines"
+    if alone.all():
+        return [f"no root can be confirmed as a mode: {why}, so no root can be repeated in "
+                f"another band (criterion 4) and every one is rejected as not repeated; "
+                f"that says nothing of the structure: use {fix}"]
+    # Runs of consecutive lines that lie in fewer than two fitted bands.
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], alone.astype(int), [0]])))
+    runs = ", ".join(f"{f[a]:.6g}-{f[b - 1]:.6g} Hz" for a, b in zip(edges[::2], edges[1::2]))
+    return [f"roots at {runs} cannot be confirmed as modes: those lines lie in fewer than two "
+            f"fitted bands ({why}), so criterion 4 cannot repeat a root there; use {fix}"]

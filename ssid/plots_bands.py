@@ -22,9 +22,16 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from matplotlib.ticker import MaxNLocator
+
     fig, ax = plt.subplots(figsize=(9, 5))
+    skipped = set(result.skipped)
     for b, (lo, hi) in enumerate(result.bands_hz):
-        ax.plot([lo, hi], [b, b], color="0.85", lw=6, solid_capstyle="butt", zorder=0)
+        # A band too short for step 1 has no roots: drawn hollow, so that it is not read as
+        # a band whose fit found nothing.
+        ax.plot([lo, hi], [b, b], color="0.85", lw=6, solid_capstyle="butt", zorder=0,
+                ls=":" if b in skipped else "-",
+                label="skipped: too few lines for step 1" if b == min(skipped, default=-1) else None)
     marks = {"": ("o", "tab:green", "kept"), "not repeated": ("x", "tab:orange", "not repeated"),
              "low MPC": ("s", "tab:purple", "low MPC"), "negative damping": ("v", "tab:red", "negative damping"),
              "outside band": (".", "0.6", "outside band"),
@@ -57,6 +64,9 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
     ax.set_xlim(lo, hi)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("band")
+    # Bands are numbered: whole ticks, one row per band (a lone band otherwise got -0.04..0.04).
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))
+    ax.set_ylim(-0.5, len(result.bands_hz) - 0.5)
     ax.set_title("roots per band (green: selected; dotted: reference modes, if given)")
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()

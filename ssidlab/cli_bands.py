@@ -149,6 +149,9 @@ def run_bands(args: argparse.Namespace) -> int:
         # A band added after the layout's (ssid.band_edges.low_edge_band): its roots confirm
         # unresolved roots only.
         "low_edge_band": res.low_edge_band,
+        # Bands with fewer lines than step 1 needs are not fitted: their roots are missing.
+        "skipped_bands": res.skipped,
+        "min_lines": res.min_lines,
         "roots": [{"band": r.band, "freq_hz": r.freq_hz, "damping_ratio": r.zeta,
                    "mpc": r.mpc, "mpc_applied": r.mpc_applied,
                    "damping_applied": r.damping_applied, "verdict": r.rejected or "kept",
@@ -162,7 +165,7 @@ def run_bands(args: argparse.Namespace) -> int:
     if args.plot is not None:
         true_hz = None if targets is None else targets["freq_hz"]
         write_chart(args.plot, lambda path: plot_band_roots(path, res, true_hz))
-    warnings: list[str] = []
+    warnings: list[str] = list(res.warnings)
     if args.out is not None:
         try:
             model = modal_model_from_bands(
@@ -173,7 +176,10 @@ def run_bands(args: argparse.Namespace) -> int:
         except IdentificationError as exc:
             # The bands' findings are kept (JSON, chart) even when no model can be made.
             out["model_error"] = str(exc)
+            out["warnings"] = warnings
             write_json(args.json, out)
+            for w in warnings:
+                print(f"warning: {w}", file=sys.stderr)
             if not args.quiet:
                 print(_table(out))
             hint = ("; another --scale may give positive modal masses (docs/algorithm.md, "
@@ -185,7 +191,8 @@ def run_bands(args: argparse.Namespace) -> int:
         except InputError as exc:  # our own result failing validation is a bug
             raise RuntimeError(f"modal model failed validation: {exc}") from exc
         out["model"] = {"path": args.out, "scale": args.scale, **model.to_json_dict()}
-        warnings = list(model.warnings)
+        warnings += model.warnings
+    out["warnings"] = warnings
     write_json(args.json, out)
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
@@ -260,9 +267,14 @@ def _table(out: dict) -> str:
         a, b = out["bands_hz"][low]
         size += f" and a low-edge band ({a:.4g}-{b:.4g} Hz) for roots below the line spacing"
         n_bands -= 1
-    lines = [f"{n_bands} bands of {size}; "
+    skipped = [b for b in out.get("skipped_bands", []) if b != low]
+    if skipped:
+        # Said here, or "5 bands" would read as five fits when one was made.
+        size += (f" ({len(skipped)} skipped: fewer than the {out['min_lines']} lines step 1 "
+                 "needs)")
+    lines = [f"{n_bands} band{'s' if n_bands != 1 else ''} of {size}; "
              f"{len(out['roots'])} roots (" + ", ".join(f"{v} {k}" for k, v in verdicts.items())
-             + f"); {len(out['modes'])} modes found",
+             + f"); {len(out['modes'])} mode{'s' if len(out['modes']) != 1 else ''} found",
              head + ("  target (MAC)" if with_t else "")]
     for k, m in enumerate(out["modes"], start=1):
         row = (f"{k:>4}  {m['freq_hz']:>12.4f}  {100 * m['damping_ratio']:>11.3f}  "

@@ -304,7 +304,7 @@ def test_bands_on_a_log_sweep_use_bands_of_equal_line_count(tmp_path, log_sweep_
 
 
 def test_bands_on_a_record_shorter_than_one_default_band(tmp_path):
-    """20 lines, fewer than the 24 of a default band: the bands are the record and its parts,
+    """20 lines, fewer than the 24 of a default band: the bands are the record and its halves,
     every mode is still found in two of them, and the table says how wide they really are."""
     M, C, K, dofs = example_system(6, seed=3)
     frf = accelerance_from_model(M, C, K, dofs, np.linspace(3, 600, 20), dofs, [dofs[0], dofs[4]])
@@ -313,8 +313,54 @@ def test_bands_on_a_record_shorter_than_one_default_band(tmp_path):
     p = run(str(src), "--json", str(js))
     assert p.returncode == 0, p.stderr
     res = json.loads(js.read_text())
-    assert max(b - a for a, b in res["bands_hz"]) <= 597.0 < res["settings"]["width_hz"]
-    assert f"{len(res['bands_hz'])} bands of at most 597 Hz" in p.stdout
+    # The record is the band, with its two part-bands of 10 lines each (the 24-line rule's
+    # part-bands would hold 13 and 8).
+    assert res["bands_hz"] == [[3.0, 301.5], [3.0, 600.0], [301.5, 600.0]]
+    assert res["settings"]["width_hz"] == 597.0 and "3 bands of 597 Hz" in p.stdout
     found = np.array([m["freq_hz"] for m in res["modes"]])
     f_true = _root_freq_hz(M, C, K)
     assert found.size == f_true.size and np.allclose(found, f_true, rtol=1e-6)
+
+
+def _payload_sweep(f_lo, f_hi, n_lines):
+    """The payload's 16 Z DOFs, 2 % damping, shakers at 11+Z and 16+Z, noise-free on a log grid
+    (its 79.04 Hz mode in 60-100 Hz)."""
+    from ssid.models.payload import Z_DOFS, modal_damping, payload_simulator
+    from ssid.tam import guyan_reduce
+
+    p = payload_simulator()
+    red = guyan_reduce(p.M, p.K, p.index(Z_DOFS))
+    f = f_lo * np.geomspace(1.0, f_hi / f_lo, n_lines)
+    return accelerance_from_model(red.M, modal_damping(red.M, red.K, 0.02), red.K, list(Z_DOFS),
+                                  f, list(Z_DOFS), ["11+Z", "16+Z"])
+
+
+def test_bands_on_a_zoom_sweep_confirm_its_mode_or_say_why_none_can_be(tmp_path):
+    """A 22-line zoom sweep (fewer lines than one default band): three overlapping bands and its
+    mode found. 14 lines (no two bands of the 10 lines step 1 needs): 0 modes, with a warning
+    that no root can be confirmed. Bands too narrow for step 1 (--width) are counted as
+    skipped in the table and the JSON, not passed off as fitted."""
+    src, js = tmp_path / "zoom.h5", tmp_path / "zoom.json"
+    write_frf(str(src), _payload_sweep(60.0, 100.0, 22))
+    p = run(str(src), "--json", str(js), "--solver", "ls")
+    assert p.returncode == 0, p.stderr
+    res = json.loads(js.read_text())
+    assert len(res["bands_hz"]) == 3 and res["skipped_bands"] == [] and res["warnings"] == []
+    assert len(res["modes"]) == 1 and abs(res["modes"][0]["freq_hz"] / 79.0413 - 1) < 1e-4
+    assert "1 mode found" in p.stdout and "warning" not in p.stderr
+
+    write_frf(str(src), _payload_sweep(60.0, 100.0, 14))
+    p = run(str(src), "--json", str(js), "--solver", "ls")
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.startswith("1 band of 14 lines") and "0 modes found" in p.stdout
+    assert "warning: no root can be confirmed as a mode" in p.stderr
+    assert "criterion 4" in p.stderr and "Traceback" not in p.stderr
+    assert json.loads(js.read_text())["warnings"][0].startswith("no root can be confirmed")
+
+    p = run(str(src), "--json", str(js), "--solver", "ls", "--width", "30")
+    assert p.returncode == 0, p.stderr
+    res = json.loads(js.read_text())
+    n_skipped = len([b for b in res["skipped_bands"] if b != res["low_edge_band"]])
+    assert n_skipped >= 1 and res["min_lines"] == 10
+    assert f"({n_skipped} skipped: fewer than the 10 lines step 1 needs)" in p.stdout
+    assert "no root can be confirmed" in p.stderr

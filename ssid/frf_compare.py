@@ -15,7 +15,7 @@ a 0.1 % difference no transducer is calibrated to.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -184,8 +184,10 @@ class FRFComparison:
 
     ``curves[i][j]`` compares output ``outputs[i]`` per input ``inputs[j]`` over the
     ``freq_hz`` lines both tests measured; None where fewer than :data:`MIN_COMMON_LINES`
-    lines are valid in both. ``n_unmatched`` counts the lines of the band both records
-    cover that have no line in the other (grids that differ there), left out.
+    lines are valid in both. ``reaction_curves[r][j]`` compares the interface reaction
+    (load cell) ``reactions[r]`` per input ``inputs[j]`` alike, for the reactions both
+    records measured. ``n_unmatched`` counts the lines of the band both records cover that
+    have no line in the other (grids that differ there), left out.
     """
 
     freq_hz: np.ndarray
@@ -193,14 +195,25 @@ class FRFComparison:
     inputs: list[str]
     curves: list[list[CurveComparison | None]]
     n_unmatched: int = 0
+    reactions: list[str] = field(default_factory=list)
+    reaction_curves: list[list[CurveComparison | None]] = field(default_factory=list)
 
     def disagreeing(self) -> list[tuple[str, str, CurveComparison]]:
-        """``(output, input, comparison)`` of every FRF that does not agree."""
+        """``(output, input, comparison)`` of every accelerance FRF that does not agree."""
         return [(o, i, c) for o, row in zip(self.outputs, self.curves) for i, c in zip(self.inputs, row)
                 if c is not None and not c.agree]
 
+    def disagreeing_reactions(self) -> list[tuple[str, str, CurveComparison]]:
+        """``(reaction, input, comparison)`` of every reaction FRF that does not agree."""
+        return [(r, i, c) for r, row in zip(self.reactions, self.reaction_curves)
+                for i, c in zip(self.inputs, row) if c is not None and not c.agree]
+
     def n_compared(self) -> int:
+        """Accelerance FRFs compared (reactions: :meth:`n_reactions_compared`)."""
         return sum(c is not None for row in self.curves for c in row)
+
+    def n_reactions_compared(self) -> int:
+        return sum(c is not None for row in self.reaction_curves for c in row)
 
 
 def _line_spacing(freq_hz: np.ndarray) -> np.ndarray:
@@ -242,7 +255,12 @@ def compare_frfs(a: FRFData, b: FRFData) -> FRFComparison:
         (:func:`common_lines`: an adaptive stepped sine may measure other lines in another
         run, a file may hold its frequencies in float32). ``valid`` and ``H_var`` are used
         where present. An FRF with fewer than :data:`MIN_COMMON_LINES` valid values in
-        common is not compared (None in ``curves``).
+        common is not compared (None in ``curves``). The interface reactions
+        ``H_reaction: (n_freq, n_react, n_in)`` (N/N, load cells on a test stand) that both
+        records hold are compared in the same way, with ``H_reaction_var`` where present
+        (a load cell off its calibration is a gain on its reactions, which the accelerances
+        never show); a reaction value counts where any accelerance of its line and input
+        is valid (a stepped sine blanks a line per input) and it is finite.
 
     Raises
     ------
@@ -273,23 +291,41 @@ def compare_frfs(a: FRFData, b: FRFData) -> FRFComparison:
                  int(np.count_nonzero((b.freq_hz >= f_lo) & (b.freq_hz <= f_hi))))
     va, vb = a.valid_mask(), b.valid_mask()
     most_valid = 0
+
+    def compare_one(ha, hb, ok, var_a, var_b) -> CurveComparison | None:
+        nonlocal most_valid
+        ok = ok & np.isfinite(ha) & np.isfinite(hb)
+        n_ok = int(np.count_nonzero(ok))
+        most_valid = max(most_valid, n_ok)
+        if n_ok < MIN_COMMON_LINES:
+            return None
+        return compare_curves(ha[ok], hb[ok], None if var_a is None else var_a[ok],
+                              None if var_b is None else var_b[ok])
+
     curves: list[list[CurveComparison | None]] = []
     for o in outputs:
         row = []
         ia, ib = a.outputs.index(o), b.outputs.index(o)
         for i in inputs:
             ja, jb = a.inputs.index(i), b.inputs.index(i)
-            ha, hb = a.H[ka, ia, ja], b.H[kb, ib, jb]
-            ok = va[ka, ia, ja] & vb[kb, ib, jb] & np.isfinite(ha) & np.isfinite(hb)
-            n_ok = int(np.count_nonzero(ok))
-            most_valid = max(most_valid, n_ok)
-            if n_ok < MIN_COMMON_LINES:
-                row.append(None)
-                continue
-            var_a = None if a.H_var is None else a.H_var[ka, ia, ja][ok]
-            var_b = None if b.H_var is None else b.H_var[kb, ib, jb][ok]
-            row.append(compare_curves(ha[ok], hb[ok], var_a, var_b))
+            row.append(compare_one(a.H[ka, ia, ja], b.H[kb, ib, jb], va[ka, ia, ja] & vb[kb, ib, jb],
+                                   None if a.H_var is None else a.H_var[ka, ia, ja],
+                                   None if b.H_var is None else b.H_var[kb, ib, jb]))
         curves.append(row)
+    reactions = [r for r in _reaction_labels(a) if r in _reaction_labels(b)]
+    # A reaction's line counts where any accelerance of that line and input is valid.
+    line_a, line_b = va[ka].any(axis=1), vb[kb].any(axis=1)  # (n_common, n_in)
+    reaction_curves: list[list[CurveComparison | None]] = []
+    for r in reactions:
+        ra, rb = a.reactions.index(r), b.reactions.index(r)
+        row = []
+        for i in inputs:
+            ja, jb = a.inputs.index(i), b.inputs.index(i)
+            row.append(compare_one(
+                a.H_reaction[ka, ra, ja], b.H_reaction[kb, rb, jb], line_a[:, ja] & line_b[:, jb],
+                None if a.H_reaction_var is None else a.H_reaction_var[ka, ra, ja],
+                None if b.H_reaction_var is None else b.H_reaction_var[kb, rb, jb]))
+        reaction_curves.append(row)
     if all(c is None for row in curves for c in row):
         # Otherwise "all 0 FRFs agree": nothing was compared, which is no agreement.
         if most_valid == 0:
@@ -299,4 +335,10 @@ def compare_frfs(a: FRFData, b: FRFData) -> FRFComparison:
                          f"(at most {most_valid} of {len(ka)} common frequency lines; the others "
                          "blanked or non-finite in one of them)")
     return FRFComparison(a.freq_hz[ka], outputs, inputs, curves,
-                         n_unmatched=max(inside - ka.size, 0))
+                         n_unmatched=max(inside - ka.size, 0), reactions=reactions,
+                         reaction_curves=reaction_curves)
+
+
+def _reaction_labels(frf: FRFData) -> list[str]:
+    """The interface reactions a record holds (none without ``H_reaction``)."""
+    return list(frf.reactions or []) if frf.H_reaction is not None else []

@@ -13,6 +13,7 @@ import pytest
 from ssid.errors import InputError
 from ssid.frf import FRFData, accelerance_from_model
 from ssid.frf_compare import SHAPE_TOLERANCE, compare_frfs
+from ssid.io import write_frf
 from ssid.models import example_system
 from ssidlab.cli import main
 
@@ -118,3 +119,48 @@ def test_ssidlab_compare_finds_linearity_between_levels_and_a_mass_added(tmp_pat
     assert not mass["agree"] and mass["n_differ"] > mass["n_compared"] // 2, mass["verdict"]
     assert out[-1] == mass["verdict"] and any("shape differ" in line for line in out[1:-1]), out
     assert main(["compare", str(runs["low"]), str(tmp_path / "none.h5")]) == 2
+
+
+def _with_reactions(frf: FRFData, seed: int, load_cell_gain: float = 1.0) -> FRFData:
+    """``frf`` with two interface reactions at outputs 3 and 9 (stand-in curves, N/N: 0.5 kg
+    times those outputs' accelerances), 1 % noise stated in ``H_reaction_var``, the load cell
+    at 3 reading ``load_cell_gain`` times the force."""
+    rng = np.random.default_rng(seed)
+    true = 0.5 * _chain().H[:, [3, 9], :]
+    var = (0.01 * np.abs(true)) ** 2 + (1e-6 * np.max(np.abs(true))) ** 2
+    e = rng.standard_normal(true.shape) + 1j * rng.standard_normal(true.shape)
+    r = true + np.sqrt(var / 2) * e
+    r[:, 0, :] *= load_cell_gain
+    return FRFData(frf.freq_hz, frf.H, frf.outputs, frf.inputs, H_var=frf.H_var, H_reaction=r,
+                   reactions=["3", "9"], H_reaction_var=var * np.array([load_cell_gain**2, 1])[None, :, None])
+
+
+def test_reactions_are_compared_like_the_accelerances(tmp_path, capsys):
+    """A load cell 10 % off its calibration in one test changes its reactions only: the 28
+    accelerances agree, the reactions at 3 (both inputs) differ by a gain of 1/1.1, and the
+    command's verdict says so (it compared accelerances only and said "all 28 FRFs agree").
+    A file whose reactions the other lacks is warned of."""
+    a = _with_reactions(_noisy(_chain(), 0.01, 1), 2)
+    b = _with_reactions(_noisy(_chain(), 0.01, 3), 4, load_cell_gain=1.10)
+    cmp = compare_frfs(a, b)
+    assert cmp.disagreeing() == [] and cmp.reactions == ["3", "9"] and cmp.n_reactions_compared() == 4
+    found = cmp.disagreeing_reactions()
+    assert [(r, i) for r, i, _ in found] == [("3", "2"), ("3", "7")]
+    assert all(not c.gain_ok and c.shape_ok and abs(abs(c.gain) - 1 / 1.1) < 0.005 for _, _, c in found)
+    assert compare_frfs(a, _with_reactions(_noisy(_chain(), 0.01, 3), 4)).disagreeing_reactions() == []
+    write_frf(str(tmp_path / "a.h5"), a)
+    write_frf(str(tmp_path / "b.h5"), b)
+    write_frf(str(tmp_path / "free.h5"), _noisy(_chain(), 0.01, 5))
+    assert main(["compare", str(tmp_path / "a.h5"), str(tmp_path / "b.h5"),
+                 "--json", str(tmp_path / "c.json")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    res = json.loads((tmp_path / "c.json").read_text())
+    assert not res["agree"] and (res["n_reactions_compared"], res["n_reactions_differ"]) == (4, 2)
+    assert out[-1] == res["verdict"] == ("0 of 28 FRFs and 2 of 4 reaction FRFs differ beyond their "
+                                         "noise or the calibration tolerance over 400 common lines")
+    assert any(line.startswith("  reaction 3 / 2: gain 0.9") and line.endswith("gain differ")
+               for line in out), "\n".join(out)
+    assert {(r["reaction"], r["agree"]) for r in res["reactions"]} == {("3", False), ("9", True)}
+    assert main(["compare", str(tmp_path / "a.h5"), str(tmp_path / "free.h5")]) == 0
+    cap = capsys.readouterr()
+    assert f"warning: reactions only in {tmp_path / 'a.h5'}, not compared: 3, 9" in cap.err

@@ -7,7 +7,9 @@ Effective Independence (``ssid.placement.effective_independence``): of the candi
 keep the N that best observe the target modes, removing one at a time the DOF that adds least
 to the determinant of the Fisher information ``F = Phi^T Phi``. Candidates are the model's
 translational DOFs (what an accelerometer measures), or those of one direction, or a list;
-``--require`` keeps the DOFs a test must measure anyway (driving points, interface DOFs). It
+``--require`` keeps the DOFs a test must measure anyway (driving points, interface DOFs).
+Targets the candidates cannot observe (a target that vanishes at every candidate, or shapes
+there of lower rank than the targets: F singular for every choice) are refused. It
 prints the chosen DOFs and, for the targets at those DOFs, the largest off-diagonal auto-MAC
 (targets the sensors cannot tell apart) and the condition number of F.
 
@@ -98,8 +100,12 @@ def run_place(args: argparse.Namespace) -> int:
         raise InputError(f"--require lists {len(args.require)} DOFs, more than --sensors "
                          f"{args.sensors}")
     rows = [dofs.index(d) for d in cand]
-    chosen = effective_independence(phi[np.ix_(rows, targets)], args.sensors, cand,
-                                    required=args.require)
+    # Refused (InputError) when the candidates cannot observe the targets: a target judged
+    # against its own shape over the whole model, named by number and frequency.
+    chosen = effective_independence(
+        phi[np.ix_(rows, targets)], args.sensors, cand, required=args.require,
+        mode_names=[f"{t + 1} ({f_hz[t]:.4g} Hz)" for t in targets],
+        mode_norms=np.linalg.norm(phi[:, targets], axis=0))
     phi_a = phi[np.ix_([dofs.index(d) for d in chosen], targets)]
     am = auto_mac(phi_a)
     pair = None  # the two targets the chosen DOFs tell apart least (none for one target)

@@ -129,3 +129,46 @@ def test_place_names_two_different_targets_when_none_look_alike(tmp_path):
     assert r.returncode == 0, r.stderr
     pair = json.loads((tmp_path / "u.json").read_text())["max_offdiag_auto_mac"]
     assert pair["value"] == 0.0 and pair["modes"][0] != pair["modes"][1], pair
+
+
+def _xz_chains(path):
+    """Two uncoupled 4-DOF chains of unit masses, one in X (springs 1e5 N/m) and one in Z
+    (3.7e5): modes 1, 3, 4 move in X only (17.5, 50.3, 77.1 Hz), mode 2 in Z (33.6 Hz)."""
+    n = 4
+    chain = 2 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1)
+    chain[-1, -1] = 1.0
+    K = np.zeros((2 * n, 2 * n))
+    K[:n, :n], K[n:, n:] = 1e5 * chain, 3.7e5 * chain
+    dofs = [f"{i}+X" for i in range(1, n + 1)] + [f"{i}+Z" for i in range(1, n + 1)]
+    write_model(str(path), Model(M=np.eye(2 * n), K=K, C=None, dofs=dofs))
+
+
+def test_place_refuses_targets_the_candidates_cannot_observe(tmp_path):
+    """Z candidates for the four lowest modes, three of them X modes: their shapes vanish at
+    every candidate, F = Phi^T Phi is singular for any choice, so EfI has no meaning. It chose
+    "1+Z..4+Z" and printed "largest auto-MAC 0.000" (zero shapes) and "condition of F: inf",
+    exit 0; now one line naming the modes, status 2. Every translation as candidates: fine."""
+    fe = tmp_path / "xz.h5"
+    _xz_chains(fe)
+    js = tmp_path / "xz.json"
+    r = run(str(fe), "--sensors", "4", "--direction", "Z", "--json", str(js))
+    assert r.returncode == 2, r.stdout
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert "target modes 1 (17.48 Hz), 3 (50.33 Hz), 4 (77.11 Hz) vanish at every candidate DOF" in r.stderr
+    assert "singular" in r.stderr and not js.exists()
+    r = run(str(fe), "--sensors", "4", "--json", str(js))
+    assert r.returncode == 0, r.stderr
+    assert json.loads(js.read_text())["fisher_condition"] is not None
+
+
+def test_effective_independence_refuses_rank_deficient_target_shapes():
+    """Two targets with one shape at the candidates (rank 1 of 2): no DOF vanishes, but no
+    choice tells them apart; refused with the rank."""
+    from ssid.errors import InputError
+    from ssid.placement import effective_independence
+
+    phi = np.array([[1.0, 2.0], [2.0, 4.0], [3.0, 6.0], [0.5, 1.0]])
+    with pytest.raises(InputError, match="have rank 1"):
+        effective_independence(phi, 2)
+    phi[3, 1] = 0.0  # the shapes now differ at one DOF: full rank, and that DOF is kept
+    assert 3 in effective_independence(phi, 2)

@@ -290,6 +290,11 @@ def _table(out: dict) -> str:
                      "in another band")
     if "model" in out:
         held = out["model"].get("natural_freq_hz", [])
+        err = (out["model"].get("checks") or {}).get("frf_relative_rms_error")
+        # Stated on every model line, as pseudo-dof and identify do: the modes were each found
+        # twice, but whether the matrices' FRFs reproduce the data is another question.
+        fit = ("" if err is None else
+               f"; its FRFs differ from the data by {100 * err:.3g} % (relative RMS)")
         lines.append(f"model: {len(held)} DOF ({out['model']['scale']}), modes "
-                     + ", ".join(f"{f:.4g}" for f in held) + f" Hz -> {out['model']['path']}")
+                     + ", ".join(f"{f:.4g}" for f in held) + f" Hz -> {out['model']['path']}{fit}")
     return "\n".join(lines)

@@ -364,3 +364,29 @@ def test_bands_on_a_zoom_sweep_confirm_its_mode_or_say_why_none_can_be(tmp_path)
     assert n_skipped >= 1 and res["min_lines"] == 10
     assert f"({n_skipped} skipped: fewer than the 10 lines step 1 needs)" in p.stdout
     assert "no root can be confirmed" in p.stderr
+
+
+def test_bands_model_states_its_frf_error_and_warns_when_it_misses_the_data(tmp_path):
+    """The 6-DOF system at 3 of its DOFs: its 6 modes are found, a 3-DOF model holds 3 and its
+    FRFs miss the data by 36 %, which was only in the JSON (checks.frf_relative_rms_error).
+    The model line states the error, and a warning says it misses, at the threshold identify
+    and pseudo-dof use (5 % and three times the noise); all 6 DOFs measured: no warning."""
+    from ssid.fit_checks import MISFIT_FLOOR
+
+    M, C, K, dofs = example_system(6, seed=3)
+    f = np.linspace(3, 600, 400)
+    for outs, misses in ((dofs[:3], True), (dofs, False)):
+        frf = accelerance_from_model(M, C, K, dofs, f, list(outs), [dofs[0]])
+        src, js, out = tmp_path / "frf.h5", tmp_path / "b.json", tmp_path / "m.h5"
+        write_frf(str(src), frf)
+        p = run(str(src), "--json", str(js), "--out", str(out))
+        assert p.returncode == 0, p.stderr
+        res = json.loads(js.read_text())
+        err = res["model"]["checks"]["frf_relative_rms_error"]
+        assert (err > MISFIT_FLOOR) == misses, err
+        (line,) = [s for s in p.stdout.splitlines() if s.startswith("model:")]
+        assert line.endswith(f"; its FRFs differ from the data by {100 * err:.3g} % (relative RMS)")
+        said = [w for w in res["warnings"] if "reproduce the measured FRFs only to" in w]
+        assert bool(said) == misses and ("warning: the written M, C, K" in p.stderr) == misses
+        if misses:
+            assert "it holds 3 of the 6 modes found" in said[0]

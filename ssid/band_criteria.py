@@ -10,7 +10,9 @@ roots across bands or with the lines:
 * criterion 4, a root repeated in another band (:func:`cluster_repeated`, with the tolerance
   :func:`repeat_tolerance_hz`);
 * ours, for noise roots the overlapping bands repeat because they share lines and noise:
-  a mode the lines do not resolve inside the half-power band of one they do
+  a mode only the nested top bands found and the high-edge band does not repeat
+  (:func:`reject_top_nested_only`), a mode the lines do not resolve inside the half-power
+  band of one they do
   (:func:`reject_inside_resolved`), and a weaker mode with a stronger one's shape beside it
   (:func:`reject_echoes`);
 * one root per physical mode (:func:`pick_representatives`).
@@ -35,7 +37,8 @@ if TYPE_CHECKING:  # ssid.bands defines the root record and calls these
 
 __all__ = ["ECHO_HALF_POWER_BANDS", "ECHO_MAC_MIN", "PHASE_SEEN_HALF_WIDTHS", "cluster_repeated",
            "phase_seen_by_lines", "pick_representatives", "reject_echoes", "reject_edge_cut_only",
-           "reject_inside_resolved", "repeat_tolerance_hz", "resonance_cut_by_band_edge",
+           "reject_inside_resolved", "reject_top_nested_only", "repeat_tolerance_hz",
+           "resonance_cut_by_band_edge",
            "screen_unresolved"]
 
 
@@ -243,6 +246,58 @@ def reject_edge_cut_only(roots: list[BandRoot]) -> None:
                 r.rejected, r.cluster = "not repeated", -1
 
 
+def _repeats(a: BandRoot, b: BandRoot, tol: float, line_freq_hz: np.ndarray) -> bool:
+    """Whether two roots of different bands may be one mode by criterion 4's test
+    (:func:`cluster_repeated`): frequencies within :func:`repeat_tolerance_hz` of the wider,
+    damping within a factor 2, positive both, unless neither root's phase is seen."""
+    f = np.array([a.freq_hz, b.freq_hz])
+    z = np.array([max(abs(a.zeta), 1e-12), max(abs(b.zeta), 1e-12)])
+    t = repeat_tolerance_hz(f, z, distance_to_nearest_line(line_freq_hz, f), tol)
+    if a.band == b.band or abs(f[0] - f[1]) > max(t):
+        return False
+    if not (a.phase_seen or b.phase_seen):
+        return True
+    return a.zeta > 0 and b.zeta > 0 and 0.5 <= z[0] / z[1] <= 2.0
+
+
+def reject_top_nested_only(roots: list[BandRoot], layout_hz, high_band: int, tol: float,
+                           line_freq_hz: np.ndarray) -> None:
+    """A mode found (criterion 4's cluster) only by the layout's bands that end at the
+    record's last line must be found by the high-edge band ``high_band`` too
+    (:func:`ssid.band_edges.high_edge_band`); otherwise its roots are rejected as "not
+    repeated by the high-edge band".
+
+    Why: those bands are nested (the top part-band lies wholly inside the band before it),
+    so they share every line of the part-band and its noise, and a root fitted to that noise
+    comes out of both. On the payload's random record with one shaker (16 sensors,
+    20-1500 Hz) a 1456.5 Hz root, 0.04 % damping and MPC 0.96, was confirmed by the bands
+    1376.7-1500 and 1438.3-1500 Hz; the structure has no mode between 1318.7 and 1826 Hz.
+    The high-edge band holds other lines below them, and so other computational roots: it
+    did not repeat that root, and repeats the 1318.7 Hz mode of the stepped-sine record, which
+    the nested top bands alone find. Any of its roots that passed criteria 1-3 confirms (its
+    resolved ones are otherwise left out of criterion 4, "resolved (high-edge band)"), by
+    criterion 4's test (:func:`cluster_repeated`) against every estimate of the mode.
+
+    ``layout_hz``: the layout's bands (the edge bands are not among them).
+    """
+    tiny = 1e-9 * (float(line_freq_hz[-1]) - float(line_freq_hz[0]))
+    top = {b for b, (_, hi) in enumerate(layout_hz) if hi >= float(line_freq_hz[-1]) - tiny}
+    members: dict[int, list[BandRoot]] = {}
+    for r in roots:
+        if r.cluster >= 0 and not r.rejected:
+            members.setdefault(r.cluster, []).append(r)
+    third = [q for q in roots if q.band == high_band
+             and q.rejected in ("", "resolved (high-edge band)")]
+    for group in members.values():
+        regular = [r for r in group if r.band != high_band and not r.low_edge]
+        if any(r.band == high_band for r in group) or not all(r.band in top for r in regular):
+            continue
+        if any(all(_repeats(q, r, tol, line_freq_hz) for r in regular) for q in third):
+            continue
+        for r in group:
+            r.rejected, r.cluster = "not repeated by the high-edge band", -1
+
+
 def reject_inside_resolved(roots: list[BandRoot], bands_hz, line_freq_hz: np.ndarray) -> None:
     """Of the modes found (criterion 4's clusters), reject one whose resonance the lines do not
     resolve (its representative's half-power bandwidth ``2 zeta f`` narrower than the line
@@ -341,7 +396,7 @@ def pick_representatives(roots: list[BandRoot], bands_hz) -> list[BandRoot]:
     because the lines do not see their damping), never one spared criterion 3 because an edge
     of its band cuts its resonance (it confirms the whole band's estimate that passed, see
     :func:`reject_edge_cut_only`; with a wider damping estimate it could lie farther from
-    its edge), never the low-edge band's (it confirms;
+    its edge), never an edge band's (low or high: it confirms;
     holding the most modes for the same n DOFs, its estimates of the low modes are the most
     compromised: 1.274 and 1.257 Hz where the other bands gave 1.284 and 1.289 Hz for the
     1.287 Hz mode on two payload records).
@@ -361,7 +416,8 @@ def pick_representatives(roots: list[BandRoot], bands_hz) -> list[BandRoot]:
 
     best: dict[int, BandRoot] = {}
     for r in roots:
-        if r.rejected or r.cluster < 0 or r.zeta <= 0 or r.low_edge or (r.edge_cut and not r.mpc_applied):
+        if (r.rejected or r.cluster < 0 or r.zeta <= 0 or r.low_edge or r.high_edge
+                or (r.edge_cut and not r.mpc_applied)):
             continue
         cur = best.get(r.cluster)
         if cur is None or margin(r) > margin(cur):

@@ -9,10 +9,12 @@ the report's four criteria:
 3. its modal phase collinearity is below a threshold (Eq. 5.20);
 4. it is not repeated in another band (true roots are found wherever their band overlaps).
 
-Two checks of ours follow criterion 4, for noise roots that the overlapping bands repeat
-because they share lines and noise: a mode the lines do not resolve inside the half-power
-band of one they do (:func:`ssid.band_criteria.reject_inside_resolved`), and a weaker mode
-with a stronger one's shape beside it (:func:`ssid.band_criteria.reject_echoes`). Criteria 1-3
+Checks of ours follow criterion 4, for noise roots that the overlapping bands repeat
+because they share lines and noise: a mode that only the nested bands at the record's top
+found and the high-edge band does not repeat
+(:func:`ssid.band_criteria.reject_top_nested_only`), a mode the lines do not resolve inside
+the half-power band of one they do (:func:`ssid.band_criteria.reject_inside_resolved`), and
+a weaker mode with a stronger one's shape beside it (:func:`ssid.band_criteria.reject_echoes`). Criteria 1-3
 are applied here, as each band's roots are found; criterion 4 and our checks, which compare
 roots across bands, are :mod:`ssid.band_criteria`.
 
@@ -35,6 +37,7 @@ from .band_criteria import (
     reject_echoes,
     reject_edge_cut_only,
     reject_inside_resolved,
+    reject_top_nested_only,
     repeat_tolerance_hz,
     resonance_cut_by_band_edge,
     screen_unresolved,
@@ -45,6 +48,7 @@ from .band_edges import (
     default_band_width_hz,
     default_bands,
     distance_to_nearest_line,
+    high_edge_band,
     line_spacing_at,
     lines_evenly_spaced,
     low_edge_band,
@@ -76,6 +80,7 @@ __all__ = [
     "distance_to_nearest_line",
     "frf_share",
     "fit_scale_factors",
+    "high_edge_band",
     "line_spacing_at",
     "lines_evenly_spaced",
     "low_edge_band",
@@ -118,17 +123,22 @@ class BandRoot:
     #: A root of the low-edge band (:func:`ssid.band_edges.low_edge_band`): it may confirm
     #: another band's estimate of an unresolved root (criterion 4), never stand for a mode.
     low_edge: bool = False
+    #: A root of the high-edge band (:func:`ssid.band_edges.high_edge_band`): as a low-edge
+    #: root, and the third estimate a root found by the nested top bands only must have
+    #: (:func:`ssid.band_criteria.reject_top_nested_only`).
+    high_edge: bool = False
 
 
 @dataclass
 class BandResult:
     """Everything band processing found."""
 
-    bands_hz: list[tuple[float, float]]  # the bands processed, the low-edge band last
+    bands_hz: list[tuple[float, float]]  # the bands processed: the layout's, then the edge bands
     roots: list[BandRoot]
     selected: list[BandRoot]
     data: list[Step1Data] = field(default_factory=list)  # per band (weights included)
     low_edge_band: int | None = None  # index of the low-edge band in bands_hz, if one was added
+    high_edge_band: int | None = None  # index of the high-edge band in bands_hz, if one was added
     #: Indices (in ``bands_hz``) of the bands not fitted: fewer lines than ``min_lines``.
     skipped: list[int] = field(default_factory=list)
     min_lines: int = 0  # the fewest lines a band needed for step 1
@@ -138,6 +148,12 @@ class BandResult:
     @property
     def freq_hz(self) -> np.ndarray:
         return np.array([r.freq_hz for r in self.selected])
+
+    @property
+    def n_layout(self) -> int:
+        """How many of ``bands_hz`` are the layout's (the edge bands follow them)."""
+        edges = [b for b in (self.low_edge_band, self.high_edge_band) if b is not None]
+        return min(edges) if edges else len(self.bands_hz)
 
     @property
     def zeta(self) -> np.ndarray:
@@ -161,6 +177,7 @@ def process_bands(
     repeat_tol: float = 0.125,
     min_lines: int | None = None,
     low_edge: bool = True,
+    high_edge: bool = True,
 ) -> BandResult:
     """Run step 1 and Eq. 3.12 per band and select the structural roots (criteria 1-4).
 
@@ -184,6 +201,11 @@ def process_bands(
         holding every line of both and more modes for the same n DOFs, adds a more biased one
         (on 4 of 8 DOFs measured it confirmed a 1.5 %-off estimate of a 39.7 Hz mode that no
         other band repeated). Its roots never represent a mode.
+    high_edge : add :func:`ssid.band_edges.high_edge_band` after those: its roots count as
+        the low-edge band's do ("resolved (high-edge band)"), and a mode that only the
+        layout's bands ending at the last line found (the top part-band and the band it lies
+        in, nested fits that share the part-band's lines and noise) must be found by it too
+        (:func:`ssid.band_criteria.reject_top_nested_only`).
 
     Returns
     -------
@@ -196,7 +218,10 @@ def process_bands(
     data: list[Step1Data] = []
     unseen: list[BandRoot] = []  # spared by criterion 2 or 3: the lines do not see them
     extra = low_edge_band(bands_hz, frf.freq_hz) if low_edge else None
-    all_bands = list(bands_hz) + ([extra] if extra is not None else [])
+    top = high_edge_band(bands_hz, frf.freq_hz) if high_edge else None
+    all_bands = list(bands_hz) + [b for b in (extra, top) if b is not None]
+    low_index = len(bands_hz) if extra is not None else None
+    high_index = len(all_bands) - 1 if top is not None else None
     layout_hz = (min(lo for lo, _ in all_bands), max(hi for _, hi in all_bands))
     for b, (lo, hi) in enumerate(all_bands):
         sub = frf.band(lo, hi)
@@ -215,7 +240,7 @@ def process_bands(
             root = BandRoot(b, complex(modes.lam[r]), modes.theta[:, r].copy(), float(f),
                             float(zeta[r]), float(mpc[r]))
             root.phase_seen = phase_seen_by_lines(f, zeta[r], sub.freq_hz)
-            root.low_edge = b == len(bands_hz)  # only the low-edge band has that index
+            root.low_edge, root.high_edge = b == low_index, b == high_index
             root.edge_cut = resonance_cut_by_band_edge(f, zeta[r], (lo, hi), layout_hz)
             if not lo <= f <= hi:
                 root.rejected = "outside band"
@@ -235,14 +260,19 @@ def process_bands(
         # ones as in any band.
         if root.low_edge and root.phase_seen and not root.rejected:
             root.rejected = "resolved (low-edge band)"
+        if root.high_edge and root.phase_seen and not root.rejected:
+            root.rejected = "resolved (high-edge band)"
     cluster_repeated(roots, repeat_tol, frf.freq_hz)
     reject_edge_cut_only(roots)
+    if high_index is not None:
+        reject_top_nested_only(roots, all_bands[:len(bands_hz)], high_index, repeat_tol,
+                               frf.freq_hz)
     reject_inside_resolved(roots, all_bands, frf.freq_hz)
     reject_echoes(roots, all_bands, data)
     selected = pick_representatives(roots, all_bands)
     skipped = [b for b, d in enumerate(data) if d is None]
     return BandResult(bands_hz=all_bands, roots=roots, selected=selected, data=data,
-                      low_edge_band=len(bands_hz) if extra is not None else None,
+                      low_edge_band=low_index, high_edge_band=high_index,
                       skipped=skipped, min_lines=need,
                       warnings=_unconfirmable_lines(frf.freq_hz, bands_hz, data, need))
 
@@ -252,7 +282,7 @@ def _unconfirmable_lines(line_freq_hz: np.ndarray, bands_hz: list[tuple[float, f
     """A warning where lines lie in fewer than two fitted bands of the layout (``data[b]``
     None: skipped for fewer than ``need`` lines), so that criterion 4 cannot confirm a root
     there: "not repeated" then says nothing about the structure, and 0 modes found does not
-    mean there are none. The low-edge band is not counted: it confirms unresolved roots only.
+    mean there are none. The edge bands are not counted: they confirm unresolved roots only.
     """
     f = np.asarray(line_freq_hz, dtype=float)
     fitted = [(lo, hi) for (lo, hi), d in zip(bands_hz, data) if d is not None]
@@ -269,11 +299,11 @@ def _unconfirmable_lines(line_freq_hz: np.ndarray, bands_hz: list[tuple[float, f
                f"whose part-bands hold the {need} lines step 1 needs")
         fix = "a wider frequency range or more lines"
     if alone.all():
-        return [f"no root can be confirmed as a mode: {why}, so no root can be repeated in "
-                f"another band (criterion 4) and every one is rejected as not repeated; "
-                f"that says nothing of the structure: use {fix}"]
+        return [(f"no root can be confirmed as a mode: {why}, so no root can be repeated in "
+                 f"another band (criterion 4) and every one is rejected as not repeated; "
+                 f"that says nothing of the structure: use {fix}")]
     # Runs of consecutive lines that lie in fewer than two fitted bands.
     edges = np.flatnonzero(np.diff(np.concatenate([[0], alone.astype(int), [0]])))
     runs = ", ".join(f"{f[a]:.6g}-{f[b - 1]:.6g} Hz" for a, b in zip(edges[::2], edges[1::2]))
-    return [f"roots at {runs} cannot be confirmed as modes: those lines lie in fewer than two "
-            f"fitted bands ({why}), so criterion 4 cannot repeat a root there; use {fix}"]
+    return [(f"roots at {runs} cannot be confirmed as modes: those lines lie in fewer than two "
+             f"fitted bands ({why}), so criterion 4 cannot repeat a root there; use {fix}")]

@@ -21,7 +21,6 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
     from matplotlib.ticker import MaxNLocator
 
     fig, ax = plt.subplots(figsize=(9, 5))
@@ -38,7 +37,10 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
              "same shape as a stronger mode": ("d", "tab:brown", "same shape as a stronger mode"),
              "inside a resolved mode's half-power band": ("+", "tab:pink",
                                                           "inside a resolved mode's half-power band"),
-             "resolved (low-edge band)": (".", "0.3", "resolved (low-edge band: unresolved roots only)")}
+             "resolved (low-edge band)": (".", "0.3", "resolved (low-edge band: unresolved roots only)"),
+             "resolved (high-edge band)": (".", "0.3", "resolved (high-edge band: confirms only)"),
+             "not repeated by the high-edge band": ("x", "tab:olive",
+                                                    "not repeated by the high-edge band")}
     seen = set()
     ring = "criterion 2 or 3 not applied (no line sees its phase, or a band edge cuts it)"
     for r in result.roots:
@@ -57,7 +59,7 @@ def plot_band_roots(path: str, result: BandResult, true_freq_hz: np.ndarray | No
             ax.axvline(f, color="k", lw=0.5, ls=":", zorder=1)
     lo = min(b[0] for b in result.bands_hz)
     hi = max(b[1] for b in result.bands_hz)
-    regular = result.bands_hz[: result.low_edge_band]  # the layout's, without the low-edge band
+    regular = result.bands_hz[: result.n_layout]  # the layout's, without the edge bands
     widths = [b[1] - b[0] for b in regular[1:-1]] or [hi - lo]
     if lo > 0 and max(widths) > 3 * min(widths):
         ax.set_xscale("log")  # bands of equal line count on a log sweep: equal widths on a log axis

@@ -149,6 +149,9 @@ def run_bands(args: argparse.Namespace) -> int:
         # A band added after the layout's (ssid.band_edges.low_edge_band): its roots confirm
         # unresolved roots only.
         "low_edge_band": res.low_edge_band,
+        # Its counterpart at the last line (ssid.band_edges.high_edge_band): also the third
+        # estimate a mode found only by the nested top bands needs.
+        "high_edge_band": res.high_edge_band,
         # Bands with fewer lines than step 1 needs are not fitted: their roots are missing.
         "skipped_bands": res.skipped,
         "min_lines": res.min_lines,
@@ -262,12 +265,16 @@ def _table(out: dict) -> str:
     else:
         size = f"{s['width_hz']:.4g} Hz"
     n_bands = len(out["bands_hz"])
-    low = out.get("low_edge_band")
+    low, high = out.get("low_edge_band"), out.get("high_edge_band")
     if low is not None:
         a, b = out["bands_hz"][low]
         size += f" and a low-edge band ({a:.4g}-{b:.4g} Hz) for roots below the line spacing"
         n_bands -= 1
-    skipped = [b for b in out.get("skipped_bands", []) if b != low]
+    if high is not None:
+        a, b = out["bands_hz"][high]
+        size += f", and a high-edge band ({a:.4g}-{b:.4g} Hz) to confirm the top bands' roots"
+        n_bands -= 1
+    skipped = [b for b in out.get("skipped_bands", []) if b not in (low, high)]
     if skipped:
         # Said here, or "5 bands" would read as five fits when one was made.
         size += (f" ({len(skipped)} skipped: fewer than the {out['min_lines']} lines step 1 "

@@ -13,6 +13,7 @@ from ssid.band_criteria import (
     pick_representatives,
     reject_edge_cut_only,
     reject_inside_resolved,
+    reject_top_nested_only,
     resonance_cut_by_band_edge,
 )
 from ssid.band_select import default_band_width_hz
@@ -23,6 +24,7 @@ from ssid.bands import (
     distance_to_nearest_line,
     fit_scale_factors,
     frf_share,
+    high_edge_band,
     line_spacing_at,
     min_lines_for_two_bands,
     normal_mode_mck,
@@ -527,7 +529,8 @@ def test_too_few_lines_for_two_bands_is_said_not_reported_as_no_mode():
     res = process_bands(frf, bands, solver="ls")
     assert res.freq_hz.size == 0
     assert len(res.warnings) == 1 and res.warnings[0].startswith("no root can be confirmed")
-    res = process_bands(frf, overlapping_bands(60.0, 100.0, 30.0), solver="ls", low_edge=False)
+    res = process_bands(frf, overlapping_bands(60.0, 100.0, 30.0), solver="ls", low_edge=False,
+                        high_edge=False)
     assert res.skipped and len(res.skipped) == len(res.bands_hz) - 1
     assert "1 of the" in res.warnings[0] and "criterion 4" in res.warnings[0]
 
@@ -544,3 +547,49 @@ def test_the_chart_of_one_band_numbers_it_zero(tmp_path, monkeypatch):
     ax = figs[0].axes[0]
     lo, hi = ax.get_ylim()
     assert [t for t in ax.get_yticks() if lo <= t <= hi] == [0.0]
+
+
+# --- The record's high edge: the top part-band lies inside the band before it ---------------
+
+
+def test_a_root_only_the_nested_top_bands_found_needs_the_high_edge_band():
+    """Layout 0-400 Hz in bands of 200 Hz: the top part-band (300-400) lies wholly inside the
+    band 200-400, so a root fitted to the noise of its lines comes out of both (a 1456.5 Hz
+    root, 0.04 % damping, on the payload's one-shaker random record). Such a mode must be
+    repeated by the high-edge band (index 5) too: a noise root it does not repeat is rejected,
+    a mode it repeats (even as a resolved root, which otherwise confirms nothing) is kept, and
+    a mode that a band not ending at the last line found needs nothing more."""
+    lines = np.linspace(0.0, 400.0, 401)
+    layout = [(0.0, 100.0), (0.0, 200.0), (100.0, 300.0), (200.0, 400.0), (300.0, 400.0)]
+    high = len(layout) + 1  # after the low-edge band
+
+    def root(band, f, zeta, rejected=""):
+        r = BandRoot(band, complex(-zeta * f, f), np.ones(2), f, zeta, 0.99, rejected=rejected)
+        r.high_edge = band == high
+        return r
+
+    noise = [root(3, 350.0, 0.001), root(4, 350.02, 0.001)]
+    mode = [root(3, 330.0, 0.02), root(4, 330.1, 0.02),
+            root(high, 330.3, 0.02, rejected="resolved (high-edge band)")]
+    inner = [root(2, 250.0, 0.02), root(3, 250.1, 0.02)]
+    roots = noise + mode + inner
+    cluster_repeated(roots, 0.125, lines)
+    assert all(r.cluster >= 0 for r in noise + mode[:2] + inner)
+    reject_top_nested_only(roots, layout, high, 0.125, lines)
+    assert [r.rejected for r in noise] == ["not repeated by the high-edge band"] * 2
+    assert all(not r.rejected and r.cluster >= 0 for r in mode[:2] + inner)
+    assert high_edge_band(layout, lines) == (100.0, 400.0)  # 1.5 times the 200 lines there
+
+
+def test_the_high_edge_band_keeps_a_true_mode_of_the_top_part_band(case):
+    """Report noise, bands of 150 Hz over 5-520 Hz: the 477 Hz mode lies in the top part-band
+    (445-520 Hz) and the band it is nested in only; the high-edge band repeats it, so every
+    mode is still found."""
+    *_, f_true, frf = case
+    res = process_bands(report_noise_frf(frf, seed=4), overlapping_bands(5, 520, 150, 0.5))
+    high = res.high_edge_band
+    assert high == len(res.bands_hz) - 1 and res.bands_hz[high][1] == 520.0
+    top = [r for r in res.roots if r.cluster >= 0 and not r.rejected and abs(r.freq_hz - 477) < 5]
+    assert {r.band for r in top if not r.high_edge} <= {high - 3, high - 2}  # the nested pair
+    assert res.freq_hz.size == f_true.size
+    assert np.max(np.abs(res.freq_hz - f_true) / f_true) < 1e-3

@@ -47,12 +47,17 @@ def test_bands_finds_every_mode_writes_chart_json_and_modal_model(tmp_path):
                                                     "low MPC", "not repeated",
                                                     "same shape as a stronger mode",
                                                     "inside a resolved mode's half-power band",
-                                                    "resolved (low-edge band)"}
+                                                    "resolved (low-edge band)",
+                                                    "resolved (high-edge band)",
+                                                    "not repeated by the high-edge band"}
     assert res["settings"]["overlap"] == 0.5 and len(res["bands_hz"]) > 2
-    # The low-edge band (3-77.6 Hz, 1.5 widths of 49.75 Hz) is listed last and named in the table.
-    low = res["low_edge_band"]
-    assert low == len(res["bands_hz"]) - 1 and res["bands_hz"][low][0] == 3.0
-    assert "and a low-edge band (3-" in p.stdout
+    # The low-edge band (3-77.6 Hz, 1.5 widths of 49.75 Hz) follows the layout's bands, the
+    # high-edge band (1.5 times the lines of the widest band ending at 600 Hz) comes last; the
+    # table names both.
+    low, high = res["low_edge_band"], res["high_edge_band"]
+    assert low == len(res["bands_hz"]) - 2 and res["bands_hz"][low][0] == 3.0
+    assert high == len(res["bands_hz"]) - 1 and res["bands_hz"][high][1] == 600.0
+    assert "and a low-edge band (3-" in p.stdout and ", and a high-edge band (" in p.stdout
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     model = read_model(str(out))
     assert model.dofs == list(dofs)
@@ -101,8 +106,9 @@ def reduced(tmp_path_factory):
 
 
 def _layout(res: dict) -> list:
-    """The bands the settings laid out: the JSON's bands without the low-edge band (last)."""
-    return res["bands_hz"][: res["low_edge_band"]]
+    """The bands the settings laid out: the JSON's bands without the edge bands (last)."""
+    edges = [b for b in (res["low_edge_band"], res["high_edge_band"]) if b is not None]
+    return res["bands_hz"][: min(edges, default=len(res["bands_hz"]))]
 
 
 def _all_true(found_hz, f_true, rtol=0.01):
@@ -149,7 +155,7 @@ def test_bands_settings_change_the_bands(reduced):
     res = json.loads(js.read_text())
     widths = [hi - lo for lo, hi in _layout(res)]
     assert max(widths) == pytest.approx(100.0)
-    assert res["bands_hz"][-1] == pytest.approx([5.0, 155.0])  # the low-edge band: 1.5 widths
+    assert res["bands_hz"][res["low_edge_band"]] == pytest.approx([5.0, 155.0])  # 1.5 widths
     starts = [lo for lo, _ in _layout(res)][2:5]
     assert np.allclose(np.diff(starts), 25.0)  # 75 % overlap: a step of a quarter width
     assert res["settings"]["solver"] == "ls" and len(res["modes"]) >= 4
@@ -360,7 +366,7 @@ def test_bands_on_a_zoom_sweep_confirm_its_mode_or_say_why_none_can_be(tmp_path)
     p = run(str(src), "--json", str(js), "--solver", "ls", "--width", "30")
     assert p.returncode == 0, p.stderr
     res = json.loads(js.read_text())
-    n_skipped = len([b for b in res["skipped_bands"] if b != res["low_edge_band"]])
+    n_skipped = len([b for b in res["skipped_bands"] if b < len(_layout(res))])
     assert n_skipped >= 1 and res["min_lines"] == 10
     assert f"({n_skipped} skipped: fewer than the 10 lines step 1 needs)" in p.stdout
     assert "no root can be confirmed" in p.stderr

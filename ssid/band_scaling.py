@@ -325,7 +325,8 @@ def fit_scale_factors(d: Step1Data, lam: np.ndarray, theta_x: np.ndarray,
     scale = np.sqrt(np.abs(np.diag(N)))
     if np.any(scale == 0):
         raise IdentificationError(
-            "a mode has no valid data to fix its scale (Eq. 3.23): widen the band or add lines")
+            "a mode has no valid data to fix its scale (Eq. 3.23): no line of the fit holds its "
+            "resonance (the lines near it are missing, blanked or carry no weight)")
     v = np.linalg.lstsq(N / scale[:, None] / scale[None, :], b / scale, rcond=None)[0] / scale
     return v[:m] + 1j * v[m:]
 

@@ -10,9 +10,10 @@ step 2 is done on the measured FRFs, not on the pseudo DOFs:
    their measured-partition shapes, fitted to all measured lines with one factor per conjugate
    pair and residual terms for the modes not in the model (:func:`ssid.bands.fit_scale_factors`,
    as band processing does). Read as normal modes, each factor gives a modal mass
-   ``m_r = -1 / (2 omega_dr Im u_r)``; a root whose fit asks for ``m_r <= 0`` cannot be a mode
-   of a passive structure (a further, data-based indicator after the partition
-   consistency and the repeat test).
+   ``m_r = -1 / (2 omega_dr Im u_r)``; a root whose fit asks for ``m_r <= 0`` is no mode of a
+   passive structure as fitted: left out of every model, though still structural (the
+   modal mass judges the fit of its shape and scale, not its frequency;
+   :func:`ssid.pseudo_dof.flag_non_passive`).
 2. :func:`pseudo_dof_mck`: M, C, K from the modes with ``m_r > 0``, as real normal modes with
    modal damping (:func:`ssid.real_modes.normal_mode_mck`). An n-DOF model holds n modes; with
    more, either the n strongest independent ones are kept (``n_keep = n``, the reduced
@@ -259,7 +260,7 @@ def pseudo_dof_mck(frf: FRFData, model: PseudoModalModel, n_keep: int | None = N
         modes = phys
     if modes.size < n:
         raise IdentificationError(
-            f"{modes.size} physical modes cannot make an {n}-DOF model (Eq. 3.26 needs n)")
+            f"{modes.size} physical modes cannot make a model of {n} DOFs (Eq. 3.26 needs {n})")
     lam, phi, u = model.lam[modes], model.phi[:, modes], model.u[modes]
     m = modes.size
     T = phi

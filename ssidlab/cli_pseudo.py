@@ -12,7 +12,8 @@ until the roots of the model and of the one with one partition more repeat each 
 chosen, repeated) or computational. Step 2, which the report left open, is ours
 (``ssid.pseudo_dof``): the
 structural roots' scale factors are fitted to the measured FRFs, a root asking for a modal mass
-<= 0 is not a passive mode, and ``--out`` writes M, C, K of the others: the n strongest
+<= 0 is no passive mode as fitted and is left out (still structural, counted apart), and
+``--out`` writes M, C, K of the others: the n strongest
 independent modes over the n measured DOFs, or with ``--all-modes`` every one of them over the
 measured DOFs plus generalised coordinates ``q1, q2, ...`` the sensors do not see.
 ``docs/replication.md`` section 5 says how well this works on the payload (noise-free, and
@@ -92,6 +93,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
     from ssid.fit_checks import misfits, relative_noise_level
     from ssid.io import Model, read_measured_frf, write_model
     from ssid.pseudo_dof import (
+        flag_non_passive,
         frf_relative_error,
         identify_pseudo_dof,
         mck_accelerance,
@@ -123,6 +125,8 @@ def run_pseudo(args: argparse.Namespace) -> int:
         except (IdentificationError, np.linalg.LinAlgError) as exc:
             raise InputError(f"{args.frf}: the structural roots cannot be scaled ({exc})") from None
         mass[model.roots] = model.modal_mass
+        # Structural, but no passive mode as fitted: left out of every model and counted apart.
+        flag_non_passive(res, model)
     out: dict[str, Any] = {
         "source": args.frf,
         "n_partitions": res.n_partitions,
@@ -133,6 +137,7 @@ def run_pseudo(args: argparse.Namespace) -> int:
                    "repeated": None if res.repeated is None else bool(res.repeated[k]),
                    "structural": bool(res.structural[k]),
                    "second_copy": res.second_copy is not None and bool(res.second_copy[k]),
+                   "non_passive": res.non_passive is not None and bool(res.non_passive[k]),
                    "modal_mass": mass[k]} for k in range(res.freq_hz.size)],
     }
     warnings: list[str] = []
@@ -195,14 +200,14 @@ def _table(out: dict) -> str:
                                       else " (chosen, though the roots did not settle)")
     lines = [f"{out['n_partitions']} partitions{chosen}, split at "
              + ", ".join(f"{f:.4g}" for f in out["split_hz"]) + " Hz; "
-             f"{len(out['roots'])} roots, {sum(r['structural'] for r in out['roots'])} structural",
+             f"{len(out['roots'])} roots, {sum(r['structural'] for r in out['roots'])} structural"
+             + _non_passive_note(out["roots"]),
              f"{'f_n [Hz]':>12}  {'damping [%]':>11}  {'MPC':>6}  {'consist.':>8}  "
              f"{'repeated':>8}  verdict"]
     for r in out["roots"]:
-        verdict = ("structural" if r["structural"] else
+        verdict = ("structural, modal mass <= 0: not in the model" if r.get("non_passive") else
+                   "structural" if r["structural"] else
                    "second copy of a structural root" if r.get("second_copy") else "computational")
-        if r["structural"] and not (r["modal_mass"] > 0):
-            verdict += ", modal mass <= 0"
         rep = "-" if r["repeated"] is None else ("yes" if r["repeated"] else "no")
         lines.append(f"{r['freq_hz']:>12.4f}  {100 * r['damping_ratio']:>11.3f}  "
                      f"{r['mpc']:>6.3f}  {r['consistency']:>8.3f}  {rep:>8}  {verdict}")
@@ -212,3 +217,10 @@ def _table(out: dict) -> str:
                      + ", ".join(f"{f:.4g}" for f in m["undamped_freq_hz"]) + f" Hz -> {m['path']}; its FRFs "
                      f"differ from the data by {100 * m['frf_relative_rms_error']:.3g} % (relative RMS)")
     return "\n".join(lines)
+
+
+def _non_passive_note(roots: list[dict]) -> str:
+    """`` (1 with modal mass <= 0, left out of the model)`` when some structural roots are
+    non-passive as fitted: "19 structural" must not read as 19 modes in the model."""
+    k = sum(bool(r.get("non_passive")) for r in roots)
+    return f" ({k} with modal mass <= 0, left out of the model)" if k else ""

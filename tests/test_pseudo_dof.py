@@ -125,8 +125,25 @@ def test_negative_modal_mass_flags_non_passive_data():
     mm = pseudo_modal_model(replace(frf, H=-frf.H), res)
     np.testing.assert_allclose(mm.modal_mass, -1.0, rtol=1e-8)
     assert not mm.physical.any()
-    with pytest.raises(IdentificationError):
+    # "a 4-DOF model" said as "a model of 4 DOFs": no "an 16-DOF" for 16 sensors.
+    with pytest.raises(IdentificationError, match=r"cannot make a model of \d+ DOFs"):
         pseudo_dof_mck(frf, mm)
+
+
+def test_a_mode_no_line_weighs_on_is_refused_without_band_advice():
+    """The scale-factor fit that band processing and pseudo-dof share refuses a mode no line
+    of the fit holds; pseudo-dof has no band to widen, so the message says what is missing,
+    not "widen the band or add lines"."""
+    from ssid.band_scaling import fit_scale_factors
+    from ssid.errors import IdentificationError
+    from ssid.step1 import step1_data
+
+    _, _, _, f, phi_s, frf = _data()
+    res = _result_from_truth(f, phi_s, 0.5 * (frf.freq_hz[0] + frf.freq_hz[-1]))
+    d = step1_data(frf, np.zeros(frf.H.shape))  # every line left out
+    with pytest.raises(IdentificationError, match="no line of the fit holds its resonance") as exc:
+        fit_scale_factors(d, res.lam[:1], phi_s[:, :1])
+    assert "band" not in str(exc.value)
 
 
 def test_partitions_chosen_from_the_data_find_every_mode():

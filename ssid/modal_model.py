@@ -36,7 +36,7 @@ from .noise import data_noise_weights
 from .real_modes import normal_mode_mck, normal_mode_shapes, real_mode_mck, shapes_independent
 from .result import SSIDResult, model_frf_errors, model_output_error
 
-__all__ = ["identify_mck_modal", "modal_model_from_bands"]
+__all__ = ["identify_mck_modal", "modal_model_from_bands", "modal_model_misfit_warning"]
 
 
 def identify_mck_modal(
@@ -213,9 +213,6 @@ def modal_model_from_bands(
                         "singular by design, its null space the rigid-body shapes, and C is zero "
                         "on them")
     checks["frf_relative_rms_error"] = model_frf_errors(frf, M, C, K, w)[1]
-    said = _misfit(checks["frf_relative_rms_error"], relative_noise_level(frf, w), len(res.selected), n)
-    if said:
-        warnings.append(said)
     return SSIDResult(
         M=M, C=C, K=K, dofs=list(frf.outputs),
         natural_freq_hz=np.abs(lam) / (2 * np.pi), damping_ratio=zeta,
@@ -231,24 +228,30 @@ def modal_model_from_bands(
     )
 
 
-def _misfit(err: float, noise: float, n_found: int, n: int) -> str | None:
-    """A warning when the modal model's FRFs miss the data it came from by as much as
-    ``ssidlab identify`` and ``pseudo-dof`` warn of (:func:`ssid.fit_checks.misfits`: 5 % and
-    three times the data's noise): each of its modes was found in two bands, yet together
-    they may not make up the measured FRFs (modes found but left out for want of DOFs, modes
-    outside the band, scale factors that miss). On six Z sensors of the payload's free sweep
-    (9 modes found, 6 kept, BP1) the written model missed its data by 80 % with nothing said.
-    Worded here: identify's advice (check the modes with ``ssidlab bands``) is this command.
-
-    ``n_found``: modes the bands found; ``n``: the model's DOFs (modes it holds)."""
+def modal_model_misfit_warning(frf: FRFData, model: SSIDResult) -> str | None:
+    """A warning when a band-processed model (:func:`modal_model_from_bands` on ``frf``) misses
+    the data it came from by as much as ``ssidlab identify`` and ``pseudo-dof`` warn of
+    (:func:`ssid.fit_checks.misfits`: 5 % and three times the data's noise), for
+    ``ssidlab bands --out``: each of its modes was found in two bands, yet together they may
+    not make up the measured FRFs (modes found but left out for want of DOFs, modes outside
+    the band, scale factors that miss). On six Z sensors of the payload's free sweep (9 modes
+    found, 6 kept, BP1) the written model missed its data by 80 % with nothing said. Not
+    added to the model's own warnings: ``identify --select-band`` chooses this model for a
+    reduced order, where missing the modes it cannot hold is the point, and states its FRF
+    error there. Worded here: identify's advice (check the modes with ``ssidlab bands``) is
+    this command.
+    """
+    err = float(model.checks["frf_relative_rms_error"])
+    noise = relative_noise_level(frf)  # the weights model_frf_errors used (data_noise_weights)
     if not misfits(err, noise):
         return None
+    n, n_found = model.M.shape[0], len(model.band_result.selected)
     left = (f"it holds {n} of the {n_found} modes found, and the others are in the data too"
             if n_found > n else "modes outside the band, or scale factors that miss")
     return (f"the written M, C, K reproduce the measured FRFs only to {100 * err:.3g} % (relative "
             f"RMS; the data's noise is about {100 * noise:.2g} %): each of its modes was found in "
             f"two bands, but together they miss the data ({left}); trust the modes, not the "
-            "matrices' FRFs, or try another scale-factor estimate (BP1, BP2, BP3) or other modes")
+            "matrices' FRFs, or try another --scale or --targets")
 
 
 @dataclass

@@ -110,7 +110,7 @@ def run_bands(args: argparse.Namespace) -> int:
     # Imported here: input errors and --help must work even if the numerics cannot be imported.
     from ssid.bands import band_layout, plot_band_roots, process_bands
     from ssid.io import read_measured_frf, write_model
-    from ssid.modal_model import modal_model_from_bands
+    from ssid.modal_model import modal_model_from_bands, modal_model_misfit_warning
 
     frf = read_measured_frf(args.frf)
     if frf.H_reaction is not None:
@@ -195,6 +195,9 @@ def run_bands(args: argparse.Namespace) -> int:
             raise RuntimeError(f"modal model failed validation: {exc}") from exc
         out["model"] = {"path": args.out, "scale": args.scale, **model.to_json_dict()}
         warnings += model.warnings
+        said = modal_model_misfit_warning(data, model)
+        if said:
+            warnings.append(said)
     out["warnings"] = warnings
     write_json(args.json, out)
     for w in warnings:

@@ -141,13 +141,20 @@ def test_every_test_mode_is_paired_or_said_why_not():
     assert sorted(why) == [2, 3]
 
 
-def test_rigid_pairs_print_as_rigid_and_their_subspace_is_shown(tmp_path, capsys):
+def _correlate_free_beam_with_its_guyan_tam(tmp_path):
+    """``ssidlab correlate`` of the free beam's Guyan TAM (test) against the beam; its JSON."""
     M, K, dofs, a = _free_beam()
     red = reduce_to_tam("guyan", M, K, a)
     write_model(tmp_path / "test.h5", Model(red.M, red.K, None, [dofs[i] for i in a]))
     write_model(tmp_path / "fem.h5", Model(M, K, None, dofs))
     js = tmp_path / "c.json"
-    assert run(["--model", str(tmp_path / "test.h5"), "--model", str(tmp_path / "fem.h5"), "--json", str(js)]) == (0, "")
+    argv = ["--model", str(tmp_path / "test.h5"), "--model", str(tmp_path / "fem.h5"), "--json", str(js)]
+    assert run(argv) == (0, "")
+    return js
+
+
+def test_rigid_pairs_print_as_rigid_and_their_subspace_is_shown(tmp_path, capsys):
+    js = _correlate_free_beam_with_its_guyan_tam(tmp_path)
     out = capsys.readouterr().out.splitlines()
     assert [line.split()[4] for line in out[2:4]] == ["rigid", "rigid"]
     k = out.index("rigid: paired with an analysis mode at 0 Hz (rigid-body), whose error is no percentage")
@@ -213,12 +220,7 @@ def test_modes_at_rest_print_as_zero_without_a_sign_and_label_the_mac_plot_as_ze
 
     from ssid.plots_correlation import plot_mac_matrix
 
-    M, K, dofs, a = _free_beam()
-    red = reduce_to_tam("guyan", M, K, a)
-    write_model(tmp_path / "test.h5", Model(red.M, red.K, None, [dofs[i] for i in a]))
-    write_model(tmp_path / "fem.h5", Model(M, K, None, dofs))
-    js = tmp_path / "c.json"
-    assert run(["--model", str(tmp_path / "test.h5"), "--model", str(tmp_path / "fem.h5"), "--json", str(js)]) == (0, "")
+    js = _correlate_free_beam_with_its_guyan_tam(tmp_path)
     out = capsys.readouterr().out
     assert "-0.0000" not in out
     s = json.loads(js.read_text())
@@ -232,7 +234,8 @@ def test_modes_at_rest_print_as_zero_without_a_sign_and_label_the_mac_plot_as_ze
         return real(self, ticks, tick_labels, **kwargs)
 
     monkeypatch.setattr(Axes, "set_xticks", set_xticks)
-    plot_mac_matrix(np.asarray(s["mac"]), tmp_path / "mac.png", s["test_natural_freq_hz"], s["analysis_natural_freq_hz"])
+    plot_mac_matrix(np.asarray(s["mac"]), tmp_path / "mac.png", s["test_natural_freq_hz"],
+                    s["analysis_natural_freq_hz"])
     assert labels[:3] == ["1\n0", "2\n0", f"3\n{s['analysis_natural_freq_hz'][2]:.4g}"]
 
 

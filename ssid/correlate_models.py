@@ -324,7 +324,8 @@ def correlate_with_frf(
     if found.lines.size == 0:
         warnings.append("no CMIF peak in the measured FRFs: no test modes to correlate")
     for f_hz, c, ratio in found.weak:
-        warnings.append(f"CMIF curve {c + 1} also peaks at {f_hz:.4g} Hz, at {20 * np.log10(max(ratio, 1e-300)):.0f} dB "
+        db = 20 * np.log10(max(ratio, 1e-300))
+        warnings.append(f"CMIF curve {c + 1} also peaks at {f_hz:.4g} Hz, at {db:.0f} dB "
                         f"below curve 1: perhaps a second mode at that frequency, driven weakly; not taken (a "
                         f"mode needs {20 * np.log10(CMIF_REPEATED_MIN_RATIO):.0f} dB or more)")
     f_test = np.array([refine_peak_frequencies(test.freq_hz, sv_test[:, c], [k])[0]

@@ -159,8 +159,10 @@ def _mass_checks(phi_test: np.ndarray, phi_an: np.ndarray, M_tam: np.ndarray, or
     out_t = np.flatnonzero(~in_t)
     out_a = sorted({p.analysis for p in pairs if not in_a[p.analysis]})
     if out_t.size or out_a:
-        names = [f"test mode{'s' if out_t.size > 1 else ''} {', '.join(str(k + 1) for k in out_t)}"] if out_t.size else []
-        names += [f"paired analysis mode{'s' if len(out_a) > 1 else ''} {', '.join(str(k + 1) for k in out_a)}"] if out_a else []
+        names = ([f"test mode{'s' if out_t.size > 1 else ''} {', '.join(str(k + 1) for k in out_t)}"]
+                 if out_t.size else [])
+        names += ([f"paired analysis mode{'s' if len(out_a) > 1 else ''} {', '.join(str(k + 1) for k in out_a)}"]
+                  if out_a else [])
         warnings.append(f"the TAM mass has rank {rank} of {n_dof} (a SEREP TAM of fewer target modes than DOFs, or a "
                         "massless retained DOF?): "
                         f"{' and '.join(names)} lie mostly outside its range (less than "

@@ -68,9 +68,9 @@ def require_observable(phi: np.ndarray, mode_names: list | None = None,
         raise InputError(
             f"target mode{'s' if len(which) > 1 else ''} {', '.join(which)} "
             f"vanish{'es' if len(which) == 1 else ''} at every candidate DOF: no sensor there "
-            f"observes {'it' if len(which) == 1 else 'them'}, the Fisher information F = Phi^T Phi is singular and Effective "
-            "Independence has no meaning; choose candidates that move in those modes, or other "
-            "targets")
+            f"observes {'it' if len(which) == 1 else 'them'}, the Fisher information F = Phi^T Phi is "
+            "singular and Effective Independence has no meaning; choose candidates that move in those "
+            "modes, or other targets")
     sv = np.linalg.svd(phi / norms, compute_uv=False)
     rank = int(np.count_nonzero(sv > SINGULAR_SHAPES_RTOL * sv[0]))
     if rank < n_modes:

@@ -8,8 +8,9 @@ of ``A`` is compared with the same output / input FRF of ``B`` over the lines bo
 the gain ``rho`` in ``H_A ~ rho H_B``, FRAC, and what the gain leaves in units of the stated
 noise. The interface reactions (load cells) both files hold are compared alike. An FRF whose
 gain is off 1 beyond the calibration tolerance and its noise, or whose shape differs beyond
-the noise, is listed; outputs, inputs or reactions only one file holds are named in a warning. Exit 0 when the comparison was made (whatever it
-found; the JSON's ``agree`` says), 2 on bad input.
+the noise, is listed; outputs, inputs or reactions only one file holds are named in a warning.
+Exit 0 when the comparison was made (whatever it found; the JSON's ``agree`` says), 2 on bad
+input.
 """
 
 from __future__ import annotations

@@ -274,7 +274,8 @@ def pair_table(summary: dict) -> str:
                 lines.append(f"{p['test_mode']:>4} {f_test:>12}  {p['reason']}")
                 continue
             err = "-" if negative else _error(p, 1)
-            lines.append(f"{p['test_mode']:>4} {f_test:>12} {p['analysis_mode']:>4} {_fixed(p['analysis_freq_hz'], 4):>12} "
+            f_an = _fixed(p['analysis_freq_hz'], 4)
+            lines.append(f"{p['test_mode']:>4} {f_test:>12} {p['analysis_mode']:>4} {f_an:>12} "
                          f"{err:>9} {p['mac']:>6.3f}  {p['reason']}")
     xo = summary["cross_orthogonality"]
     if xo["min_abs_diag"] is None:  # nothing paired: no numbers to show, only the verdict

@@ -87,3 +87,23 @@ def test_two_lines_of_one_function_are_never_merged(tmp_path):
     assert found == [] and back.n_freq == 4
     np.testing.assert_array_equal(back.freq_hz, freq)
     np.testing.assert_array_equal(back.valid[:, 1, 0], [True, True, False, True])
+
+
+def test_interleaved_grids_one_unit_of_the_sixth_digit_apart_stay_two_grids(tmp_path):
+    """Two FRFs on dense interleaved grids, 1000.00 + 0.02 k and 1000.01 + 0.02 k Hz, both
+    uneven ASCII (E13.5: 0.01 Hz is one unit of the 6th digit there). Merged as one grid they
+    were 50 lines, each value of the second FRF put on the first's line 0.01 Hz away, with no
+    warning (QA). They are 100 distinct lines, each FRF blanked on the other's."""
+    fa = 1000.0 + 0.02 * np.arange(50)
+    fb = fa + 0.01
+    a, b = chain_on(fa), chain_on(fb)
+    da = [d for d in frf_datasets("x", a) if d["type"] in (58, 164)]
+    db = [d for d in frf_datasets("x", b) if d["type"] == 58]
+    path = tmp_path / "interleaved.uff"
+    write_datasets(path, [da[0], da[1], db[1]])  # the 164, H(1+Z) on grid a, H(2+Z) on grid b
+    back, _ = read(path)
+    assert back.n_freq == 100
+    np.testing.assert_allclose(back.freq_hz, np.sort(np.r_[fa, fb]), atol=5e-3)
+    i, j = back.outputs.index(a.outputs[0]), back.outputs.index(b.outputs[1])
+    np.testing.assert_allclose(back.H[::2, i, 0], a.H[:, 0, 0], rtol=1e-10)
+    np.testing.assert_allclose(back.H[1::2, j, 0], b.H[:, 1, 0], rtol=1e-10)

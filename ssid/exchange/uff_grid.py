@@ -40,6 +40,12 @@ __all__ = ["abscissa_tolerance", "frequency_grid"]
 # computed as min + k * inc by different readers).
 _FLOAT64_RTOL = 1e-12
 _FLOAT32_RTOL = 2.0**-24
+# Two values exactly the sum of their bounds apart are two lines: adjacent E13.5 values (one
+# unit of the 6th digit, 1000.01 and 1000.02 Hz) are that far apart, and a frequency written
+# twice in E13.5 is written alike. Merged, interleaved grids 0.01 Hz apart at 1 kHz lost half
+# their lines, each function's values put on the other's (QA). (1e-6: float64 round-off of the
+# difference.)
+_EDGE = 1.0 - 1e-6
 # Single-precision binary data types (real, complex); 4 and 6 are double precision.
 _SINGLE = (2, 5)
 
@@ -88,7 +94,7 @@ def frequency_grid(src: str, functions: list[Any]) -> tuple[np.ndarray, list[np.
 
     Notes
     -----
-    Values of different functions are one line when they differ by no more than the sum of
+    Values of different functions are one line when they differ by less than the sum of
     their bounds; two values of one function never are (each is a line of its own). A line
     missing from a function on an even grid within its range means that the grids differ
     (an even grid cannot leave a line out, an uneven one leaves out its blanked values), and
@@ -105,7 +111,7 @@ def frequency_grid(src: str, functions: list[Any]) -> tuple[np.ndarray, list[np.
     for i in order:
         # The current line takes the value if it is within both bounds of the line's most
         # precise value and its function has no value on that line yet.
-        if values and owner[i] not in members and x[i] - values[-1] <= tol[i] + best_tol[-1]:
+        if values and owner[i] not in members and x[i] - values[-1] < (tol[i] + best_tol[-1]) * _EDGE:
             if tol[i] < best_tol[-1]:
                 values[-1], best_tol[-1] = float(x[i]), float(tol[i])
         else:

@@ -178,15 +178,10 @@ def cluster_repeated(roots: list[BandRoot], tol: float, line_freq_hz: np.ndarray
     alive = sorted((r for r in roots if not r.rejected), key=lambda r: r.freq_hz)
     f = np.array([r.freq_hz for r in alive])
     z = np.array([max(abs(r.zeta), 1e-12) for r in alive])
-    band = np.array([r.band for r in alive])
     t = repeat_tolerance_hz(f, z, distance_to_nearest_line(line_freq_hz, f), tol)
 
     def close(i: int, j: int) -> bool:
-        if band[i] == band[j] or abs(f[i] - f[j]) > max(t[i], t[j]):
-            return False
-        if not (alive[i].phase_seen or alive[j].phase_seen):
-            return True
-        return alive[i].zeta > 0 and alive[j].zeta > 0 and 0.5 <= z[i] / z[j] <= 2.0
+        return _alike(alive[i], alive[j], t[i], t[j])
 
     pairs = sorted((abs(f[i] - f[j]) / max(t[i], t[j]), i, j)
                    for i in range(len(alive)) for j in range(i + 1, len(alive)) if close(i, j))
@@ -246,18 +241,25 @@ def reject_edge_cut_only(roots: list[BandRoot]) -> None:
                 r.rejected, r.cluster = "not repeated", -1
 
 
-def _repeats(a: BandRoot, b: BandRoot, tol: float, line_freq_hz: np.ndarray) -> bool:
-    """Whether two roots of different bands may be one mode by criterion 4's test
-    (:func:`cluster_repeated`): frequencies within :func:`repeat_tolerance_hz` of the wider,
-    damping within a factor 2, positive both, unless neither root's phase is seen."""
-    f = np.array([a.freq_hz, b.freq_hz])
-    z = np.array([max(abs(a.zeta), 1e-12), max(abs(b.zeta), 1e-12)])
-    t = repeat_tolerance_hz(f, z, distance_to_nearest_line(line_freq_hz, f), tol)
-    if a.band == b.band or abs(f[0] - f[1]) > max(t):
+def _alike(a: BandRoot, b: BandRoot, t_a: float, t_b: float) -> bool:
+    """Criterion 4's test of two roots, each with its tolerance (Hz, :func:`repeat_tolerance_hz`):
+    different bands, frequencies within the wider tolerance, damping within a factor 2 and
+    positive both, unless neither root's phase is seen (:func:`cluster_repeated`)."""
+    if a.band == b.band or abs(a.freq_hz - b.freq_hz) > max(t_a, t_b):
         return False
     if not (a.phase_seen or b.phase_seen):
         return True
-    return a.zeta > 0 and b.zeta > 0 and 0.5 <= z[0] / z[1] <= 2.0
+    za, zb = max(abs(a.zeta), 1e-12), max(abs(b.zeta), 1e-12)
+    return a.zeta > 0 and b.zeta > 0 and 0.5 <= za / zb <= 2.0
+
+
+def _repeats(a: BandRoot, b: BandRoot, tol: float, line_freq_hz: np.ndarray) -> bool:
+    """Whether two roots of different bands may be one mode by criterion 4's test
+    (:func:`_alike`, with their tolerances)."""
+    f = np.array([a.freq_hz, b.freq_hz])
+    z = np.array([max(abs(a.zeta), 1e-12), max(abs(b.zeta), 1e-12)])
+    t = repeat_tolerance_hz(f, z, distance_to_nearest_line(line_freq_hz, f), tol)
+    return _alike(a, b, float(t[0]), float(t[1]))
 
 
 def reject_top_nested_only(roots: list[BandRoot], layout_hz, high_band: int, tol: float,

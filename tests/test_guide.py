@@ -48,7 +48,7 @@ def test_guide_commands_run_as_written(tmp_path):
     assert disc["gap_after"] < 0.01 * disc["gap_before"]
     # With the mass added the model reproduces the measured FRFs as well as the simulated
     # truth does: its gap is the RMS of the measurement's errors against the truth in units
-    # of their stated standard deviations (0.83), which is near 1 (the stated uncertainty is
+    # of their stated standard deviations (1.00), which is near 1 (the stated uncertainty is
     # calibrated), and the one effect closes the gap: what a second search finds beyond it
     # (before the floor, a 1e-7 kg oscillator) changes no model FRF value by 0.1 %.
     setup_path = tmp_path / "examples" / "setup_sim.toml"

@@ -249,6 +249,18 @@ def reap(proc) -> None:
     proc.stderr.close()
 
 
+def read_uff_with_warnings(path) -> tuple[FRFData, list[str]]:
+    """A UFF file read as an FRF (``ssid.exchange.read_uff_frf``) and the warnings it gave."""
+    import warnings
+
+    from ssid.exchange import read_uff_frf
+
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        frf = read_uff_frf(path)
+    return frf, [str(w.message) for w in record]
+
+
 def one_error_line(err: str, command: str) -> str:
     """The one line ``ssidlab <command>: error: ...`` that a refusal writes to stderr."""
     lines = err.strip().splitlines()

@@ -3,13 +3,11 @@ per pair or per output (ssid.exchange.uff_coherence; rules in docs/exchange.md).
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pytest
 from conftest import chain_frf
+from conftest import read_uff_with_warnings as read
 
-from ssid.exchange import read_uff_frf
 from ssid.exchange._uffio import write_datasets
 from ssid.exchange.uff import frf_datasets
 
@@ -48,13 +46,6 @@ def _with_coherence(frf):
     out = chain_frf(n_freq=frf.n_freq)
     out.coherence = np.ones(out.H.shape)
     return out
-
-
-def read(path):
-    with warnings.catch_warnings(record=True) as record:
-        warnings.simplefilter("always")
-        frf = read_uff_frf(path)
-    return frf, [str(w.message) for w in record]
 
 
 NODES = [(1, 3), (2, 3), (3, 3)]  # chain_frf: outputs 1+Z, 2+Z, 3+Z; inputs 1+Z, 3+Z

@@ -4,13 +4,11 @@ docs/exchange.md "Frequency grid")."""
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pytest
 from conftest import chain_model
+from conftest import read_uff_with_warnings as read
 
-from ssid.exchange import read_uff_frf
 from ssid.exchange._uffio import write_datasets
 from ssid.exchange.uff import frf_datasets
 from ssid.frf import accelerance_from_model
@@ -32,13 +30,6 @@ def write(path, frf, even, binary=False):
         functions[k]["abscissa_spacing"] = 1
     write_datasets(path, datasets)
     return path
-
-
-def read(path):
-    with warnings.catch_warnings(record=True) as record:
-        warnings.simplefilter("always")
-        frf = read_uff_frf(path)
-    return frf, [str(w.message) for w in record]
 
 
 @pytest.mark.parametrize("binary", [False, True])

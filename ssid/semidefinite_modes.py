@@ -15,7 +15,7 @@ import scipy.linalg as sla
 
 from .model_checks import MassNotPositiveDefinite, model_matrices
 
-__all__ = ["MASSLESS_RTOL", "normal_modes_semidefinite"]
+__all__ = ["MASSLESS_RTOL", "largest_entry_positive", "normal_modes_semidefinite"]
 
 #: An eigenvalue of M at most this fraction of its largest is no mass: eigvalsh gives M's
 #: eigenvalues to about n eps of the largest (1e-13 at 500 DOFs), a zero mass as round-off of
@@ -67,7 +67,7 @@ def normal_modes_semidefinite(M: np.ndarray, K: np.ndarray) -> tuple[np.ndarray,
     tol = MASSLESS_RTOL * max(float(np.max(np.abs(mu))), 0.0)
     if mu[0] > tol:
         try:
-            return _sign_fixed(*sla.eigh(K, M))
+            return largest_entry_positive(*sla.eigh(K, M))
         except np.linalg.LinAlgError:
             pass
     if not np.any(mu > tol):
@@ -78,7 +78,7 @@ def normal_modes_semidefinite(M: np.ndarray, K: np.ndarray) -> tuple[np.ndarray,
     R, N = V[:, mu > tol], V[:, mu <= tol]
     if not N.shape[1]:  # (a Cholesky factor failed on an M above the bar: in M's own basis)
         lam, psi = sla.eigh(R.T @ K @ R, np.diag(mu))
-        return _sign_fixed(lam, R @ psi)
+        return largest_entry_positive(lam, R @ psi)
     Knn = N.T @ K @ N
     if np.linalg.cond(Knn) > _COND_MAX:
         raise MassNotPositiveDefinite(
@@ -87,11 +87,12 @@ def normal_modes_semidefinite(M: np.ndarray, K: np.ndarray) -> tuple[np.ndarray,
     T = R - N @ sla.solve(Knn, N.T @ K @ R, assume_a="sym")
     Kr, Mr = T.T @ K @ T, T.T @ M @ T
     lam, psi = sla.eigh((Kr + Kr.T) / 2, (Mr + Mr.T) / 2)
-    return _sign_fixed(lam, T @ psi)
+    return largest_entry_positive(lam, T @ psi)
 
 
-def _sign_fixed(lam: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each mode with its largest-magnitude entry positive (as :func:`ssid.tam.normal_modes`)."""
+def largest_entry_positive(lam: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each mode with its largest-magnitude entry positive, so that the sign of a mode does
+    not flip between runs (:func:`ssid.tam.normal_modes` too)."""
     big = np.argmax(np.abs(phi), axis=0)
     return lam, phi * np.sign(phi[big, np.arange(phi.shape[1])])
 

@@ -41,7 +41,7 @@ from .model_checks import (
     require_elastic_modes,
     require_stable_stiffness,
 )
-from .semidefinite_modes import normal_modes_semidefinite
+from .semidefinite_modes import largest_entry_positive, normal_modes_semidefinite
 
 __all__ = ["RIGID_ROUNDOFF_RTOL", "TAM_METHODS", "MassNotPositiveDefinite", "ReducedModel", "dof_indices",
            "guyan_reduce", "guyan_transform", "hybrid_tam", "hybrid_transform", "irs_reduce",
@@ -106,9 +106,7 @@ def normal_modes(M: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                                       "or zero mass, or massless DOFs to reduce out first)") from None
     except ValueError as exc:  # scipy's: NaN or Inf, not square, sizes that differ
         raise InputError(f"no normal modes of these M, K: {exc}") from None
-    big = np.argmax(np.abs(phi), axis=0)
-    phi = phi * np.sign(phi[big, np.arange(phi.shape[1])])
-    return lam, phi
+    return largest_entry_positive(lam, phi)
 
 
 def natural_frequencies_hz(M: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ from .correlate import (
     normalize_modal_mass,
     real_mode_from_complex,
 )
+from .correlate_scope import share_in_range
 from .model_checks import RIGID_ROUNDOFF_RTOL
 
 __all__ = ["REPEATED_FREQ_RTOL", "Subspace", "compare_subspaces", "frequency_groups", "procrustes_rotation"]
@@ -280,10 +281,9 @@ def _has_motion(phi: np.ndarray) -> bool:
 
 
 def _captured(pt: np.ndarray, pa: np.ndarray) -> np.ndarray:
-    """Share of each column of ``pa`` inside the span of ``pt`` (its MAC with its projection)."""
-    q, _ = np.linalg.qr(pt)
-    size = np.sum(pa**2, axis=0)
-    return np.sum((q.T @ pa) ** 2, axis=0) / np.where(size > 0, size, 1.0)
+    """Share of each column of ``pa`` inside the span of ``pt`` (its MAC with its projection;
+    0 for a zero column)."""
+    return np.where(np.any(pa != 0, axis=0), share_in_range(pa, np.linalg.qr(pt)[0]), 0.0)
 
 
 def _weight(M_tam: np.ndarray) -> tuple[np.ndarray, str]:

@@ -312,7 +312,8 @@ def compare_frfs(a: FRFData, b: FRFData) -> FRFComparison:
                                    None if a.H_var is None else a.H_var[ka, ia, ja],
                                    None if b.H_var is None else b.H_var[kb, ib, jb]))
         curves.append(row)
-    reactions = [r for r in _reaction_labels(a) if r in _reaction_labels(b)]
+    in_b = set(_reaction_labels(b))
+    reactions = [r for r in _reaction_labels(a) if r in in_b]
     # A reaction's line counts where any accelerance of that line and input is valid.
     line_a, line_b = va[ka].any(axis=1), vb[kb].any(axis=1)  # (n_common, n_in)
     reaction_curves: list[list[CurveComparison | None]] = []

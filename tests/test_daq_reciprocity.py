@@ -40,14 +40,16 @@ def test_a_force_gauge_off_its_calibration_breaks_reciprocity_by_its_factor(tmp_
         assert out[-1].endswith("; 1 pair of driven DOFs NOT reciprocal)"), out[-1]
 
 
-def test_a_noise_free_run_is_reciprocal_although_its_stated_noise_is_below_its_errors(tmp_path, capsys):
+def test_a_noise_free_run_is_reciprocal_and_its_stated_noise_covers_its_errors(tmp_path, capsys):
     """The example payload on its stand, two shakers, 12 coarse lines, sensor noise off. The
-    stated noise is then the settling transient alone: at 462-1500 Hz about 1e-6 of the FRF,
-    while the simulation's H(11,16) and H(16,11) differ by 1e-5 there, so the residual after
-    the gain was 3.4 times the stated noise and the run called itself NOT RECIPROCAL with a
-    gain of 1.0000 and FRAC 1.0000. A shape difference must also exceed
-    ``SHAPE_TOLERANCE`` (1e-3 of the FRF) to count; this one is 1e-5."""
-    from ssid.frf_compare import SHAPE_TOLERANCE
+    stated noise is then the settling transient alone, while the simulation's H(11,16) and
+    H(16,11) differ by 1e-5 of the FRF at 462-1500 Hz. The residual after the gain was 3.4
+    times the stated noise, and the run called itself NOT RECIPROCAL with a gain of 1.0000
+    and FRAC 1.0000: a shape difference must also exceed ``SHAPE_TOLERANCE`` (1e-3 of the
+    FRF) to count. Since the settling reads the decay each channel shows, not only the
+    norm's, the transient's stated share covers it (residual 1.6 times the stated noise;
+    the QA's payload run at 60-1500 Hz without noise: z 99th percentile 7.7 -> 2.4)."""
+    from ssid.frf_compare import SHAPE_NOISE_RATIO, SHAPE_TOLERANCE
 
     text = (Path(__file__).resolve().parents[1] / "examples" / "setup_sim.toml").read_text()
     for old, new in (("noise = true", "noise = false"), ("n_lines = 40 ", "n_lines = 12 "),
@@ -59,7 +61,7 @@ def test_a_noise_free_run_is_reciprocal_although_its_stated_noise_is_below_its_e
                      "--json", str(tmp_path / "sum.json"), "--quiet"])
     assert status == 0
     (pair,) = json.loads((tmp_path / "sum.json").read_text())["reciprocity"]
-    assert pair["residual_ratio"] > 3 and pair["relative_residual"] < SHAPE_TOLERANCE / 10, pair
+    assert pair["residual_ratio"] < SHAPE_NOISE_RATIO and pair["relative_residual"] < SHAPE_TOLERANCE / 10, pair
     assert pair["reciprocal"] and abs(pair["gain_abs"] - 1) < 1e-4, pair
     assert "NOT reciprocal" not in capsys.readouterr().out
 

@@ -40,8 +40,8 @@ from drivers.errors import (
 
 from .setup import Limits
 
-__all__ = ["MAX_OVER_RANGE_IN_ROW", "NOT_THE_SAME_INSTRUMENTS", "LineAborted", "LineOverRange", "RunStopped",
-           "check_limits", "describe_fault", "drive_headroom_vpp", "limit_usage", "over_range_in_row",
+__all__ = ["MAX_OVER_RANGE_IN_ROW", "NOT_THE_SAME_INSTRUMENTS", "RANDOM_LIMIT_STOP", "LineAborted", "LineOverRange",
+           "RunStopped", "check_limits", "describe_fault", "drive_headroom_vpp", "limit_usage", "over_range_in_row",
            "resume_remedy"]
 
 
@@ -107,6 +107,9 @@ _FAULT_WORDS = (
 )
 #: How a resume that met other instruments than the run's last session stops.
 NOT_THE_SAME_INSTRUMENTS = "not the instruments of the run's last session"
+#: How a random run's stop by a limit begins: its drive is fixed for the run, so a resume
+#: drives as hard and meets the limit again.
+RANDOM_LIMIT_STOP = "limit exceeded during random excitation"
 #: What a run's state says when an instrument did not confirm the safe state (at a pause or
 #: at the run's end): the UI and the remedy read it from the run file.
 SAFE_STATE_NOT_CONFIRMED = "safe state not confirmed"
@@ -136,7 +139,10 @@ def resume_remedy(state: str | None, sim: bool) -> str | None:
     amplifier tripped (interlock, fault, heartbeat), and its latched fault refuses the next
     enable until it is reset once the cause is gone (``ssidlab check --reset-faults``);
     ``"new_instruments"``: other instruments answered than in the run's last session (fix
-    the addresses, or resume with ``--new-instruments`` if one was replaced). None after any
+    the addresses, or resume with ``--new-instruments`` if one was replaced); ``"new_run"``:
+    a limit stopped a random run, whose drive a resume may not change (``daq.resume``): at
+    the same drive the next average exceeds it again, and only a new run, at a lower
+    ``drive_vpp`` or under limits the test allows, gets further. None after any
     other stop, and when the safe state was not confirmed: the instruments come first then.
     On a simulated lab (``sim``), neither addresses nor latches outlive the run: a resume
     starts the lab afresh.
@@ -155,6 +161,8 @@ def resume_remedy(state: str | None, sim: bool) -> str | None:
         return "reset_faults"
     if fault.startswith(NOT_THE_SAME_INSTRUMENTS):
         return "new_instruments"
+    if fault.startswith(RANDOM_LIMIT_STOP):
+        return "new_run"
     return None
 
 

@@ -149,10 +149,17 @@ def _say_how_to_continue(run_path: Path, sim: bool, setup_arg: str | None = None
         return {"state": state, "file": str(run_path), "n_records": n, "remedy": None, "continue_with": cmd}
     kept = (f"{n} measurement records are kept in {run_path}" if n
             else f"nothing was measured yet; the setup is kept in {run_path}")
-    print(f"ssidlab acquire: {kept}; continue with: {cmd}", file=sys.stderr, flush=True)
     setup = shlex.quote(setup_arg) if setup_arg else "SETUP.toml"
-    with_setup = f"continue with it: ssidlab acquire --resume {run_q} {setup}{sim_flag}"
     remedy = resume_remedy(state, sim)
+    if remedy == "new_run":
+        # The drive of a random run is fixed (a resume may not change it): resumed, the next
+        # average would drive as hard and stop at the same limit.
+        print(f"ssidlab acquire: {kept}; a resume would drive as hard and exceed the limit again: lower "
+              f"drive_vpp in [random] (or set limits the test allows) and start a new run: ssidlab acquire "
+              f"{setup} --out NEW_RUN.h5{sim_flag}", file=sys.stderr, flush=True)
+        return {"state": state, "file": str(run_path), "n_records": n, "remedy": remedy, "continue_with": None}
+    print(f"ssidlab acquire: {kept}; continue with: {cmd}", file=sys.stderr, flush=True)
+    with_setup = f"continue with it: ssidlab acquire --resume {run_q} {setup}{sim_flag}"
     if remedy == "range_volt":
         print(f"ssidlab acquire: if a DAQ input range is too small for the level, raise that channel's "
               f"range_volt in the setup and {with_setup}", file=sys.stderr, flush=True)

@@ -9,7 +9,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from test_daq_helpers import all_safe, ctrl_c_at_line, frf_error, random_setup, run_on_sim
+from test_daq_helpers import all_safe, cli, ctrl_c_at_line, frf_error, random_setup, run_on_sim
 
 from daq.run import run_test
 from daq.setup import parse_setup
@@ -199,3 +199,53 @@ def test_multi_input_random_blanks_values_its_variance_says_are_poor(tmp_path):
     rel = np.abs(H1 - ref.H) / np.abs(ref.H)
     assert by_quality.sum() >= 1 and np.median(rel[by_quality]) > 0.2, rel[by_quality]
     assert np.median(rel[kept]) < 0.05  # the values kept are as good as before
+
+
+def test_a_limit_under_random_drive_is_checked_every_tenth_of_a_second(tmp_path, monkeypatch):
+    """Continuous random, 8192-sample blocks (2 s at 4096 S/s), two settling blocks, an
+    acceleration limit the drive exceeds within a tenth of a second. The settling record was
+    read whole and checked after it: 4 s of drive, 3.9 s of it over the limit at up to 1.8
+    times it. Read in pieces of ``LIMIT_CHECK_S``, the drive goes off within one piece."""
+    import daq.rig as rigmod
+    from daq.random_run import LIMIT_CHECK_S
+    from daq.safety import RunStopped
+
+    limit = 8.0
+    scans = []
+    acquire = rigmod.InstrumentRig.acquire
+
+    def recorded(self, n):
+        data = acquire(self, n)
+        acc = [i for i, c in enumerate(self.setup.channels) if c.quantity == "acceleration"]
+        scans.append(np.max(np.abs(data[acc]), axis=0))
+        return data
+
+    monkeypatch.setattr(rigmod.InstrumentRig, "acquire", recorded)
+    text = random_setup(kind="random", two=False, block=8192, settle=2, averages=4).replace(
+        "drive_vpp = 0.5", "drive_vpp = 2.0") + f"[limits]\nmax_accel_m_per_s2 = {limit}\n"
+    with pytest.raises(RunStopped, match="limit exceeded during random excitation"):
+        run_on_sim(parse_setup(text, str(tmp_path / "s.toml")), tmp_path / "run.h5")
+    acc = np.concatenate(scans)
+    first_over = int(np.flatnonzero(acc > limit)[0])
+    assert first_over < 4096  # the limit is met within the first second: the case is the one above
+    assert acc.size - first_over <= LIMIT_CHECK_S * 4096
+
+
+def test_a_random_run_a_limit_stopped_is_not_offered_a_resume(tmp_path, capsys):
+    """A resume may not change a random run's drive (``daq.resume``), so at the same drive the
+    next average exceeds the limit again: the command said "continue with: ssidlab acquire
+    --resume", which stopped at the same limit, every time. It now says to lower the drive
+    and start a new run, and a controlling program reads no command to continue with."""
+    import json
+
+    text = random_setup(kind="random", two=False, block=2048, settle=1, averages=4).replace(
+        "drive_vpp = 0.5", "drive_vpp = 2.0") + "[limits]\nmax_accel_m_per_s2 = 8.0\n"
+    (tmp_path / "s.toml").write_text(text)
+    run, summary = tmp_path / "run.h5", tmp_path / "stop.json"
+    assert cli([str(tmp_path / "s.toml"), "--sim", "--out", str(run), "--json", str(summary)])[0] == 3
+    stop = json.loads(summary.read_text())
+    assert stop["state"].startswith("stopped: limit exceeded during random excitation"), stop
+    assert stop["remedy"] == "new_run" and stop["continue_with"] is None, stop
+    err = capsys.readouterr().err
+    assert "--resume" not in err, err
+    assert "lower drive_vpp in [random]" in err and "start a new run: ssidlab acquire" in err, err

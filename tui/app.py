@@ -415,6 +415,9 @@ class LabApp(SetupTabActions, ChannelListActions, App):
                 how += " (an amplifier's trip is latched: once its cause is gone, Ctrl+F resets it first)"
             elif remedy == "new_instruments":
                 how += " after checking the addresses; Ctrl+R resumes with the instruments that answer now (replaced)"
+            elif remedy == "new_run":
+                how = ("a resume would drive as hard and exceed the limit again: lower drive_vpp in [random] "
+                       "(or set limits the test allows) and start a new run, with another run file")
             self.query_one(ResultsPane).status(f"no results: {text}" + (f"; {how}" if resumable else ""))
             if resumable:
                 self._status(f"{text} - {how}")

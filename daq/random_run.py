@@ -74,6 +74,18 @@ def _sums_group(n_avg: int) -> str:
     return f"random_{n_avg % 2}"
 
 
+#: What the spectral sums in the run file are: read as a force PSD in N^2/Hz, Gxx would be off
+#: by the window's noise bandwidth and the number of averages.
+_SPECTRUM = ("X = rfft(w x) / sum(w) per block (w the window), an amplitude-normalised linear spectrum "
+             "of the channels as read (an AC/IEPE input's high-pass not divided out) in their SI units "
+             "(N, m/s^2), not a density; summed, not averaged, over n_avg blocks")
+SUMS_DESCRIPTION = {
+    "Gxx": f"sum of F F^H over the blocks, (n_bins, n_in, n_in), F the force channels' spectra; {_SPECTRUM}",
+    "Gyx": f"sum of Y F^H over the blocks, (n_bins, n_y, n_in), Y the responses then reactions; {_SPECTRUM}",
+    "Gyy": f"sum of |Y|^2 over the blocks, (n_bins, n_y); {_SPECTRUM}",
+}
+
+
 def _bin_mask(setup: TestSetup) -> np.ndarray:
     r = setup.random
     f = np.fft.rfftfreq(r.block_size, 1.0 / setup.daq.sample_rate_hz)
@@ -212,7 +224,7 @@ class RandomRun:
         d = self.result()
         self.rf.write_arrays(_sums_group(self.S.n_avg), {"Gxx": self.S.Gxx, "Gyx": self.S.Gyx, "Gyy": self.S.Gyy,
                                         "n_avg": np.int64(self.S.n_avg), "test_time_s": self.test_time_s,
-                                        "unsettled_averages": np.int64(self.unsettled)})
+                                        "unsettled_averages": np.int64(self.unsettled)}, SUMS_DESCRIPTION)
         self.rf.write_view(d["H"], d["var"], d["coherence"], d["valid"], d.get("Hr"), d.get("Hr_var"),
                            n_avg=self.S.n_avg)
         self.rf.commit(self.S.n_avg)

@@ -61,6 +61,7 @@ from daq.run_file_replace import (  # noqa: F401
     _temp_name,
 )
 from ssid.errors import InputError
+from ssid.io import label_frf_units
 
 __all__ = ["RunFile", "STATUS_ABORTED", "STATUS_OK", "SINE_FIELDS", "peek_run_file"]
 
@@ -168,6 +169,7 @@ class RunFile(ReplacedByCopy):
                     shape = (0, nch) if per_ch else (0,)
                     index_chunks(rec.create_dataset(name, shape=shape, maxshape=(None,) + shape[1:],
                                                     chunks=(RECORD_CHUNK_ROWS,) + shape[1:], dtype=dt))
+            label_frf_units(f)
             if raw_time:
                 create_raw(acq, nch, raw_rows_expected)
             # HDF5 gives a dataset of fill values its space at the first write: written
@@ -375,9 +377,11 @@ class RunFile(ReplacedByCopy):
                 f["H_reaction_var"][k] = np.where(np.isfinite(H_reaction_var), H_reaction_var, 0.0)
         f["valid"][k] = valid
 
-    def write_arrays(self, group: str, arrays: dict[str, np.ndarray]) -> None:
+    def write_arrays(self, group: str, arrays: dict[str, np.ndarray],
+                     descriptions: dict[str, str] | None = None) -> None:
         """Fixed-shape arrays under ``/acq/<group>``: overwritten in place where they exist with
-        their shape, else created in an edited copy (:meth:`_edit_in_copy`)."""
+        their shape, else created in an edited copy (:meth:`_edit_in_copy`), with the
+        ``description`` attribute given for each in ``descriptions``."""
         g = self.acq.get(group)
         if isinstance(g, h5py.Group) and all(name in g and g[name].shape == np.shape(a) for name, a in arrays.items()):
             for name, a in arrays.items():
@@ -390,6 +394,8 @@ class RunFile(ReplacedByCopy):
                 if name in h:
                     del h[name]
                 h.create_dataset(name, data=a)
+                if descriptions and name in descriptions:
+                    h[name].attrs["description"] = descriptions[name]
 
         self._edit_in_copy(edit)
 

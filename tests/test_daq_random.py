@@ -105,6 +105,13 @@ def test_continuous_random_welch_and_resume(tmp_path):
     assert np.all(np.isnan(frf.H[~frf.valid_mask()]))
     err = frf_error(frf, build_world(setup))
     assert np.nanmedian(err) < 0.1
+    # What the file holds says its units and scaling, read without the contract at hand: the
+    # sums read as a force PSD would be off by the window's bandwidth and the count.
+    with h5py.File(tmp_path / "run.h5") as f:
+        assert f["H"].attrs["units"] == "(m/s^2)/N" and f["H_var"].attrs["units"] == "((m/s^2)/N)^2"
+        assert f["freq_hz"].attrs["units"] == "Hz"
+        sums = f[f"acq/random_{summary['n_avg'] % 2}"]
+        assert "not a density; summed, not averaged" in sums["Gxx"].attrs["description"]
 
 
 def test_burst_random_is_analysed_in_steady_state(tmp_path):

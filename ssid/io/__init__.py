@@ -13,10 +13,12 @@ DOF labels are treated as opaque strings: they are compared, never parsed.
 from ._common import (
     COHERENCE_SLACK,
     FORMAT_VERSION,
+    FRF_DATASET_UNITS,
     FRF_FORMAT,
     MODEL_FORMAT,
     QUANTITY,
     SYMMETRY_RTOL,
+    label_frf_units,
     read_format,
 )
 from .frf_file import read_frf, read_measured_frf, validate_frf, write_frf
@@ -24,6 +26,7 @@ from .model_file import Model, read_model, validate_model, write_model
 
 __all__ = [
     "FRF_FORMAT",
+    "FRF_DATASET_UNITS",
     "MODEL_FORMAT",
     "FORMAT_VERSION",
     "QUANTITY",
@@ -38,4 +41,5 @@ __all__ = [
     "write_model",
     "validate_model",
     "read_format",
+    "label_frf_units",
 ]

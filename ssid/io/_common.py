@@ -21,6 +21,18 @@ FRF_FORMAT = "ssidlab-frf"
 MODEL_FORMAT = "ssidlab-model"
 FORMAT_VERSION = 1
 QUANTITY = "accelerance"
+#: The SI units of the FRF file's datasets (contract), written as each dataset's ``units``
+#: attribute so that a file read without the contract at hand says what it holds; H_var is
+#: E|H - H_true|^2 (complex), so it carries H's units squared.
+FRF_DATASET_UNITS = {"freq_hz": "Hz", "H": "(m/s^2)/N", "H_var": "((m/s^2)/N)^2", "coherence": "1",
+                     "H_reaction": "N/N", "H_reaction_var": "(N/N)^2"}
+
+
+def label_frf_units(f: h5py.File) -> None:
+    """Set the ``units`` attribute of each FRF dataset present in ``f`` (:data:`FRF_DATASET_UNITS`)."""
+    for name, units in FRF_DATASET_UNITS.items():
+        if name in f:
+            f[name].attrs["units"] = units
 
 # M and K come from FE codes or from our own identification; both are symmetric up to
 # round-off, so anything beyond this relative level is a wrong file, not numerics. Round-off

@@ -36,6 +36,7 @@ from ._common import (
     _require_subset,
     _write_extra_attrs,
     _write_labels,
+    label_frf_units,
 )
 
 # ----------------------------------------------------------------------------------------------
@@ -146,6 +147,7 @@ def write_frf(path: PathLike, frf: FRFData) -> None:
                 f.create_dataset(name, data=value)
         if data.reactions is not None:
             _write_labels(f, "reactions", data.reactions)
+        label_frf_units(f)
 
 
 def validate_frf(frf: FRFData, source: str = "FRF data") -> FRFData:

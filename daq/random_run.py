@@ -39,7 +39,7 @@ from ssid.frf import FRFData
 
 from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
 from .coupling import coupling_response, undo_coupling
-from .estimate import SpectralSums, frf_from_spectra, frf_quality, spectra_of_blocks
+from .estimate import SpectralSums, coarse_peaks, frf_from_spectra, frf_quality, spectra_of_blocks, window_mu2
 from .rig import Rig
 from .safety import (
     MAX_OVER_RANGE_IN_ROW,
@@ -319,7 +319,10 @@ class RandomRun:
     # ------------------------------------------------------------------ results
     def result(self) -> dict:
         est = self.spec.estimator
-        d = frf_from_spectra(self.S, est)
+        # Continuous random leaks (its resolution bias is stated in var); periodic and burst
+        # random are analysed in steady state, periodic in the block, and do not.
+        mu2 = window_mu2(self.spec.window, self.spec.block_size) if self.spec.kind == "random" else 0.0
+        d = frf_from_spectra(self.S, est, mu2=mu2)
         # The sums hold the channels as read; the AC/IEPE high-pass is divided out here.
         d["H"], d["var"] = undo_coupling(d["H"], d["var"], self.coupling[:, self.yi], self.coupling[:, self.fi])
         no = self.n_out
@@ -333,6 +336,10 @@ class RandomRun:
         valid &= frf_quality(d["H"][:, :no], d["var"][:, :no]) >= min_coh
         valid &= self.S.n_avg > len(self.fi)
         out = {"H": d["H"][:, :no], "var": d["var"][:, :no], "coherence": d["coherence"][:, :no], "valid": valid}
+        # Peaks of continuous random narrower than ~3.5 lines: their first-order bias in var
+        # understates the resolution bias (the run's summary says so).
+        out["coarse_hz"] = (self.freq[coarse_peaks(d["H"][:, :no], d["var_random"][:, :no])]
+                            if mu2 > 0 and self.S.n_avg > len(self.fi) else self.freq[:0])
         if self.roles["reaction"]:
             out["Hr"] = d["H"][:, no:]
             out["Hr_var"] = d["var"][:, no:]
@@ -352,8 +359,13 @@ class RandomRun:
 
     def summary(self) -> dict:
         d = self.result()
+        if d["coarse_hz"].size:
+            self.echo(f"warning: mode peak(s) at {', '.join(f'{f:g}' for f in d['coarse_hz'])} Hz narrower than "
+                      f"~3.5 lines ({self.freq[1] - self.freq[0]:g} Hz): the {self.spec.window} window's resolution "
+                      f"bias there is stated in H_var only to first order; a longer block_size resolves them")
         return {"excitation": f"random ({self.spec.kind}, {self.spec.estimator})", "n_lines": int(self.freq.size),
                 "n_avg": int(self.S.n_avg), "n_values_blanked": int(np.count_nonzero(~d["valid"])),
                 "n_values": int(d["valid"].size),
                 "test_time_s": self.test_time_s, "min_coherence": float(np.min(d["coherence"])),
-                **({"unsettled_averages": self.unsettled} if self.spec.kind != "random" else {})}
+                **({"unsettled_averages": self.unsettled} if self.spec.kind != "random" else {}),
+                **({"coarse_resolution_peaks_hz": [float(f) for f in d["coarse_hz"]]} if d["coarse_hz"].size else {})}

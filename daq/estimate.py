@@ -271,7 +271,7 @@ def frf_from_spectra(S: SpectralSums, estimator: str = "H1", mu2: float = 0.0) -
     ``v[k-1] + 4 v[k] + v[k+1]``, v the random variances) are subtracted from ``|H'|^2`` and
     from ``|b|^2 / (mu2/2)^2``, the results held at or above zero, so noise alone does not
     raise ``var`` much (on pure noise the expected stated ``|b|^2`` is ``0.37 (mu2/2)^2 6 v``,
-    1 % of v with Hann). Measured on the QA's 14-DOF runs the second difference's noise was
+    6 % of v with Hann). Measured on the QA's 14-DOF runs the second difference's noise was
     1.0-1.3 times that expectation. The cost: a bias below ~0.4 random standard deviations
     (Hann) is not stated, which would raise ``var`` by < 17 %. The measured H is already
     smoothed, so its curvature understates the true one at coarsely resolved peaks (by 10-50 %

@@ -304,4 +304,7 @@ def _caveats(summary: dict) -> str:
         ("unsettled_averages", "average{} not in steady state"), ("n_values_blanked", "FRF value{} blanked"),
         ("n_not_reciprocal", "pair{} of driven DOFs NOT reciprocal"))
         if (n := int(summary.get(key, 0)))]
+    if peaks := summary.get("coarse_resolution_peaks_hz"):
+        # The run's warning said why; the done line keeps it in view.
+        said.append(f"; {len(peaks)} mode peak{'' if len(peaks) == 1 else 's'} narrower than ~3.5 lines")
     return "".join(said)

@@ -369,6 +369,7 @@ def test_a_line_measured_again_at_its_target_level_is_not_counted_off_level(tmp_
     from ssidlab.cli_acquire import _caveats  # the done line's tail
 
     assert _caveats(summary) == f"; {len(again)} sub-lines measured again below a limit", summary
+    assert _caveats({"coarse_resolution_peaks_hz": [48.0]}) == "; 1 mode peak narrower than ~3.5 lines"
 
 
 def test_a_line_still_over_a_limit_when_measured_again_is_aborted(tmp_path):

@@ -305,7 +305,10 @@ def pair_modes_by_mac_and_frequency(
 
 #: A mode with |omega^2| at most this fraction of its set's largest is at rest (a rigid-body
 #: mode): looser than an FE model's round-off (``ssid.tam.RIGID_ROUNDOFF_RTOL``), as an
-#: identified model's rigid-body mode comes out at omega^2 of -0.04 (rad/s)^2 beside 4e5.
+#: identified model's rigid-body mode comes out at omega^2 of -0.04 (rad/s)^2 beside 4e5; a
+#: suspension mode of a free-free test below 1e-3 of its band in frequency is at rest too. A
+#: mode at rest pairs by the MAC alone only with a mode at rest in the other set, or with an
+#: elastic mode no elastic mode of its own set can claim (:func:`ssid.correlate_pairs.pair_rule`).
 PAIR_REST_RTOL = 1e-6
 
 

@@ -189,23 +189,46 @@ def _frequencies(f_test: np.ndarray, f_an: np.ndarray, rigid: np.ndarray, i: int
 def pair_rule(f_test: np.ndarray, f_an: np.ndarray):
     """Which (test, analysis) modes may pair, and a function saying why a pair may not.
 
-    A test mode with omega^2 < 0 (a negative frequency, :func:`ssid.correlate_models._modes`) is no mode of a
-    structure and pairs with nothing, unless it is at rest to :data:`ssid.correlate.PAIR_REST_RTOL`
-    (a rigid-body mode an identification put a little below zero). Two elastic modes pair only
-    with frequencies within :data:`MAX_PAIR_FREQ_RATIO` of each other. A pair with a mode at
-    rest on either side is decided by the MAC alone: a free-free model's rigid-body mode is
-    measured as a suspension mode on soft supports (0.74 Hz on 60 N/m bungees, MAC 1.000),
-    which no frequency ratio with 0 Hz admits.
+    A mode of either set is at rest when :func:`ssid.correlate.modes_at_rest` says so with the
+    pairing's bound :data:`ssid.correlate.PAIR_REST_RTOL`, relative to its own set (a rigid-body
+    mode, also one an identification put at +-noise, or a suspension mode far below the set's
+    top). A test mode with omega^2 < 0 (a negative frequency, :func:`ssid.correlate_models._modes`)
+    that is not at rest is no mode of a structure and pairs with nothing. Two modes at rest, one
+    of each set, pair by the MAC alone: a free-free model's rigid-body mode is measured as a
+    suspension mode on soft supports, which no frequency ratio with 0 Hz admits. So do a mode at
+    rest in one set and a mode elastic in the other that lies below every elastic mode of the
+    first set by more than :data:`MAX_PAIR_FREQ_RATIO` (no elastic mode of the first set can be
+    its counterpart: a free-free chain's rigid-body mode against its 0.74 Hz suspension mode on
+    bungees, 6e-5 of the test set's 96 Hz top in omega^2, the chain's first elastic mode at
+    31 Hz). Every other pair needs frequencies within :data:`MAX_PAIR_FREQ_RATIO` of each other:
+    a 0.47 Hz suspension mode in a 5.2 kHz band (at rest, 8e-9) does not pair with a constrained
+    model's 800 Hz mode whose shape it resembles at the sensors, nor a model's rigid-body mode
+    with an 800 Hz test mode, when the other set has elastic modes within the ratio of them
+    (150 Hz).
     """
-    rigid_t, rigid_a = modes_at_rest(f_test), modes_at_rest(f_an)
-    negative = (np.asarray(f_test) < 0) & ~rigid_t
+    rest_t, rest_a = modes_at_rest(f_test), modes_at_rest(f_an)
+    negative = (np.asarray(f_test) < 0) & ~rest_t
     ratio = frequency_ratio(f_test, f_an)
-    ok = ~negative[:, None] & (rigid_t[:, None] | rigid_a[None, :] | (ratio * MAX_PAIR_FREQ_RATIO >= 1.0))
+    near = ratio * MAX_PAIR_FREQ_RATIO >= 1.0
+    # A mode elastic in its set, against a mode at rest in the other: only when it lies below every
+    # elastic mode of that other set by more than the ratio, which leaves it no other counterpart.
+    f_t, f_a = np.abs(np.asarray(f_test, dtype=float)), np.abs(np.asarray(f_an, dtype=float))
+    below_t = ~rest_t & (f_t * MAX_PAIR_FREQ_RATIO < np.min(f_a[~rest_a], initial=np.inf))
+    below_a = ~rest_a & (f_a * MAX_PAIR_FREQ_RATIO < np.min(f_t[~rest_t], initial=np.inf))
+    at_rest = (rest_t[:, None] | below_t[:, None]) & (rest_a[None, :] | below_a[None, :]) & ~(
+        below_t[:, None] & below_a[None, :])
+    ok = ~negative[:, None] & (at_rest | near)
 
     def why_not(i: int, j: int) -> str:
         if negative[i]:
             return "the test mode has omega^2 < 0 (K not positive semi-definite): not a physical mode"
-        return (f"frequencies a factor {1 / ratio[i, j]:.3g} apart (a pair needs {MAX_PAIR_FREQ_RATIO:g} or less): "
-                "shapes alike at the sensors (spatial aliasing), not taken for the same mode")
+        factor = "with one at 0 Hz" if ratio[i, j] == 0 else f"a factor {1 / ratio[i, j]:.3g} apart"
+        apart = f"frequencies {factor} (a pair needs {MAX_PAIR_FREQ_RATIO:g} or less)"
+        if rest_t[i] != rest_a[j]:
+            still, other = ("test", "analysis") if rest_t[i] else ("analysis", "test")
+            return (f"{apart}: the {still} mode is at rest, the {other} mode is not, and it is not below every "
+                    f"elastic {still} mode by more than that ratio (a mode at rest pairs by the MAC alone only with "
+                    "a mode at rest, or with one no elastic mode of its own set can claim)")
+        return f"{apart}: shapes alike at the sensors (spatial aliasing), not taken for the same mode"
 
     return ok, why_not

@@ -1,7 +1,10 @@
 """Which modes are at rest, and which share a frequency, decide how ``ssidlab correlate``
 compares them.
 
-1. Elastic modes within 1e-6 of each other in frequency were one repeated root, compared as a
+1. A mode at rest paired by the MAC alone, with any mode: a 0.47 Hz suspension mode in a
+   5.2 kHz test band paired with an 800 Hz analysis mode, a model's rigid-body mode with an
+   800 Hz test mode.
+2. Elastic modes within 1e-6 of each other in frequency were one repeated root, compared as a
    subspace; split by 2e-6 they were compared mode by mode: MAC 0.5 and a fail, for pairs no
    test can tell apart. The bound is now 2e-4, still a cliff, which is tested where it is.
 """
@@ -12,8 +15,10 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
+from ssid.correlate import modes_at_rest
 from ssid.correlate_groups import REPEATED_FREQ_RTOL
 from ssid.correlate_models import correlate_models
+from ssid.correlate_pairs import mode_correlation
 from ssid.io import Model
 
 
@@ -61,3 +66,33 @@ def test_the_verdict_changes_at_the_documented_split():
     assert not s["subspaces"] and not s["cross_orthogonality"]["pass"]
     s = correlate_models(_two_towers(1.99e-4, 0.0), _two_towers(1.99e-4, 45.0)).summary
     assert s["cross_orthogonality"]["pass"] and len(s["subspaces"]) == 3
+
+
+def test_a_suspension_mode_at_rest_pairs_with_an_elastic_mode_only_within_the_frequency_ratio():
+    """A 0.47 Hz suspension mode beside a first elastic mode at 150 Hz in a 5.2 kHz band is at
+    rest to the pairing's bound (8e-9 of the top omega^2), and was paired by the MAC alone with
+    a constrained model's 800 Hz mode whose shape it resembles at the sensors: a factor 1700
+    apart, no pair."""
+    f_test = np.array([0.47, 150.0, 2000.0, 5200.0])
+    assert modes_at_rest(f_test).tolist() == [True, False, False, False]
+    phi = np.linalg.qr(np.random.default_rng(3).normal(size=(4, 4)))[0]
+    f_an = np.array([800.0, 150.0, 2000.0, 5200.0])
+    s, _, pairs = mode_correlation(phi, f_test, phi, f_an, np.eye(4))
+    assert [(p.test, p.analysis) for p in pairs] == [(1, 1), (2, 2), (3, 3)]
+    [left] = s["not_paired"]
+    assert left["test_mode"] == 1 and left["analysis_mode"] == 1
+    assert left["reason"].startswith("frequencies a factor 1.7e+03 apart")
+    assert "the test mode is at rest, the analysis mode is not" in left["reason"]
+
+
+def test_a_rigid_body_mode_of_the_model_pairs_by_the_mac_alone_only_with_a_mode_at_rest():
+    """The reverse: a model's rigid-body mode (1e-4 Hz beside 5.2 kHz) against a test mode at
+    800 Hz whose shape it resembles at the sensors; and a test suspension mode at rest
+    (0.47 Hz), which pairs with it by the MAC alone."""
+    phi = np.linalg.qr(np.random.default_rng(3).normal(size=(4, 4)))[0]
+    f_an = np.array([1e-4, 150.0, 2000.0, 5200.0])
+    s, _, pairs = mode_correlation(phi, np.array([800.0, 150.0, 2000.0, 5200.0]), phi, f_an, np.eye(4))
+    assert [(p.test, p.analysis) for p in pairs] == [(1, 1), (2, 2), (3, 3)]
+    assert "the analysis mode is at rest, the test mode is not" in s["not_paired"][0]["reason"]
+    s, _, pairs = mode_correlation(phi, np.array([0.47, 150.0, 2000.0, 5200.0]), phi, f_an, np.eye(4))
+    assert [(p.test, p.analysis) for p in pairs] == [(i, i) for i in range(4)]

@@ -7,6 +7,9 @@ compares them.
 2. Elastic modes within 1e-6 of each other in frequency were one repeated root, compared as a
    subspace; split by 2e-6 they were compared mode by mode: MAC 0.5 and a fail, for pairs no
    test can tell apart. The bound is now 2e-4, still a cliff, which is tested where it is.
+3. Rest is judged relative to the band compared (a known limit, docs/correlation.md): a
+   solver's rigid-body modes at 0.0043/0.0075 Hz in a band ending at 42 Hz are not at rest to
+   the grouping (an expected failure); a band reaching the model's higher modes is the remedy.
 """
 
 from __future__ import annotations
@@ -14,12 +17,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.linalg as sla
+from test_tam_models import beam_model
 
 from ssid.correlate import modes_at_rest
 from ssid.correlate_groups import REPEATED_FREQ_RTOL
 from ssid.correlate_models import correlate_models
 from ssid.correlate_pairs import mode_correlation
 from ssid.io import Model
+from ssid.tam import reduce_to_tam
 
 
 def _two_towers(split: float, angle_deg: float) -> Model:
@@ -96,3 +101,52 @@ def test_a_rigid_body_mode_of_the_model_pairs_by_the_mac_alone_only_with_a_mode_
     assert "the analysis mode is at rest, the test mode is not" in s["not_paired"][0]["reason"]
     s, _, pairs = mode_correlation(phi, np.array([0.47, 150.0, 2000.0, 5200.0]), phi, f_an, np.eye(4))
     assert [(p.test, p.analysis) for p in pairs] == [(i, i) for i in range(4)]
+
+
+def _soft_beam(k_ground: float):
+    """A free beam (8 elements, EI 50 N m^2) on springs of ``k_ground`` N/m at both ends: with
+    1e-3 N/m its two lowest modes at 0.0043 and 0.0075 Hz (as a solver puts rigid-body modes),
+    its first elastic mode at 15.3 Hz, the second at 42.3 Hz, its top at 2.63 kHz."""
+    return beam_model(n_elem=8, length_m=1.0, ei_n_m2=50.0, k_ground_n_per_m=(k_ground, k_ground))
+
+
+def _soft_beam_study(nodes: tuple[int, ...], **options) -> dict:
+    """The soft beam against a SEREP test model of the free beam at ``nodes`` (Z), with as many
+    target modes: the band compared ends near the top test mode."""
+    Ma, Ka, dofs = _soft_beam(1e-3)
+    Mt, Kt, _ = _soft_beam(0.0)
+    a = [dofs.index(f"{k}+Z") for k in nodes]
+    red = reduce_to_tam("serep", Mt, Kt, a, targets=list(range(len(a))))
+    return correlate_models(Model(red.M, red.K, None, [dofs[i] for i in a]), Model(Ma, Ka, None, dofs),
+                            **options).summary
+
+
+@pytest.mark.xfail(strict=True, reason="known limit (docs/correlation.md): rest is judged on the band compared, "
+                   "and 0.0043/0.0075 Hz beside a top of 42 Hz are 1e-8 and 3e-8 of its omega^2, above 1e-8")
+def test_known_limit_a_solvers_rigid_body_modes_in_a_low_band_are_not_at_rest():
+    """The soft beam's modes at 0.0043 and 0.0075 Hz, in a band ending at 42 Hz, are taken for
+    elastic modes by the grouping and the ``rigid`` flag: paired across in the solver's basis
+    (MAC 0.98 and 0.95), errors of -100 %, the cross-orthogonality fails. What is wanted:"""
+    s = _soft_beam_study((1, 4, 6, 9))
+    f_an = np.asarray(s["analysis_natural_freq_hz"])
+    assert 0.003 < f_an[0] < f_an[1] < 0.01 and f_an[-1] < 52.0
+    assert [(p["test_mode"], p["analysis_mode"]) for p in s["paired_modes"]] == [(i, i) for i in range(1, 5)]
+    assert [p["rigid"] for p in s["paired_modes"]] == [True, True, False, False]
+    assert [(g["test_modes"], g["analysis_modes"], g["at_rest"]) for g in s["subspaces"]] == [([1, 2], [1, 2], True)]
+    assert s["cross_orthogonality"]["pass"]
+
+
+def test_the_documented_remedy_a_band_reaching_the_models_higher_modes():
+    """The remedy the limit's documentation gives: a band that reaches the model's higher modes
+    (six test modes, up to 137.6 Hz, the band to 1.5 times that) puts 0.0075 Hz at 3e-9 of its
+    top's omega^2, below 1e-8: the two modes are at rest, grouped, marked ``rigid``, and the
+    cross-orthogonality passes (with a SEREP TAM, exact for the six modes; Guyan's is not at
+    137 Hz with six sensors)."""
+    s = _soft_beam_study((1, 2, 4, 6, 8, 9), tam="serep")
+    f_an = np.asarray(s["analysis_natural_freq_hz"])
+    assert 0.003 < f_an[0] < f_an[1] < 0.01 and f_an[-1] > 75.0
+    assert [(p["test_mode"], p["analysis_mode"]) for p in s["paired_modes"]] == [(i, i) for i in range(1, 7)]
+    assert [p["rigid"] for p in s["paired_modes"]] == [True, True] + [False] * 4
+    assert np.isnan(s["paired_modes"][0]["freq_error_percent"])
+    assert [(g["test_modes"], g["analysis_modes"], g["at_rest"]) for g in s["subspaces"]] == [([1, 2], [1, 2], True)]
+    assert s["cross_orthogonality"]["pass"]

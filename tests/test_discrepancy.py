@@ -342,6 +342,29 @@ def test_the_residual_line_says_whose_noise_it_is_within():
     assert "within" not in residual_statement(second, first, 3.0, stated=False)["text"]
 
 
+def test_an_effect_that_brings_the_gap_within_the_stated_noise_closes_it():
+    """The exact effect found, the second search still names a pattern that lowers the gap by
+    a fraction of the noise (a 0.3 g oscillator: 0.894 to 0.889): ``closed`` was false and the
+    line said the effect "does not close the gap", which a script reading ``closed`` took for
+    a partial find. Within the stated noise the gap is closed, and the next effect is still
+    named; within a noise level only estimated, or above the noise, it is not closed."""
+    from types import SimpleNamespace
+
+    from ssid.discrepancy.verdict import residual_statement
+
+    tiny = SimpleNamespace(name="attached_oscillator", rss=0.889**2 * 100,
+                           effect=Effect("attached_oscillator", ("16",), {"mass_kg": 3e-4, "stiffness_n_per_m": 5.0,
+                                                                       "damping_n_s_per_m": 1e-3}))
+    second = SimpleNamespace(best=tiny, n_valid=100, none=lambda: SimpleNamespace(delta_criterion=-5.0),
+                             gap=lambda rss: float(np.sqrt(rss / 100)))
+    first = [Effect("added_mass", ("6",), {"mass_kg": 0.25})]
+    within = residual_statement(second, first, 0.894)
+    assert within["closed"] is True and within["next_effect"]["effect"] == "attached_oscillator"
+    assert "closes the gap to within the stated noise" in within["text"] and "0.889" in within["text"]
+    assert residual_statement(second, first, 0.894, stated=False)["closed"] is False
+    assert residual_statement(second, first, 3.0)["closed"] is False
+
+
 def test_an_effect_that_leaves_a_large_gap_is_not_said_to_close_it():
     """An effect found and nothing more that pays: with the gap after well above the noise
     the line said "closes the gap (gap after 36.6, 1 = noise level)" (a contract check's

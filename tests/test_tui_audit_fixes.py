@@ -332,3 +332,27 @@ def test_typed_paths_expand_home_and_name_the_file_on_a_nul_byte(tmp_path, monke
             assert shown(app, "#setup-error") == "error: a\\x00b.toml: embedded null byte"
 
     asyncio.run(go())
+
+
+# ---------------------------------------------------------------------- a random run's limit stop
+def test_a_random_runs_limit_stop_says_to_start_a_new_run_not_to_resume(tmp_path):
+    """A limit stops a continuous random run. The status said "F5 resumes the run file", but a
+    resume may not change the drive and meets the same limit: it now says to lower drive_vpp
+    and start a new run with another run file, as the command line does."""
+    from test_daq_helpers import random_setup
+
+    setup = tmp_path / "random.toml"
+    setup.write_text(random_setup(kind="random", two=False, block=2048, settle=1, averages=4).replace(
+        "drive_vpp = 0.5", "drive_vpp = 2.0") + "[limits]\nmax_accel_m_per_s2 = 8.0\n", encoding="utf-8")
+
+    async def go():
+        app = LabApp(str(setup), out=str(tmp_path / "run.h5"), sim=True)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("f5")
+            await wait_for(pilot, lambda: app.outcome is not None, 60, "the limit to stop the run")
+            assert app.outcome.returncode == 3 and "limit exceeded during random excitation" in app.outcome.state
+            status = shown(app, "#run-status")
+            assert "lower drive_vpp in [random]" in status and "start a new run" in status, status
+            assert "F5 resumes" not in status, status
+
+    asyncio.run(go())

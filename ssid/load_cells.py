@@ -44,6 +44,12 @@ SIGMA_UNDERSTATED = 10.0
 #: the cell left to carry it, a 10 % calibration 1.6-1.8 on the synthetic record (within the
 #: noise there) and 7 on the QA's acquisition.
 Z_SUSPECT = 5.0
+#: An entry of a column below this fraction of the columns' largest is taken as zero (not
+#: determined), whatever its stated uncertainty.
+DETERMINED_RTOL = 1e-6
+#: An entry within this many (inflated) deviations of zero is not determined either: the
+#: ratio's first-order deviation does not hold there.
+DETERMINED_Z = 2.0
 #: Nor is a factor within 1 % of 1 reported, however small its uncertainty: a load cell's
 #: calibration is not known better than that.
 FACTOR_RTOL_FLOOR = 0.01
@@ -102,13 +108,15 @@ def load_cell_check(frf: FRFData, d: Step1Data, est: Step1Estimate) -> dict:
     dict
         ``cells``: reaction label -> ``factor`` (the inverse-variance mean of the ratios: how
         many times its force the cell read), ``sigma``, ``per_input`` (input label ->
-        ``[ratio, sigma]``), ``chi2`` (of the ratios about 1), ``suspect``; ``suspect``: the
-        suspect labels; ``test``: the criterion in words. Empty ``cells`` without reactions.
+        ``[ratio, sigma]``, only where both entries are determined: none when M^-1 is diagonal
+        there), ``z``, ``inputs_disagree_chi2``, ``suspect``; ``unchecked``: the cells no ratio
+        determines; ``suspect``: the suspect labels; ``test``: the criterion in words. Empty
+        ``cells`` without reactions.
     """
     react, inputs = list(frf.reactions or []), list(frf.inputs)
     stated = ("H_var" if frf.H_var is not None else "coherence" if frf.coherence is not None
               else "none stated: each row's residual")
-    res: dict = {"cells": {}, "suspect": [],
+    res: dict = {"cells": {}, "suspect": [], "unchecked": [],
                  "test": (f"ratios Df[r, f] / Dr[f, r] of step 1's columns of one symmetric M^-1, per input; "
                           f"suspect when the factor is more than {Z_SUSPECT:g} sigma from 1, or the inputs' ratios "
                           f"disagree by as much, and a ratio is more than {FACTOR_RTOL_FLOOR:g} from 1; sigma from "
@@ -128,7 +136,13 @@ def load_cell_check(frf: FRFData, d: Step1Data, est: Step1Estimate) -> dict:
             f = int(d.in_idx[j])
             ia, ib = 2 * n + j, 2 * n + n_in + k  # Df[:, j] and Dr[:, l] within a row of X
             a, b = X[r, ia], X[f, ib]
-            if b == 0 or not np.isfinite(a / b):
+            # Both entries must be determined: a lumped (diagonal) M has G[r, f] = 0 off its
+            # diagonal, and a ratio of two noises says nothing (a chain's noise-free record gave
+            # 0.06 +- 0.18 for a right cell).
+            sa = SIGMA_UNDERSTATED * np.sqrt(max(cov[r][ia, ia], 0.0))
+            sb = SIGMA_UNDERSTATED * np.sqrt(max(cov[f][ib, ib], 0.0))
+            small = DETERMINED_RTOL * max(np.max(np.abs(X[:, ia])), np.max(np.abs(X[:, ib])))
+            if not (abs(a) > max(DETERMINED_Z * sa, small) and abs(b) > max(DETERMINED_Z * sb, small)):
                 continue
             g = a / b
             # delta method on a / b; a and b lie in one row when the reaction is at the input's DOF
@@ -142,6 +156,7 @@ def load_cell_check(frf: FRFData, d: Step1Data, est: Step1Estimate) -> dict:
             num += g / s**2
             den += 1 / s**2
         if not per:
+            res["unchecked"].append(lbl)
             continue
         factor, sigma = num / den, float(np.sqrt(1 / den))
         # Off 1 as a whole (sign, calibration, unit), or the inputs disagreeing on it (a label:

@@ -2,7 +2,7 @@
 
     ssidlab identify FRF.h5 --out MODEL.h5 --json RESULT.json [--solver ml|ls|tls|stls]
                      [--fmin HZ] [--fmax HZ] [--damping auto|identified|modal]
-                     [--select-band] [--quiet]
+                     [--select-band] [--reactions apply|ignore] [--quiet]
 
 Writes the identified model (ssidlab-model file) over the FRF file's outputs and the modal
 results and fit details as JSON (``docs/formats.md``); prints the modes and how far the written
@@ -13,6 +13,7 @@ model's FRFs are from the data. Bad input raises :class:`ssid.errors.InputError`
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 from typing import Any
 
@@ -23,6 +24,10 @@ from ssidlab.argtypes import check_output_paths, frequency_hz, say, write_json
 __all__ = ["add_identify_subcommand", "run_identify"]
 
 HELP = "Identify M, C, K from a measured FRF file (SSID)."
+DESCRIPTION = (HELP + " On a test stand, the FRF file's interface reactions (load cells) are applied as the "
+               "forces the stand exerts, so M, C, K are the substructure's alone, without the stand "
+               "(--reactions ignore: leave them out); the load cells are checked against the accelerances.")
+REACTION_CHOICES = ("apply", "ignore")
 SOLVERS = ("ml", "ls", "tls", "stls")  # ssid.identify.SOLVERS, without importing the solver stack
 DAMPING_CHOICES = ("auto", "identified", "modal")  # ssid.identify.DAMPING_OPTIONS
 # What each written C is, for the summary line (docs/formats.md, identify's damping_matrix).
@@ -33,7 +38,8 @@ _DAMPING_WORDS = {"identified": " (Eq. 3.15)", "modal": " (the roots' damping ra
 
 def add_identify_subcommand(sub: Any) -> argparse.ArgumentParser:
     """Add the ``identify`` subparser to ``sub`` (an argparse subparsers action); returns it."""
-    p = sub.add_parser("identify", prog="ssidlab identify", help=HELP, description=HELP, allow_abbrev=False)
+    p = sub.add_parser("identify", prog="ssidlab identify", help=HELP, description=DESCRIPTION,
+                       allow_abbrev=False)
     p.add_argument("frf", metavar="FRF.h5", help="measured FRFs (ssidlab-frf file)")
     p.add_argument(
         "--out", metavar="MODEL.h5", required=True,
@@ -62,6 +68,12 @@ def add_identify_subcommand(sub: Any) -> argparse.ArgumentParser:
         "solver from the data, the band-processed modal model when it is physical "
         "(docs/algorithm.md); the solver is then chosen too",
     )
+    p.add_argument(
+        "--reactions", choices=REACTION_CHOICES, default=None,
+        help="FRFs measured on a test stand (with interface reactions): apply them, so the model is the "
+        "substructure alone (default when the file has them), or ignore them (the fit then sees the "
+        "stand's loads as part of the structure)",
+    )
     p.add_argument("--quiet", action="store_true", help="do not print the mode table")
     p.set_defaults(run=run_identify)
     return p
@@ -77,6 +89,12 @@ def run_identify(args: argparse.Namespace) -> int:
     check_output_paths([args.frf], [args.out, args.json])
     frf = read_measured_frf(args.frf)
     _check_band(args.frf, frf, args.fmin, args.fmax)
+    in_file = list(frf.reactions or []) if frf.H_reaction is not None else []
+    if args.reactions == "apply" and not in_file:
+        raise InputError(f"{args.frf}: --reactions apply needs measured interface reactions (the file has none)")
+    if args.reactions == "ignore" and in_file:
+        frf = dataclasses.replace(frf, H_reaction=None, H_reaction_var=None, reactions=None)
+    applied = in_file if frf.H_reaction is not None else []
 
     # Imported here: the solver stack is heavy, and input errors and --help must work even
     # when it cannot be imported.
@@ -102,11 +120,15 @@ def run_identify(args: argparse.Namespace) -> int:
             f"{frf.outputs!r}"
         )
     try:
-        write_model(args.out, result.to_model())
+        model = result.to_model()
+        model.attrs = _provenance(args, summary_band=result.band_hz, applied=applied, in_file=in_file,
+                                  solver=result.solver, damping=result.damping)
+        write_model(args.out, model)
     except InputError as exc:
         # Our own result failing validation is a bug, not bad input: report it as internal.
         raise RuntimeError(f"identified model failed validation: {exc}") from exc
     summary = result.to_json_dict()
+    summary["reactions"] = {"in_file": in_file, "applied": applied, "text": _reactions_text(in_file, applied)}
     write_json(args.json, summary)
 
     for message in result.warnings:
@@ -115,6 +137,8 @@ def run_identify(args: argparse.Namespace) -> int:
         choice = ((summary.get("info") or {}).get("band_select") or {}).get("choice")
         if choice and choice not in result.warnings:
             print(choice)
+        if in_file:
+            print(summary["reactions"]["text"])
         print(_mode_table(summary))
         err = (summary.get("checks") or {}).get("frf_relative_rms_error")
         if err is not None:
@@ -122,6 +146,31 @@ def run_identify(args: argparse.Namespace) -> int:
             print(f"written model: damping matrix {which}{_DAMPING_WORDS.get(which, '')}; its FRFs differ "
                   f"from the data by {_fmt(err, 100.0, '.3g')} % (relative RMS over the band)")
     return 0
+
+
+def _reactions_text(in_file: list[str], applied: list[str]) -> str:
+    """One line saying what the model is: the substructure alone, or with the stand's loads in it."""
+    if applied:
+        return (f"reactions applied at {', '.join(applied)}: M, C, K are the substructure alone, without the stand "
+                "(--reactions ignore to leave them out)")
+    if in_file:
+        return (f"reactions at {', '.join(in_file)} not applied (--reactions ignore): the stand's loads are in the "
+                "fit, M, C, K are not the substructure's alone")
+    return ""
+
+
+def _provenance(args: argparse.Namespace, summary_band: tuple[float, float], applied: list[str],
+                in_file: list[str], solver: str, damping: str) -> dict:
+    """Root attributes of the written model file: where it came from (contract: extra root attrs
+    are provenance; reading ignores them)."""
+    import os
+
+    from ssidlab import __version__
+
+    return {"created_by": "ssidlab identify", "ssidlab_version": __version__,
+            "source_frf": os.path.abspath(args.frf), "band_hz": [float(summary_band[0]), float(summary_band[1])],
+            "solver": solver, "damping_matrix": damping, "select_band": bool(args.select_band),
+            "reactions_in_file": ",".join(in_file), "reactions_applied": ",".join(applied)}
 
 
 def _check_band(source: str, frf, f_min: float | None, f_max: float | None) -> None:

@@ -30,6 +30,10 @@ from ._common import (
     _write_labels,
 )
 
+#: ``units`` attribute of each matrix dataset: SI, generalised (kg m^2, N m/rad, ...) at a
+#: rotational DOF.
+MATRIX_UNITS = {"M": "kg", "C": "N s/m", "K": "N/m"}
+
 
 @dataclass
 class Model:
@@ -122,10 +126,11 @@ def write_model(path: PathLike, model: Model) -> None:
         _write_extra_attrs(src, f, data.attrs, _MODEL_RESERVED_ATTRS)
         f.attrs["format"] = MODEL_FORMAT
         f.attrs["format_version"] = FORMAT_VERSION
-        f.create_dataset("M", data=data.M)
-        f.create_dataset("K", data=data.K)
+        # SI (the contract's convention), said in the file too; reading ignores dataset attrs.
+        f.create_dataset("M", data=data.M).attrs["units"] = MATRIX_UNITS["M"]
+        f.create_dataset("K", data=data.K).attrs["units"] = MATRIX_UNITS["K"]
         if data.C is not None:
-            f.create_dataset("C", data=data.C)
+            f.create_dataset("C", data=data.C).attrs["units"] = MATRIX_UNITS["C"]
         _write_labels(f, "dofs", data.dofs)
 
 

@@ -24,7 +24,7 @@ from .fit_checks import (
     unresolved_damping_warning,
 )
 from .frf import FRFData, requested_band, require_frequency_dependence, require_response
-from .load_cells import load_cell_check, load_cell_warning
+from .load_cells import correction_trial_text, load_cell_check, load_cell_correction_trial, load_cell_warning
 from .modal import (
     modal_phase_collinearity,
     physical_checks,
@@ -212,6 +212,7 @@ def identify_mck(
     f_max_hz: float | None = None,
     damping: str = "auto",
     search_above_band: bool = True,
+    check_load_cells: bool = True,
 ) -> SSIDResult:
     """Identify M, C, K of a substructure from accelerance FRFs with SSID.
 
@@ -241,6 +242,11 @@ def identify_mck(
     search_above_band : bool
         With ``ml`` and no reactions: after the refinement, search along the frequencies of
         the roots above the band (:func:`ssid.step1_refine.refine_roots_above_band`).
+    check_load_cells : bool
+        With reactions: check the load cells against the accelerances
+        (:func:`ssid.load_cells.load_cell_check`), and where one is suspect identify again
+        with its reactions divided by its factor to see whether that explains the misfit
+        (``info["load_cells"]["correction_trial"]``).
 
     Returns
     -------
@@ -302,7 +308,7 @@ def identify_mck(
     info.update(asm)
     # Step 1's free reaction columns absorb a load cell's sign or gain, and step 2's M takes
     # the error (QA: -1.21 kg total mass for 6.06 kg): say which cell, from the columns.
-    cells = load_cell_check(data, d, written_from) if data.n_react else None
+    cells = load_cell_check(data, d, written_from) if data.n_react and check_load_cells else None
     if cells is not None:
         info["load_cells"] = cells
         said = load_cell_warning(cells)
@@ -358,9 +364,21 @@ def identify_mck(
     warnings.extend(chk_warn)
     f_n = wn / (2 * np.pi)
     in_band = (int(np.count_nonzero((f_n >= band[0]) & (f_n <= band[1]))), int(f_n.size))
+    explained = False
+    if cells and cells["suspect"]:
+        # What the cells' factors would explain: identified again with the suspect cells read
+        # by their factors. A short band also makes cells look wrong, and correcting them
+        # then leaves the misfit where it was (the payload on its stand at 20-600 Hz).
+        trial = load_cell_correction_trial(
+            data, cells, frf_error,
+            lambda f: identify_mck(f, solver=solver, damping=damping, search_above_band=search_above_band,
+                                   check_load_cells=False).checks["frf_relative_rms_error"])
+        cells["correction_trial"] = trial
+        explained = bool(trial and trial["explains"])
+        warnings.append(correction_trial_text(trial))
     warnings.extend(said for said in (misfit_warning(checks["frf_relative_rms_error"], noise,
                                                      reactions=bool(data.n_react), modes_in_band=in_band,
-                                                     load_cells_suspect=bool(cells and cells["suspect"])),
+                                                     load_cells_suspect=explained),
                                       unresolved_damping_warning(data.freq_hz, wn / (2 * np.pi), zeta, noise),
                                       # M not definite: the physical checks have said more already
                                       None if phi is None else

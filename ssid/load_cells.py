@@ -22,13 +22,18 @@ the column is another DOF's), and a ratio differs from 1 by more than ``FACTOR_R
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Callable
+
 import numpy as np
 
+from .errors import IdentificationError
 from .frf import FRFData
 from .noise import frf_noise_weights
 from .step1 import Step1Data, Step1Estimate, step1_regressors
 
-__all__ = ["FACTOR_RTOL_FLOOR", "SIGMA_UNDERSTATED", "Z_SUSPECT", "load_cell_check", "load_cell_warning"]
+__all__ = ["FACTOR_RTOL_FLOOR", "SIGMA_UNDERSTATED", "TRIAL_EXPLAINS", "Z_SUSPECT", "correction_trial_text",
+           "load_cell_check", "load_cell_correction_trial", "load_cell_warning"]
 
 #: The stated-variance standard deviation of a ratio understates the error of step 1's
 #: maximum-likelihood estimate: the noise common to a test's accelerances (the force gauge's)
@@ -50,6 +55,10 @@ DETERMINED_RTOL = 1e-6
 #: An entry within this many (inflated) deviations of zero is not determined either: the
 #: ratio's first-order deviation does not hold there.
 DETERMINED_Z = 2.0
+#: Corrected by their factors, suspect cells explain the misfit when it falls to at most this
+#: fraction of what it was (a 10 % calibration: 14 % to about the noise; a band without its
+#: higher modes: unchanged).
+TRIAL_EXPLAINS = 0.5
 #: Nor is a factor within 1 % of 1 reported, however small its uncertainty: a load cell's
 #: calibration is not known better than that.
 FACTOR_RTOL_FLOOR = 0.01
@@ -190,3 +199,56 @@ def load_cell_warning(check: dict) -> str | None:
             "(every cell off); or step 1's columns are not those of one M^-1 (a band without the modes above "
             "it: then several cells seem off). The roots in the band are not affected (step 1 fits each "
             "reaction's column freely); the written M, C, K are: check the load cells before using the matrices")
+
+
+def load_cell_correction_trial(frf: FRFData, check: dict, misfit: float,
+                               misfit_of: Callable[[FRFData], float]) -> dict | None:
+    """Identify again with each suspect cell's reactions divided by its factor, and compare.
+
+    Only cells whose inputs agree on one factor are corrected (a label's ratios disagree: no
+    factor corrects it). ``misfit_of(frf)`` is the written model's relative RMS FRF error of an
+    identification of ``frf``; ``misfit`` the one with the cells as read.
+
+    Returns
+    -------
+    dict or None
+        ``corrected`` (label -> factor divided out), ``misfit_as_read``, ``misfit_corrected``,
+        ``explains`` (the corrected misfit is at most :data:`TRIAL_EXPLAINS` of the other);
+        None when no suspect cell has one factor, or the identification fails.
+    """
+    cells = check["cells"]
+    one = {lbl: cells[lbl]["factor"] for lbl in check["suspect"]
+           if cells[lbl]["inputs_disagree_chi2"] <= Z_SUSPECT**2 and abs(cells[lbl]["factor"]) > FACTOR_RTOL_FLOOR}
+    if not one or frf.H_reaction is None:
+        return None
+    corrected = copy.copy(frf)
+    gain = np.ones(len(frf.reactions))
+    for lbl, g in one.items():
+        gain[list(frf.reactions).index(lbl)] = g
+    corrected.H_reaction = frf.H_reaction / gain[None, :, None]
+    if frf.H_reaction_var is not None:
+        corrected.H_reaction_var = frf.H_reaction_var / np.abs(gain[None, :, None]) ** 2
+    try:
+        after = float(misfit_of(corrected))
+    except (IdentificationError, np.linalg.LinAlgError):
+        return None
+    return {"corrected": {lbl: float(g) for lbl, g in one.items()}, "misfit_as_read": float(misfit),
+            "misfit_corrected": after, "explains": bool(after <= TRIAL_EXPLAINS * misfit)}
+
+
+def correction_trial_text(trial: dict | None) -> str:
+    """What the correction trial showed, for the warnings (after :func:`load_cell_warning`)."""
+    if trial is None:
+        return ("the inputs disagree on each suspect load cell's factor, so no one factor corrects it: a label "
+                "(the reaction recorded at another DOF), a reaction not measured, a band without the structure's "
+                "higher modes, or noise above what the file states; no correction was tried")
+    read = ", ".join(f"{lbl} by {g:.4g}" for lbl, g in trial["corrected"].items())
+    before, after = 100 * trial["misfit_as_read"], 100 * trial["misfit_corrected"]
+    if trial["explains"]:
+        return (f"load cell(s) read by their factors ({read}): the written model then reproduces the data to "
+                f"{after:.3g} % instead of {before:.3g} %: the cell(s) explain the misfit; identify was not "
+                "changed by this trial (correct the calibration or wiring, or use ssidlab discrepancy, which "
+                "fits the factors)")
+    return (f"load cell(s) read by their factors ({read}): the written model's misfit stays {after:.3g} % "
+            f"(as read {before:.3g} %): the factors do not explain it; more likely a reaction that was not "
+            "measured, or a band without the structure's higher modes (which makes the cells look wrong too)")

@@ -37,6 +37,7 @@ from .result import SSIDResult, model_accelerance, model_frf_errors, model_outpu
 from .solvers import power_of_two_near
 from .step1 import Step1Data, Step1Estimate, estimate_equation_error, step1_data
 from .step1_ml import step1_maximum_likelihood
+from .step1_reaction_spread import undetermined_reactions_warning
 from .step1_refine import output_error_cost
 from .written_model import (
     STEP1_DAMPING_MISMATCH_MAX,
@@ -275,6 +276,9 @@ def identify_mck(
     starts: dict = {}
     est, d, info = identify_step1(data, solver=solver, candidates=starts, search_above_band=search_above_band)
     warnings = list(info.pop("warnings"))
+    if data.n_react:  # a reaction step 1 cannot separate from the substructure (soft or stiff stand)
+        said, info["reaction_spread"] = undetermined_reactions_warning(data, d, est)
+        warnings.extend([said] if said else [])
     warnings.extend(f"{p.describe()}; the symmetric M, C, K that SSID fits cannot hold both: check these "
                     "transducers before trusting the model" for p in reciprocity_check(data) if not p.reciprocal)
 

@@ -49,7 +49,8 @@ def misfits(frf_relative_rms_error: float, noise: float) -> bool:
 
 
 def misfit_warning(frf_relative_rms_error: float, noise: float, *, reactions: bool = False,
-                   modes_in_band: tuple[int, int] | None = None, load_cells_suspect: bool = False) -> str | None:
+                   modes_in_band: tuple[int, int] | None = None, load_cells_suspect: bool = False,
+                   reactions_undetermined: bool = False) -> str | None:
     """A warning when the written model's FRFs differ from the data of the band it was fitted
     to by more than :data:`MISFIT_FLOOR` and :data:`MISFIT_NOISE_RATIO` times the noise.
 
@@ -66,6 +67,12 @@ def misfit_warning(frf_relative_rms_error: float, noise: float, *, reactions: bo
     modes_in_band : (int, int), optional
         How many of the model's modes lie in the band, and how many it has: said with
         ``reactions``, where the modes outside the band are what the lines lack.
+    load_cells_suspect : bool
+        Load cells read by their factors explain the misfit (``ssid.load_cells``): they are
+        the advice, not the band.
+    reactions_undetermined : bool
+        Step 1 cannot determine a reaction's term (``ssid.step1_reaction_spread``: a stand
+        much softer or stiffer than the substructure): a wider band does not help.
     """
     e = float(frf_relative_rms_error)
     if not misfits(e, noise):
@@ -78,12 +85,18 @@ def misfit_warning(frf_relative_rms_error: float, noise: float, *, reactions: bo
     # check reads as a wrong cell too (the payload on its stand, 20-600 Hz, 7 of 16 modes in
     # it: 4+Z "read" 0.17); a wrong cell with the modes in the band does not need a wider one.
     held = "" if modes_in_band is None else f" ({modes_in_band[0]} of its {modes_in_band[1]} modes lie in it)"
+    head = (f"the written M, C, K reproduce the measured FRFs only to {100 * e:.3g} % (RMS; the data's "
+            f"noise is about {100 * noise:.2g} %): ")
     if load_cells_suspect:
-        return (f"the written M, C, K reproduce the measured FRFs only to {100 * e:.3g} % (RMS; the data's "
-                f"noise is about {100 * noise:.2g} %): the load cell(s) named above disagree with the "
-                "accelerances, which explains it when the band holds the structure's modes: check the load "
-                f"cells first; if they are right, the band lacks modes above it{held}: trust only the modes "
-                "inside it, and for the matrices measure a wider band")
+        return (head + "the load cell(s) named above, read by their factors, explain it (see above): check the "
+                "load cells first (sign, calibration, label) and correct them before using the matrices")
+    if reactions_undetermined:
+        # A wider band does not separate a soft stand's reactions from the substructure's own
+        # interface stiffness and damping (the QA's 2e4 N/m, 400 N s/m stand: 104 % misfit).
+        return (head + "the reaction term(s) named above are not determined by these data (see above), which "
+                "puts the stand's interface into M, C, K; a wider band does not help: trust only the modes "
+                f"inside the band{held}, and for the matrices test on a stand whose interface forces the data "
+                "can separate, or free")
     if not reactions:
         return said + "check its modes against the data (e.g. ssidlab bands) before using the matrices"
     # A short stepped sine on a stand (20-600 Hz, 16 DOFs, 7 of 15 modes in the band) missed

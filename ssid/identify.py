@@ -276,9 +276,10 @@ def identify_mck(
     starts: dict = {}
     est, d, info = identify_step1(data, solver=solver, candidates=starts, search_above_band=search_above_band)
     warnings = list(info.pop("warnings"))
+    undetermined = None
     if data.n_react:  # a reaction step 1 cannot separate from the substructure (soft or stiff stand)
-        said, info["reaction_spread"] = undetermined_reactions_warning(data, d, est)
-        warnings.extend([said] if said else [])
+        undetermined, info["reaction_spread"] = undetermined_reactions_warning(data, d, est)
+        warnings.extend([undetermined] if undetermined else [])
     warnings.extend(f"{p.describe()}; the symmetric M, C, K that SSID fits cannot hold both: check these "
                     "transducers before trusting the model" for p in reciprocity_check(data) if not p.reciprocal)
 
@@ -382,7 +383,8 @@ def identify_mck(
         warnings.append(correction_trial_text(trial))
     warnings.extend(said for said in (misfit_warning(checks["frf_relative_rms_error"], noise,
                                                      reactions=bool(data.n_react), modes_in_band=in_band,
-                                                     load_cells_suspect=explained),
+                                                     load_cells_suspect=explained,
+                                                     reactions_undetermined=bool(undetermined)),
                                       unresolved_damping_warning(data.freq_hz, wn / (2 * np.pi), zeta, noise),
                                       # M not definite: the physical checks have said more already
                                       None if phi is None else

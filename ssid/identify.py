@@ -81,12 +81,13 @@ def _rigid_body_note(n_rigid: int, rigid: dict) -> str:
     :func:`ssid.rigid_body.choose_rigid_body_modes`)."""
     test = next(t for t in rigid["tests"] if t["n_rigid_body_modes"] == n_rigid)
     f_line = rigid["lowest_line_rad_per_s"] / (2 * np.pi)
-    return (f"{n_rigid} rigid-body mode(s) (free-free structure): K is singular by design, its null space "
-            f"the rigid-body shapes, and C is zero on them; the {2 * n_rigid} roots nearest 0 "
+    return (f"{n_rigid} rigid-body mode(s): the {2 * n_rigid} roots nearest 0 "
             f"(|lambda| <= {max(test['roots_abs_rad_per_s']):.3g} rad/s, below the lowest line at "
-            f"{f_line:.4g} Hz) fit the data as well as rigid-body motion does, and are taken as such; "
-            "on a structure held to ground, a mode no input excites or a DOF without mass (which "
-            "the identified M cannot hold) shows the same way")
+            f"{f_line:.4g} Hz) fit the data as well as rigid-body motion does, and are taken as such: K is "
+            "singular, its null space the rigid-body shapes, and C is zero on them. That is a free-free "
+            "structure's; suspension modes far enough below the band that the noise hides their stiffness "
+            "(a structure on bungees or soft mounts) show the same way, and so, on a structure held to "
+            "ground, do a mode no input excites and a DOF without mass (which the identified M cannot hold)")
 
 
 def _real_roots_warning(real_roots: np.ndarray, m: int, n: int, n_rigid: int, rigid: dict) -> str:

@@ -181,6 +181,8 @@ class FakeResult:
         self.M, self.C, self.K = model.M, model.C, model.K
         self.dofs = dofs
         self.warnings = warnings
+        # What the model file's provenance takes from an SSIDResult.
+        self.band_hz, self.solver, self.damping = (5.0, 25.0), "ml", "identified"
 
     def to_model(self):
         from ssid.io import Model

@@ -21,7 +21,7 @@ __all__ = ["GAP_WITHIN_NOISE", "failed_check", "negligible_leader", "negligible_
 #: equal to the RMS of the measurement's errors in units of their stated standard
 #: deviations, 1 only if those were exact. They are estimates (each line's fit noise and the
 #: settling transient left): on the simulated lab's stepped-sine records that RMS against
-#: the simulated truth is 1.00 and 0.95 (the demo; the payload at 60-130 Hz, around its close
+#: the simulated truth is 0.975 and 0.95 (the demo; the payload at 60-130 Hz, around its close
 #: modes).
 GAP_WITHIN_NOISE = 1.2
 

@@ -377,7 +377,7 @@ def identify_mck(
         # then leaves the misfit where it was (the payload on its stand at 20-600 Hz).
         trial = load_cell_correction_trial(
             data, cells, frf_error,
-            lambda f: identify_mck(f, solver=solver, damping=damping, search_above_band=search_above_band,
+            lambda f: identify_mck(f, solver=solver, damping=requested, search_above_band=search_above_band,
                                    check_load_cells=False).checks["frf_relative_rms_error"])
         cells["correction_trial"] = trial
         explained = bool(trial and trial["explains"])

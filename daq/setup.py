@@ -18,6 +18,7 @@ import numpy as np
 
 from ssid.errors import InputError
 
+from .rms_limit import RMS_LIMIT_KEYS, refuse_rms_limits
 from .toml_table import TomlTable
 
 __all__ = [
@@ -137,6 +138,11 @@ class Limits:
     max_force_n: float = math.inf
     max_accel_m_per_s2: float = math.inf
     max_reaction_n: float = math.inf
+    # RMS over daq.rms_limit.RMS_WINDOW_S, random only: the largest sample of Gaussian drive
+    # grows with the record, so a peak limit alone trips by chance (docs/acquisition.md).
+    max_accel_rms_m_per_s2: float = math.inf
+    max_force_rms_n: float = math.inf
+    max_reaction_rms_n: float = math.inf
 
 
 @dataclass
@@ -317,8 +323,12 @@ def parse_setup(text: str, src: str = "setup") -> TestSetup:
         max_drive_vpp=lim.num("max_drive_vpp", 10.0, lo=0.002, hi=20.0),
         max_force_n=lim.num("max_force_n", math.inf, lo=0.0, lo_open=True),
         max_accel_m_per_s2=lim.num("max_accel_m_per_s2", math.inf, lo=0.0, lo_open=True),
-        max_reaction_n=lim.num("max_reaction_n", math.inf, lo=0.0, lo_open=True))
+        max_reaction_n=lim.num("max_reaction_n", math.inf, lo=0.0, lo_open=True),
+        # Zero, negative or NaN would trip at once or never: refused like the peak limits.
+        **{k: lim.num(k, math.inf, lo=0.0, lo_open=True) for k in RMS_LIMIT_KEYS})
     lim.done()
+    if excitation == "stepped_sine":
+        refuse_rms_limits(src, lim.data)
     qual = TomlTable(src, "[quality]", doc.get("quality", {}))
     min_coh = qual.num("min_coherence", 0.9, lo=0.0, hi=1.0)
     qual.done()

@@ -22,7 +22,9 @@ Every average adds to the spectral sums (``Gxx``, ``Gyx``, ``Gyy``), which are w
 the run file and committed with the FRF view; resume continues the averaging (periodic and
 burst realisations are seeded by their index, so a resumed run uses the same signals).
 A limit exceeded during random excitation stops the run (the drive is ramped to zero): the
-drive level of a random test is fixed, so the next average would exceed it again. A DAQ
+drive level of a random test is fixed, so the next average would exceed it again. Peak
+limits are checked on each piece's largest sample, RMS limits on each channel's RMS over
+the last ``daq.rms_limit.RMS_WINDOW_S`` of record (:class:`~daq.rms_limit.SlidingRms`). A DAQ
 over-range rejects the average it fell in (a clipped sample is not data), which is
 measured again (periodic and burst: the same realisation; continuous: a new record, the
 blocks before the clip kept); ``MAX_OVER_RANGE_IN_ROW`` in a row stop the run.
@@ -41,6 +43,7 @@ from .control import RunControl, RunEvents, hold_if_paused, raise_if_interrupted
 from .coupling import coupling_response, undo_coupling
 from .estimate import SpectralSums, coarse_peaks, frf_from_spectra, frf_quality, spectra_of_blocks, window_mu2
 from .rig import Rig
+from .rms_limit import SlidingRms
 from .safety import (
     MAX_OVER_RANGE_IN_ROW,
     RANDOM_LIMIT_STOP,
@@ -116,6 +119,10 @@ class RandomRun:
         self.setup, self.rig, self.rf, self.echo = setup, rig, runfile, echo
         self.control, self.events = control, events or RunEvents()
         self.peaks: np.ndarray | None = None  # largest |sample| per channel since the last commit
+        # The RMS limits' estimate (daq.rms_limit.RMS_WINDOW_S says why its window), and its
+        # largest value per channel since the last commit, for the limit_use event.
+        self.rms_window = SlidingRms(len(setup.channels), setup.daq.sample_rate_hz)
+        self.rms_max: np.ndarray | None = None
         self.spec = setup.random
         roles = setup.roles()
         self.fi = roles["force"]
@@ -160,7 +167,9 @@ class RandomRun:
             self.test_time_s += n / self.rig.fs_hz  # clipped scans were test time too
         peaks = np.max(np.abs(data), axis=1)
         self.peaks = peaks if self.peaks is None else np.maximum(self.peaks, peaks)
-        reason = check_limits(self.setup.limits, peaks, self.roles, self.spec.drive_vpp, self.rig.names)
+        rms = self.rms_window.add(data)
+        self.rms_max = rms if self.rms_max is None else np.maximum(self.rms_max, rms)
+        reason = check_limits(self.setup.limits, peaks, self.roles, self.spec.drive_vpp, self.rig.names, rms=rms)
         if reason:
             for j in range(len(self.fi)):
                 self.rig.drive_off(j)
@@ -234,14 +243,15 @@ class RandomRun:
         self.echo(f"  average {self.S.n_avg}/{self.spec.averages}  {coh}  [{self.test_time_s:.1f} s test time]")
         if self.events:
             self._spectrum_event(d)
-        self.peaks = None
+        self.peaks = self.rms_max = None
 
     #: At most this many bins go into a ``spectrum`` event (a terminal plot has fewer columns).
     EVENT_BINS = 400
 
     def _spectrum_event(self, d: dict) -> None:
         step = max(1, int(np.ceil(self.freq.size / self.EVENT_BINS)))
-        lim = {} if self.peaks is None else limit_usage(self.setup.limits, self.peaks, self.roles, self.spec.drive_vpp)
+        lim = {} if self.peaks is None else limit_usage(self.setup.limits, self.peaks, self.roles,
+                                                        self.spec.drive_vpp, rms=self.rms_max)
         self.events.emit("spectrum", n_avg=int(self.S.n_avg), averages=int(self.spec.averages),
                          freq_hz=self.freq[::step], H_abs=np.where(d["valid"], np.abs(d["H"]), np.nan)[::step],
                          coherence=d["coherence"][::step], limit_use=lim, test_time_s=self.test_time_s,

@@ -38,6 +38,7 @@ from drivers.errors import (
     StreamError,
 )
 
+from .rms_limit import RMS_WINDOW_S
 from .setup import Limits
 
 __all__ = ["MAX_OVER_RANGE_IN_ROW", "NOT_THE_SAME_INSTRUMENTS", "RANDOM_LIMIT_STOP", "LineAborted", "LineOverRange",
@@ -169,25 +170,36 @@ def resume_remedy(state: str | None, sim: bool) -> str | None:
 _LIMITED = (("response", "max_accel_m_per_s2", "m/s^2", "acceleration"),
             ("force", "max_force_n", "N", "force"),
             ("reaction", "max_reaction_n", "N", "reaction load"))
+#: The RMS limits (random excitation only, over ``RMS_WINDOW_S``), checked after the peaks:
+#: the peak limit is the backstop, and a record over both is named by its peak.
+_LIMITED_RMS = (("response", "max_accel_rms_m_per_s2", "m/s^2", "acceleration RMS"),
+                ("force", "max_force_rms_n", "N", "force RMS"),
+                ("reaction", "max_reaction_rms_n", "N", "reaction load RMS"))
 
 
 def check_limits(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]], drive_vpp: float,
-                 names: list[str], ranges: np.ndarray | None = None) -> str | None:
+                 names: list[str], ranges: np.ndarray | None = None, rms: np.ndarray | None = None) -> str | None:
     """The first limit exceeded by a record (``peaks``: largest |sample| per channel), or None.
 
     With ``ranges`` (each channel's DAQ input range in its unit) a channel above its range
-    counts as over a limit too: for predicted peaks (the DAQ flags measured ones itself)."""
+    counts as over a limit too: for predicted peaks (the DAQ flags measured ones itself).
+    With ``rms`` (each channel's RMS over the last :data:`~daq.rms_limit.RMS_WINDOW_S`, a
+    random run's) the RMS limits are checked too; without it they are not (stepped sine,
+    whose setup may not have them)."""
     if drive_vpp > limits.max_drive_vpp * (1 + 1e-9):
         return f"drive {drive_vpp:.4g} Vpp above the limit {limits.max_drive_vpp:g} Vpp"
-    for role, attr, unit, what in _LIMITED:
+    checks = [(peaks, t, "") for t in _LIMITED]
+    if rms is not None:
+        checks += [(rms, t, f" over the last {RMS_WINDOW_S:g} s") for t in _LIMITED_RMS]
+    for values, (role, attr, unit, what), over in checks:
         idx = roles.get(role, [])
         lim = getattr(limits, attr)
         if not idx or not np.isfinite(lim):
             continue
-        p = peaks[idx]
+        p = values[idx]
         k = int(np.argmax(p))
         if p[k] > lim:
-            return f"{what} {p[k]:.4g} {unit} on {names[idx[k]]!r} above the limit {lim:g} {unit}"
+            return f"{what} {p[k]:.4g} {unit}{over} on {names[idx[k]]!r} above the limit {lim:g} {unit}"
     if ranges is not None:
         k = int(np.argmax(peaks / ranges))
         if peaks[k] > ranges[k]:
@@ -218,17 +230,20 @@ def drive_headroom_vpp(limits: Limits, amplitudes: np.ndarray, roles: dict[str, 
     return drive_vpp * float(np.min(caps[live] / a[live])) if np.any(live) else math.inf
 
 
-def limit_usage(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]], drive_vpp: float) -> dict[str, float]:
+def limit_usage(limits: Limits, peaks: np.ndarray, roles: dict[str, list[int]], drive_vpp: float,
+                rms: np.ndarray | None = None) -> dict[str, float]:
     """How much of each limit a record used: largest peak / limit per kind (1.0 = at the limit).
 
-    Keys ``drive``, ``acceleration``, ``force``, ``reaction load``; a kind without channels
-    or without a finite limit is left out. What an engineer watches to see a line coming
-    close to a limit before it aborts.
+    Keys ``drive``, ``acceleration``, ``force``, ``reaction load``, and with ``rms`` (each
+    channel's largest RMS over the window, a random run's) ``acceleration RMS``, ``force
+    RMS``, ``reaction load RMS``; a kind without channels or without a finite limit is left
+    out. What an engineer watches to see a line coming close to a limit before it aborts.
     """
     used = {"drive": float(drive_vpp / limits.max_drive_vpp)}
-    for role, attr, _unit, what in _LIMITED:
+    kinds = [(peaks, t) for t in _LIMITED] + ([(rms, t) for t in _LIMITED_RMS] if rms is not None else [])
+    for values, (role, attr, _unit, what) in kinds:
         idx = roles.get(role, [])
         lim = getattr(limits, attr)
         if idx and np.isfinite(lim) and lim > 0:
-            used[what] = float(np.max(np.asarray(peaks)[idx]) / lim)
+            used[what] = float(np.max(np.asarray(values)[idx]) / lim)
     return used

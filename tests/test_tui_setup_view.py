@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from daq.setup import load_setup
+from test_daq_helpers import random_setup
+
+from daq.setup import load_setup, parse_setup
 from tui.setup_view import (
     channel_options,
     channel_rows,
@@ -51,3 +53,9 @@ def test_same_pair_passes_a_channel_on_by_its_dofs():
     assert pair_options(["a", "b"], ["a"]) == [("a / a", (0, 0)), ("b / a", (1, 0))]
     assert same_pair((1, 0), ["a", "b"], ["a"], ["b", "a"], ["a"]) == (0, 0)
     assert same_pair((1, 0), ["a", "b"], ["a"], ["a"], ["a"]) is None  # "b" not there
+
+
+def test_the_setup_tab_shows_rms_limits_when_set():
+    lim = describe_setup(parse_setup(random_setup(kind="random") + "[limits]\nmax_accel_rms_m_per_s2 = 2.5\n"))
+    assert "reaction inf N; RMS accel 2.5 m/s2; min coherence" in lim.splitlines()[2]
+    assert "RMS" not in describe_setup(load_setup(SETUP))  # none set: the line as before

@@ -6,6 +6,8 @@ kept out of the app so that the widgets only place them.
 
 from __future__ import annotations
 
+import math
+
 __all__ = ["channel_options", "channel_rows", "checked_instrument_rows", "configured_instrument_rows",
            "describe_setup", "instruments_in_use_rows", "pair_options", "same_pair"]
 
@@ -26,9 +28,14 @@ def describe_setup(setup) -> str:
         exc = (f"random ({r.kind}) {r.f_min_hz:g}-{r.f_max_hz:g} Hz, block {r.block_size}, "
                f"{r.averages} averages, {r.window}, {r.estimator}, drive {r.drive_vpp:g} Vpp")
     lim = setup.limits
+    # RMS limits (random only) are shown when set: most setups have none, and "inf" thrice
+    # more would crowd the line.
+    rms = [f"{what} {v:g} {unit}" for what, v, unit in (
+        ("accel", lim.max_accel_rms_m_per_s2, "m/s2"), ("force", lim.max_force_rms_n, "N"),
+        ("reaction", lim.max_reaction_rms_n, "N")) if math.isfinite(v)]
     return (f"{head}\n{exc}\nlimits: drive {lim.max_drive_vpp:g} Vpp, force {lim.max_force_n:g} N, "
-            f"accel {lim.max_accel_m_per_s2:g} m/s2, reaction {lim.max_reaction_n:g} N; "
-            f"min coherence {setup.min_coherence:g}")
+            f"accel {lim.max_accel_m_per_s2:g} m/s2, reaction {lim.max_reaction_n:g} N"
+            + (f"; RMS {', '.join(rms)}" if rms else "") + f"; min coherence {setup.min_coherence:g}")
 
 
 def channel_rows(setup) -> list[tuple[str, ...]]:

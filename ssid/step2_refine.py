@@ -43,23 +43,36 @@ def _unpack(x: np.ndarray, n: int, scale: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def _receptance(M: np.ndarray, C: np.ndarray, K: np.ndarray, omega: np.ndarray,
-                inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                loads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``G = Z^-1`` (l, n, n) and ``X = G F`` (l, n, n_in) at the lines ``omega``, with
-    ``Z = K + i w C - w^2 M`` and ``F`` the unit forces at the input DOFs."""
+    ``Z = K + i w C - w^2 M`` and ``F = loads`` (l, n, n_in) the forces each input applied."""
     w = omega[:, None, None]
     G = np.linalg.inv(K[None] + 1j * w * C[None] - w**2 * M[None])
-    return G, G[:, :, inputs]
+    return G, G @ loads
 
 
-def _weighted_residual(frf: FRFData, weight: np.ndarray, inputs: np.ndarray,
+def test_loads(frf: FRFData) -> np.ndarray:
+    """The forces (n_freq, n_out, n_in) each input of ``frf`` applied over its outputs: the unit
+    force at the input's DOF, plus the measured reactions at their DOFs (taken as known loads,
+    Eq. 3.6; the reaction DOFs are among the outputs)."""
+    outs = list(frf.outputs)
+    F = np.zeros((frf.n_freq, len(outs), frf.n_in), dtype=complex)
+    F[:, [outs.index(d) for d in frf.inputs], np.arange(frf.n_in)] = 1.0
+    if frf.n_react:
+        for m, lbl in enumerate(frf.reactions):
+            F[:, outs.index(lbl), :] += frf.H_reaction[:, m, :]
+    return F
+
+
+def _weighted_residual(frf: FRFData, weight: np.ndarray, loads: np.ndarray,
                        M: np.ndarray, C: np.ndarray, K: np.ndarray) -> np.ndarray:
     """``w (H_model - H)`` over all lines, (L, n, n_in); 0 where ``w`` is."""
-    _, X = _receptance(M, C, K, frf.omega, inputs)
+    _, X = _receptance(M, C, K, frf.omega, loads)
     Hm = -(frf.omega[:, None, None] ** 2) * X
     return np.where(weight > 0, weight * (Hm - np.where(weight > 0, frf.H, 0.0)), 0.0)
 
 
-def _normal_equations(frf: FRFData, weight: np.ndarray, inputs: np.ndarray, M: np.ndarray, C: np.ndarray,
+def _normal_equations(frf: FRFData, weight: np.ndarray, loads: np.ndarray, M: np.ndarray, C: np.ndarray,
                       K: np.ndarray, scale: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(Re J^H J, Re J^H r)`` of the weighted residual ``r`` in the scaled upper triangles.
 
@@ -72,7 +85,7 @@ def _normal_equations(frf: FRFData, weight: np.ndarray, inputs: np.ndarray, M: n
     products, against (3 n(n+1)/2)^2 per value for the Jacobian itself (measured: a tenth of
     the time on 16 DOFs, 512 lines and three inputs, the same matrix to 2e-16).
     """
-    n, n_in = M.shape[0], inputs.size
+    n, n_in = M.shape[0], loads.shape[2]
     i, j = np.triu_indices(n)
     off = i != j
     A = np.zeros((5, n * n, n * n), dtype=complex)  # sum_l w^(4+k) T_l, k = 0..4, as [(i,k), (j,l)]
@@ -82,7 +95,7 @@ def _normal_equations(frf: FRFData, weight: np.ndarray, inputs: np.ndarray, M: n
     for s in range(0, frf.omega.size, step):
         sl = slice(s, s + step)
         omega = frf.omega[sl]
-        G, X = _receptance(M, C, K, omega, inputs)
+        G, X = _receptance(M, C, K, omega, loads[sl])
         v = weight[sl]  # (l, n, n_in)
         # Q[l, b, i, k] = sum_a conj(G[a, i]) v[a, b]^2 G[a, k]
         Q = np.einsum("lai,lab,lak->lbik", G.conj(), v**2, G, optimize=True).reshape(-1, n * n)
@@ -152,21 +165,19 @@ def refine_mck_output_error(
     (M, C, K, info) with ``info`` holding ``cost_start``, ``cost`` and ``iterations`` (the
     steps accepted).
     """
-    if frf.n_react:
-        raise ValueError("the output-error refinement of M, C, K takes FRFs without reactions")
     n = M.shape[0]
-    inputs = np.array([list(frf.outputs).index(dof) for dof in frf.inputs])
+    loads = test_loads(frf)
     # One scale per matrix, so that the unknowns are O(1) and the Levenberg-Marquardt damping
     # (relative to the normal matrix's diagonal) treats M, C and K alike.
     scale = np.array([max(float(np.abs(A).max()), np.finfo(float).tiny) for A in (M, C, K)])
     iu = np.triu_indices(n)
     x = np.concatenate([M[iu] / scale[0], C[iu] / scale[1], K[iu] / scale[2]])
     mck = (M, C, K)
-    r = _weighted_residual(frf, weight, inputs, *mck)
+    r = _weighted_residual(frf, weight, loads, *mck)
     cost = cost0 = float(np.sum(np.abs(r) ** 2))
     mu, steps = 1e-6, 0
     for _ in range(max_iter):
-        N, g = _normal_equations(frf, weight, inputs, *mck, scale, r)
+        N, g = _normal_equations(frf, weight, loads, *mck, scale, r)
         accepted = False
         for _ in range(10):
             try:
@@ -177,7 +188,7 @@ def refine_mck_output_error(
             mck_try = _unpack(x_try, n, scale)
             with np.errstate(all="ignore"):
                 try:
-                    r_try = _weighted_residual(frf, weight, inputs, *mck_try)
+                    r_try = _weighted_residual(frf, weight, loads, *mck_try)
                 except np.linalg.LinAlgError:  # a singular Z at a line: not a better model
                     mu *= 10
                     continue

@@ -87,8 +87,11 @@ def test_a_written_model_at_the_noise_level_is_not_refined():
     assert "output_error_refinement" not in r.info and r.damping != "output_error"
 
 
-def test_refinement_refuses_reactions():
+def test_refinement_applies_the_reactions_as_known_loads():
+    # On a stand the model's response is to the unit force plus the measured reactions
+    # (ssid.reaction_fit uses it so): from a perturbed start it returns the true model.
     M, C, K, dofs, f = damped_chain(3, seed=1)
     frf = frf_on_test_stand(M, C, K, dofs, [dofs[0]], [dofs[-1]], f)
-    with pytest.raises(ValueError, match="without reactions"):
-        refine_mck_output_error(frf, M, C, K, np.ones(frf.H.shape))
+    Mx, Cx, Kx, info = refine_mck_output_error(frf, 1.01 * M, 0.98 * C, 0.99 * K, np.ones(frf.H.shape))
+    assert info["cost"] < 1e-12 * info["cost_start"]
+    assert rel(Mx, M) < 1e-9 and rel(Kx, K) < 1e-9 and rel(Cx, C) < 1e-9

@@ -26,18 +26,20 @@ from .fit_checks import (
 from .frf import FRFData, requested_band, require_frequency_dependence, require_response
 from .load_cells import correction_trial_text, load_cell_check, load_cell_correction_trial, load_cell_warning
 from .modal import (
+    complex_modes,
     modal_phase_collinearity,
     physical_checks,
     root_frequency_damping,
     unit_max_shapes,
 )
 from .noise import data_noise_weights, frf_noise_weights
+from .reaction_fit import refit_where_reactions_undetermined
 from .reciprocity import reciprocity_check
 from .result import SSIDResult, model_accelerance, model_frf_errors, model_output_error
 from .solvers import power_of_two_near
 from .step1 import Step1Data, Step1Estimate, estimate_equation_error, step1_data
 from .step1_ml import step1_maximum_likelihood
-from .step1_reaction_spread import undetermined_reactions_warning
+from .step1_reaction_spread import reaction_fit_note, undetermined_reactions_warning
 from .step1_refine import output_error_cost
 from .written_model import (
     STEP1_DAMPING_MISMATCH_MAX,
@@ -325,17 +327,28 @@ def identify_mck(
     n_rigid = modes.n_rigid
 
     m = modes.n_pairs
-    wn, zeta = root_frequency_damping(modes.lam[:m])
-    shapes = unit_max_shapes(modes.theta_x[:, :m])
+    lam, theta, real_roots = modes.lam[:m], modes.theta_x[:, :m], modes.lam[2 * m :].real
+    w = data_noise_weights(data)  # one estimate for the damping choice and the fit checks
+    refit = None
+    # A reaction step 1 cannot determine puts its error in M, C, K (QA's soft stand: M 240 % off);
+    # fitted in physical coordinates, where D_r is known, 0.03 % (ssid.reaction_fit). Its roots
+    # and shapes are then the model's own, and step 2's rigid-body or real roots are gone.
+    if undetermined and damping == "auto" and (refit := refit_where_reactions_undetermined(data, M, C, K, w)):
+        info["reaction_fit"] = refit[3]
+        warnings[warnings.index(undetermined)] = undetermined + reaction_fit_note(refit[3])
+        if refit[3]["accepted"]:
+            M, C, K = refit[:3]
+            lam, theta = complex_modes(M, C, K)
+            n_rigid, real_roots = 0, np.zeros(0)
+    wn, zeta = root_frequency_damping(lam)
+    shapes = unit_max_shapes(theta)
     mpc = modal_phase_collinearity(shapes)
-    real_roots = modes.lam[2 * m :].real
     if n_rigid:
         warnings.append(_rigid_body_note(n_rigid, rigid))
     if real_roots.size:
         warnings.append(_real_roots_warning(real_roots, m, d.n, n_rigid, rigid))
 
     undamped, phi = undamped_modes(M, K, n_rigid)
-    w = data_noise_weights(data)  # one estimate for the damping choice and the fit checks
     # The modal C takes the ratios in the order of eig(K, M), whose first r are rigid (0 Hz).
     zeta_all = np.concatenate([np.zeros(n_rigid), zeta])
     # M C^ is the written model's C only where the written M is that of step 1's system: the
@@ -345,8 +358,13 @@ def identify_mck(
     one_system = asm.get("mass_copies_mismatch", np.inf) < STEP1_DAMPING_MISMATCH_MAX
     C_step1 = M @ written_from.C_hat if one_system and not n_rigid else None
     requested = damping
-    C, damping, info["damping_choice"] = choose_damping(data, M, C, K, zeta_all, damping,
-                                                        phi is not None, w, C_step1)
+    if refit and refit[3]["accepted"]:  # C is the fit's own: the one that reproduces the data
+        damping = "output_error"
+        info["damping_choice"] = {"weighted_output_error": {damping: refit[3]["cost"]}, "chosen": damping,
+                                  "frf_relative_rms_error": {damping: refit[3]["frf_relative_rms_error"]}}
+    else:
+        C, damping, info["damping_choice"] = choose_damping(data, M, C, K, zeta_all, damping,
+                                                            phi is not None, w, C_step1)
     frf_error = info["damping_choice"]["frf_relative_rms_error"][damping]
     noise = relative_noise_level(data, w)
     band = (float(data.freq_hz[0]), float(data.freq_hz[-1]))

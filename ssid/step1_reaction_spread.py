@@ -140,3 +140,15 @@ def undetermined_reactions_warning(frf: FRFData, d: Step1Data, est: Step1Estimat
             f"Cramer-Rao spread is up to {100 * worst:.0f} % of its size, limit "
             f"{100 * REACTION_SPREAD_MAX:.0f} %): {cause}. The error lands in M, C, K and in the "
             "damping at those DOFs; measuring higher in frequency does not help"), info
+
+
+def reaction_fit_note(fit: dict) -> str:
+    """What :func:`ssid.reaction_fit.refit_where_reactions_undetermined` made of it (``fit``, its
+    info), to follow the warning of :func:`undetermined_reactions_warning`."""
+    said = (f". Step 2's model reproduces the FRFs to {100 * fit['frf_relative_rms_error_start']:.3g} %; refitted "
+            "in physical coordinates (where D_r is known), with the measured reactions as known loads and "
+            "their noise weighted (output error), M, C, K reproduce them to "
+            f"{100 * fit['frf_relative_rms_error']:.3g} %")
+    if fit["accepted"]:
+        return f"{said} and are the model written (info['reaction_fit'])"
+    return f"{said} but are not written (not physical, or not closer to the data)"

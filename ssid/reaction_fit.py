@@ -149,5 +149,5 @@ def refit_where_reactions_undetermined(frf: FRFData, M: np.ndarray, C: np.ndarra
     cost_start, err_start = model_frf_errors(frf, M, C, K, weight)
     physical = definiteness_problems(Mx, Kx) == 0 and semi_definite(Cx)
     info.update(cost_start=cost_start, frf_relative_rms_error_start=err_start, cost=cost,
-                frf_relative_rms_error=err, accepted=bool(physical and cost < cost_start))
+                frf_relative_rms_error=err, physical=bool(physical), accepted=bool(physical and cost < cost_start))
     return Mx, Cx, Kx, info

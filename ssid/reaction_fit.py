@@ -18,7 +18,7 @@ import numpy as np
 from .frf import FRFData
 from .result import model_frf_errors
 from .rigid_body import definiteness_problems, semi_definite
-from .step2_refine import refine_mck_output_error, test_loads
+from .step2_refine import loads_on_outputs, refine_mck_output_error
 
 __all__ = ["equation_error_mck", "eiv_weights", "fit_mck_with_reactions", "refit_where_reactions_undetermined"]
 
@@ -57,16 +57,12 @@ def equation_error_mck(frf: FRFData, weight: np.ndarray, start: tuple | None = N
     """
     n = frf.n_out
     omega = frf.omega
-    var_h, var_r = _variances(frf, weight)
+    var_h, _ = _variances(frf, weight)
     ok = np.all(np.isfinite(var_h), axis=1)  # (L, n_in): a column with a blanked value is left out
     x = np.where(np.isfinite(var_h), -np.nan_to_num(frf.H) / omega[:, None, None] ** 2, 0.0)
     var_x = np.where(np.isfinite(var_h), var_h, 0.0) / omega[:, None, None] ** 4
-    F = test_loads(frf)
-    var_F = np.zeros(F.shape)
-    if var_r is not None:
-        outs = list(frf.outputs)
-        for m, lbl in enumerate(frf.reactions):
-            var_F[:, outs.index(lbl), :] += var_r[:, m, :]
+    F, var_F = loads_on_outputs(frf)
+    var_F = np.zeros(F.shape) if var_F is None else var_F
     A = _unknown_columns(x, omega)  # (L, n, n_in, 3P)
     i, j = np.triu_indices(n)
     P = i.size

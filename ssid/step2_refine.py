@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .frf import FRFData
+from .frf import FRFData, applied_loads
 from .step1_refine import _solve_scaled
 
 __all__ = ["refine_mck_output_error"]
@@ -51,17 +51,20 @@ def _receptance(M: np.ndarray, C: np.ndarray, K: np.ndarray, omega: np.ndarray,
     return G, G @ loads
 
 
-def test_loads(frf: FRFData) -> np.ndarray:
-    """The forces (n_freq, n_out, n_in) each input of ``frf`` applied over its outputs: the unit
-    force at the input's DOF, plus the measured reactions at their DOFs (taken as known loads,
-    Eq. 3.6; the reaction DOFs are among the outputs)."""
-    outs = list(frf.outputs)
-    F = np.zeros((frf.n_freq, len(outs), frf.n_in), dtype=complex)
-    F[:, [outs.index(d) for d in frf.inputs], np.arange(frf.n_in)] = 1.0
-    if frf.n_react:
-        for m, lbl in enumerate(frf.reactions):
-            F[:, outs.index(lbl), :] += frf.H_reaction[:, m, :]
-    return F
+def loads_on_outputs(frf: FRFData) -> tuple[np.ndarray, np.ndarray | None]:
+    """The forces (n_freq, n_out, n_in) each input of ``frf`` applied over its outputs, and
+    their variances (or None): :func:`ssid.frf.applied_loads` (the unit force at the input's
+    DOF, plus the measured reactions at their DOFs, taken as known loads, Eq. 3.6) placed at
+    the outputs, among which the load DOFs are."""
+    loads = applied_loads(frf)
+    rows = [list(frf.outputs).index(d) for d in loads.dofs]
+    F = np.zeros((frf.n_freq, frf.n_out, frf.n_in), dtype=complex)
+    F[:, rows, :] = loads.T
+    if loads.var is None:
+        return F, None
+    var = np.zeros(F.shape)
+    var[:, rows, :] = loads.var
+    return F, var
 
 
 def _weighted_residual(frf: FRFData, weight: np.ndarray, loads: np.ndarray,
@@ -166,7 +169,7 @@ def refine_mck_output_error(
     steps accepted).
     """
     n = M.shape[0]
-    loads = test_loads(frf)
+    loads = loads_on_outputs(frf)[0]
     # One scale per matrix, so that the unknowns are O(1) and the Levenberg-Marquardt damping
     # (relative to the normal matrix's diagonal) treats M, C and K alike.
     scale = np.array([max(float(np.abs(A).max()), np.finfo(float).tiny) for A in (M, C, K)])

@@ -29,7 +29,7 @@ import numpy as np
 
 from .errors import IdentificationError
 from .frf import FRFData
-from .noise import frf_noise_weights
+from .noise import frf_noise_weights, variance_of_weight, weight_of_variance
 from .step1 import Step1Data, Step1Estimate, step1_regressors
 
 __all__ = ["FACTOR_RTOL_FLOOR", "SIGMA_UNDERSTATED", "TRIAL_EXPLAINS", "Z_SUSPECT", "correction_trial_text",
@@ -80,7 +80,7 @@ def _row_covariances(frf: FRFData, d: Step1Data, est: Step1Estimate, rows: list[
     Z = step1_regressors(d, d.H)  # (L, n_in, p)
     X = est.to_x()
     w = frf_noise_weights(frf)
-    var_h = None if w is None else np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0) ** 2, 0.0)
+    var_h = None if w is None else variance_of_weight(w)
     var_r = None if frf.H_reaction_var is None else np.asarray(frf.H_reaction_var, dtype=float)
     omega = d.omega[:, None]
     out = {}
@@ -93,7 +93,7 @@ def _row_covariances(frf: FRFData, d: Step1Data, est: Step1Estimate, rows: list[
             if var_r is not None:
                 var = var + np.einsum("l,klj->kj", est.Dr_hat[i] ** 2, var_r)
         ok = d.col_ok & (d.weight[:, i, :] > 0) & (var > 0)
-        wi = np.where(ok, 1.0 / np.sqrt(np.where(ok, var, 1.0)), 0.0)
+        wi = np.where(ok, weight_of_variance(var), 0.0)
         A = (wi[:, :, None] * Z).reshape(-1, Z.shape[2])
         A = np.concatenate([A.real, A.imag])
         reduced = float(np.sum(np.abs(wi * (h + Z @ X[i])) ** 2)) / max(A.shape[0] - A.shape[1], 1)

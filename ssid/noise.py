@@ -17,7 +17,7 @@ from .frf import FRFData
 from .solvers import power_of_two_near
 
 __all__ = ["add_report_noise", "data_noise_weights", "difference_flat_levels", "fit_additive_proportional",
-           "frf_noise_weights", "report_noise_frf", "roughness_weights"]
+           "frf_noise_weights", "report_noise_frf", "roughness_weights", "variance_of_weight", "weight_of_variance"]
 
 #: A flat level below this fraction of the differences' median-based level is taken as not
 #: determined by them (:func:`difference_flat_levels`).
@@ -107,6 +107,21 @@ def report_noise_frf(frf: FRFData, seed: int, n_avg: int = 40, mag_noise: float 
         H_reaction_var=var_r if with_variance else None,
         n_avg=n_avg,
     )
+
+
+def variance_of_weight(weight: np.ndarray, absent: float = 0.0) -> np.ndarray:
+    """The variance ``1 / w^2`` a weight ``w = 1/sigma`` stands for, element-wise; ``absent``
+    where ``w`` is 0 (a value the fit does not use: 0 to leave it out of a sum, inf to say
+    it is not known)."""
+    w = np.asarray(weight, dtype=float)
+    return np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0) ** 2, absent)
+
+
+def weight_of_variance(var: np.ndarray) -> np.ndarray:
+    """The weight ``1/sigma`` of a variance, element-wise; 0 where the variance is not positive
+    (a value with no stated noise: not weighted)."""
+    v = np.asarray(var, dtype=float)
+    return np.where(v > 0, 1.0 / np.sqrt(np.where(v > 0, v, 1.0)), 0.0)
 
 
 def frf_noise_weights(frf: FRFData, floor: float = 1e-6) -> np.ndarray | None:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .frf import FRFData
+from .noise import variance_of_weight
 from .result import model_frf_errors
 from .rigid_body import definiteness_problems, semi_definite
 from .step2_refine import loads_on_outputs, refine_mck_output_error
@@ -40,8 +41,7 @@ def _unknown_columns(x: np.ndarray, omega: np.ndarray) -> np.ndarray:
 
 def _variances(frf: FRFData, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """Variance of each accelerance (inf where ``weight`` is 0) and of each reaction (or None)."""
-    with np.errstate(divide="ignore"):
-        var_h = np.where(weight > 0, 1.0 / np.where(weight > 0, weight, 1.0) ** 2, np.inf)
+    var_h = variance_of_weight(weight, absent=np.inf)
     var_r = None if frf.H_reaction_var is None else np.asarray(frf.H_reaction_var, float)
     return var_h, var_r
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .frf import FRFData
+from .noise import weight_of_variance
 from .step1 import Step1Data, Step1Estimate, _equation_weights, _line_blocks, step1_data, step1_regressors
 from .step1_refine import _NormalEquations, errors_in_variables_cost
 
@@ -78,7 +79,7 @@ def reaction_spread(frf: FRFData, d: Step1Data, est: Step1Estimate) -> np.ndarra
     if frf.H_var is not None and frf.H_reaction_var is not None:
         var = np.where(frf.valid_mask(), np.nan_to_num(frf.H_var, nan=0.0), 0.0)
         with np.errstate(divide="ignore"):
-            w = np.where(var > 0, 1.0 / np.sqrt(np.where(var > 0, var, 1.0)), 0.0)
+            w = weight_of_variance(var)
             w_r = 1.0 / np.sqrt(np.asarray(frf.H_reaction_var, float))
         dd = step1_data(frf, w, w_r)
         scale = 1.0

@@ -27,6 +27,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .errors import IdentificationError
+from .noise import variance_of_weight
 from .step1 import (
     Step1Data,
     Step1Estimate,
@@ -212,7 +213,7 @@ def refine_line_weighted(
     """
     best = est = est0
     best_cost = cost0 = output_error_cost(d, est0)
-    var = np.where(d.weight > 0, 1.0 / np.where(d.weight > 0, d.weight, 1.0) ** 2, 0.0)
+    var = variance_of_weight(d.weight)
     it = 0
     w2 = (d.omega**2)[:, None]
     for it in range(1, max_iter + 1):

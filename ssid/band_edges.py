@@ -209,6 +209,18 @@ def distance_to_nearest_line(line_freq_hz: np.ndarray, freq_hz) -> np.ndarray:
 LOW_EDGE_BAND_FACTOR = 1.5
 
 
+def _record_span(bands_hz: list[tuple[float, float]], line_freq_hz: np.ndarray
+                 ) -> tuple[np.ndarray, float, float, float] | None:
+    """The record's lines, first and last line (Hz) and the round-off that counts as at an
+    edge, for :func:`low_edge_band` and :func:`high_edge_band`; None with fewer than two
+    lines or no bands."""
+    lines = np.asarray(line_freq_hz, dtype=float)
+    if lines.size < 2 or not bands_hz:
+        return None
+    f0, f_end = float(lines[0]), float(lines[-1])
+    return lines, f0, f_end, 1e-9 * (f_end - f0)
+
+
 def low_edge_band(bands_hz: list[tuple[float, float]],
                   line_freq_hz: np.ndarray) -> tuple[float, float] | None:
     """A third band at the record's low edge, for roots narrower than the line spacing there.
@@ -230,11 +242,10 @@ def low_edge_band(bands_hz: list[tuple[float, float]],
     (lo, hi) in Hz, or None when no band starts at the first line or one already spans
     the record up to that width.
     """
-    lines = np.asarray(line_freq_hz, dtype=float)
-    if lines.size < 2 or not bands_hz:
+    record = _record_span(bands_hz, line_freq_hz)
+    if record is None:
         return None
-    f0, f_end = float(lines[0]), float(lines[-1])
-    tiny = 1e-9 * (f_end - f0)
+    _, f0, f_end, tiny = record
     first = [hi - lo for lo, hi in bands_hz if lo <= f0 + tiny]
     if not first:
         return None
@@ -267,11 +278,10 @@ def high_edge_band(bands_hz: list[tuple[float, float]],
     (lo, hi) in Hz, or None when no band ends at the last line or one already spans the
     record down to that many lines.
     """
-    lines = np.asarray(line_freq_hz, dtype=float)
-    if lines.size < 2 or not bands_hz:
+    record = _record_span(bands_hz, line_freq_hz)
+    if record is None:
         return None
-    f0, f_end = float(lines[0]), float(lines[-1])
-    tiny = 1e-9 * (f_end - f0)
+    lines, f0, f_end, tiny = record
     last = [int(np.count_nonzero((lines >= lo - tiny) & (lines <= hi + tiny)))
             for lo, hi in bands_hz if hi >= f_end - tiny]
     if not last:
